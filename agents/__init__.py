@@ -1,0 +1,4 @@
+"""agents: one agent per assembly (perception, local estimator, protocol participant) and module
+agents. Depends on ``decentral`` and ``protocols``; never reads ground truth."""
+
+__all__: list[str] = []

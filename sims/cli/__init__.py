@@ -1,0 +1,3 @@
+"""The ``decentral`` command line: one module per subcommand, dispatched by :mod:`sims.cli.main`."""
+
+__all__: list[str] = []

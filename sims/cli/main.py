@@ -1,0 +1,69 @@
+"""Entry point of the ``decentral`` console script.
+
+Each subcommand lives in its own module under :mod:`sims.cli` and exposes ``HELP`` (one line),
+``add_arguments(parser)`` and ``run(args) -> int``. The registry below is explicit (a test checks it
+against the files on disk). Known errors (:class:`decentral.DecentralError`) become one line on
+stderr and exit status 2; nothing else is printed, and no traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+
+from decentral.errors import DecentralError
+
+__all__ = ["COMMANDS", "build_parser", "main"]
+
+#: subcommand name -> module implementing it (imported lazily, so ``decentral --help`` stays fast)
+COMMANDS: dict[str, str] = {
+    "localize": "sims.cli.localize",
+}
+
+EXIT_BAD_INPUT = 2
+EXIT_INTERNAL = 1
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Return the top-level parser with every registered subcommand attached."""
+    parser = argparse.ArgumentParser(
+        prog="decentral",
+        description="Decentralized multi-observer relative localization for modular robots.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, module_name in COMMANDS.items():
+        module = importlib.import_module(module_name)
+        cmd = sub.add_parser(name, help=module.HELP, description=module.HELP)
+        module.add_arguments(cmd)
+        cmd.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Parse ``argv``, run the subcommand and return its exit status (also used as the script)."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        status = args._run(args)
+    except DecentralError as err:
+        print(f"decentral {args.command}: error: {err}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print(f"decentral {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as err:  # a bug, not bad input: say so in one line unless debugging
+        if os.environ.get("DECENTRAL_DEBUG"):
+            raise
+        print(
+            f"decentral {args.command}: internal error: {type(err).__name__}: {err} "
+            "(set DECENTRAL_DEBUG=1 for a traceback)",
+            file=sys.stderr,
+        )
+        return EXIT_INTERNAL
+    return int(status or 0)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
