@@ -1,4 +1,41 @@
 """protocols: messages and their wire encoding, the simulated lossy network, transports, and the
 consensus and aggregation protocols that agents run over them. Depends only on ``decentral``."""
 
-__all__: list[str] = []
+from protocols.consensus import GatherResult, RoundGather, exchange_round
+from protocols.messages import (
+    BROADCAST,
+    AdmmDual,
+    AdmmPrimal,
+    Heartbeat,
+    Message,
+    PoseEstimates,
+    Tracks,
+    decode,
+    register,
+)
+from protocols.network import Crash, LinkConfig, NetworkConfig, Partition, SimulatedNetwork
+from protocols.transport import Counts, Delivery, Transport, TransportStats
+
+__all__ = [
+    "BROADCAST",
+    "Message",
+    "register",
+    "decode",
+    "Tracks",
+    "PoseEstimates",
+    "AdmmPrimal",
+    "AdmmDual",
+    "Heartbeat",
+    "Transport",
+    "Delivery",
+    "Counts",
+    "TransportStats",
+    "LinkConfig",
+    "Partition",
+    "Crash",
+    "NetworkConfig",
+    "SimulatedNetwork",
+    "RoundGather",
+    "GatherResult",
+    "exchange_round",
+]
