@@ -6,19 +6,29 @@ Given the window's xy quadratic form ``M`` over ``[P_xy | R2_1..R2_m]`` (:mod:`d
    eq. (14)): ``Q = M_RR - M_pR^T M_pp^+ M_pR``;
 2. the rotations solve the relaxation ``min tr(Q Z)`` over ``Z ⪰ 0`` with identity 2x2 diagonal
    blocks (eq. (15a)-(15b); eq. (15c) reduces the 3x3 blocks to their free 2x2 parts exactly, since
-   the fixed z entries only add a constant);
+   the fixed z entries only add a constant). We add one more convex constraint that every pair of
+   yaw rotations satisfies: each free block ``Z_ij = R_i^T R_j`` commutes with rotations, i.e. has the
+   form ``[[c, -s], [s, c]]``. Without it the relaxation is one of O(2), not SO(2), and it is not tight
+   whenever a mirror image of the scene fits (a straight-line assembly moving along its axis is
+   enough: measured in ``tests/decentral/test_relaxation.py``). With it the relaxation is the
+   Hermitian one, ``min Re tr(W Z)`` over ``Z ⪰ 0`` complex with unit diagonal, where
+   ``W_ij = tr(Q_ij) + i (Q_ij[0,1] - Q_ij[1,0])``;
 3. the solution is rounded to SO(2) per block (eq. (16)-(17)) and positions follow in closed form
    (eq. (18)).
 
 Two solvers give the same optimum:
 
-* :class:`SdpSolver` — the reference: the dual SDP ``max tr(Λ)`` s.t. ``Q - blkdiag(Λ) ⪰ 0``
+* :class:`SdpSolver` — the reference: the dual SDP ``max sum(λ)`` s.t. ``W - diag(λ) ⪰ 0``
   built once per size in cvxpy over a :class:`cvxpy.Parameter` and re-solved with Clarabel (its
   chordal decomposition is what makes the dual form fast, see FINDINGS); ``Z`` is the dual of
   the PSD constraint.
 * :func:`solve_low_rank` — Burer-Monteiro at rank 2 restricted to rotations [1]_: a globalized
-  Newton method on the angles, followed by the optimality certificate of SE-Sync [1]_
-  ``S = Q - SymBlockDiag(Q Y^T Y) ⪰ 0``; when the certificate fails it falls back to the SDP.
+  Newton method on the angles, followed by the optimality certificate
+  ``S = W - Diag(Re(conj(z) ∘ W z)) ⪰ 0`` (SE-Sync's ``Q - SymBlockDiag(Q Y^T Y)`` in Hermitian form);
+  when the certificate fails it falls back to the SDP.
+* :func:`solve_literal_primal` — seed 000's P3 exactly as printed (3m x 3m primal, O(2) blocks),
+  the naive reference of the window benchmark. :func:`certificate_o2` tells whether that weaker
+  relaxation is tight at a given solution.
 
 References
 ----------
@@ -42,6 +52,7 @@ __all__ = [
     "reduce_rotations",
     "recover_positions",
     "certificate",
+    "certificate_o2",
     "round_gram",
     "solve_low_rank",
     "SdpSolver",
@@ -132,11 +143,23 @@ def _stack(theta: np.ndarray) -> np.ndarray:
 
 
 def certificate(Q: np.ndarray, theta: np.ndarray) -> float:
-    """Smallest eigenvalue of ``S = Q - SymBlockDiag(Q Y^T Y)`` at the rotations ``theta``.
+    """Smallest eigenvalue of the certificate ``S = W - Diag(Re(conj(z) ∘ W z))`` at ``theta``.
 
-    ``S ⪰ 0`` (with ``S Y^T = 0`` at a critical point) proves ``Y^T Y`` optimal for the relaxation
-    (SE-Sync [1]_ Theorem 7). Dense ``eigvalsh`` is exact here; see FINDINGS on why a shift-invert
-    solve near zero is not a valid test.
+    ``S ⪰ 0`` (with ``S z = 0`` at a critical point) proves ``z z^H`` optimal for the SO(2)
+    relaxation, the Hermitian form of SE-Sync's ``S = Q - SymBlockDiag(Q Y^T Y)`` [1]_ (Theorem 7).
+    Dense ``eigvalsh`` is exact here; see FINDINGS on why a shift-invert solve near zero is not a
+    valid test.
+    """
+    W = _hermitian_form(Q)
+    z = np.exp(1j * np.asarray(theta))
+    S = W - np.diag((np.conj(z) * (W @ z)).real)
+    return float(scipy.linalg.eigvalsh(S, subset_by_index=[0, 0], check_finite=False)[0])
+
+
+def certificate_o2(Q: np.ndarray, theta: np.ndarray) -> float:
+    """Smallest eigenvalue of SE-Sync's ``S = Q - SymBlockDiag(Q Y^T Y)`` (2m, 2m) at ``theta``.
+
+    Non-negative when the rotations are optimal even for seed 000's literal P3, which relaxes O(2).
     """
     m = len(theta)
     Y = _stack(theta)
@@ -157,6 +180,11 @@ def _hermitian_form(Q: np.ndarray) -> np.ndarray:
     m = Q.shape[0] // 2
     B = Q.reshape(m, 2, m, 2)
     return (B[:, 0, :, 0] + B[:, 1, :, 1]) + 1j * (B[:, 0, :, 1] - B[:, 1, :, 0])
+
+
+def _scale(W: np.ndarray) -> float:
+    """An upper bound on the spectral radius of ``W`` (its infinity norm), for relative tolerances."""
+    return max(float(np.abs(W).sum(axis=1).max()), 1e-300)
 
 
 def _spectral_init(W: np.ndarray) -> np.ndarray:
@@ -233,8 +261,7 @@ def solve_low_rank(Q: np.ndarray, theta0: np.ndarray | None = None, *, fallback:
     """
     start = time.perf_counter()
     W = _hermitian_form(Q)
-    scale = max(np.abs(np.linalg.eigvalsh(Q)).max(), 1e-300)
-    tol = CERT_TOL * scale
+    tol = CERT_TOL * _scale(W)
     best = None
     inits = ([theta0] if theta0 is not None else []) + [None]
     iters = 0
@@ -275,12 +302,26 @@ def round_gram(Z: np.ndarray) -> np.ndarray:
     return np.arctan2(R[:, 1, 0], R[:, 0, 0])
 
 
+def _embed(Z: np.ndarray) -> np.ndarray:
+    """Real (2m, 2m) Gram form of a Hermitian (m, m) ``Z``: block ``ij`` is ``[[Re, Im], [-Im, Re]]``.
+
+    With ``Z = z z^H``, ``z_i = e^{i theta_i}``, block ``ij`` is ``R_i^T R_j = R(theta_j - theta_i)``.
+    """
+    m = Z.shape[0]
+    out = np.empty((m, 2, m, 2))
+    out[:, 0, :, 0] = out[:, 1, :, 1] = Z.real
+    out[:, 1, :, 0] = -Z.imag
+    out[:, 0, :, 1] = Z.imag
+    return out.reshape(2 * m, 2 * m)
+
+
 class SdpSolver:
-    """The reference solver: the dual of eq. (15) in cvxpy, built once per size, solved by Clarabel.
+    r"""The reference solver: the SO(2) relaxation's dual in cvxpy, built once per size, by Clarabel.
 
-    .. math:: \\max_{\\Lambda} \\operatorname{tr}(\\Lambda) \\;\\text{s.t.}\\; Q - \\operatorname{blkdiag}(\\Lambda_1..\\Lambda_m) \\succeq 0
+    .. math:: \max_{\lambda \in \mathbb{R}^m} \textstyle\sum_i \lambda_i \;\text{s.t.}\; W - \operatorname{diag}(\lambda) \succeq 0
 
-    The primal ``Z`` of (15a)-(15b) is the dual variable of the PSD constraint.
+    The primal ``Z`` (Hermitian, unit diagonal: eq. (15a)-(15c) with commuting blocks) is the dual
+    variable of the PSD constraint; it is rounded through its real form by eq. (17).
     """
 
     _cache: dict[int, "SdpSolver"] = {}
@@ -289,22 +330,12 @@ class SdpSolver:
         import cvxpy as cp
 
         self.m = m
-        n = 2 * m
-        self.Q = cp.Parameter((n, n), symmetric=True)
-        self.lam = cp.Variable(3 * m)  # (a_i, b_i, d_i) of each symmetric 2x2 Λ_i
-        rows, cols, idx = [], [], []
-        for i in range(m):
-            for (r, c), k in (((0, 0), 0), ((0, 1), 1), ((1, 0), 1), ((1, 1), 2)):
-                rows.append((2 * i + r) * n + (2 * i + c))
-                idx.append(3 * i + k)
-        import scipy.sparse as sp
-
-        A = sp.csr_matrix((np.ones(len(rows)), (rows, idx)), shape=(n * n, 3 * m))
-        blk = cp.reshape(A @ self.lam, (n, n), order="C")
-        self.constraint = self.Q - blk >> 0
-        objective = cp.Maximize(cp.sum(self.lam[0::3]) + cp.sum(self.lam[2::3]))
-        self.problem = cp.Problem(objective, [self.constraint])
-        assert self.problem.is_dcp(dpp=True)
+        self.W = cp.Parameter((m, m), hermitian=True)
+        self.lam = cp.Variable(m)
+        self.constraint = self.W - cp.diag(self.lam) >> 0
+        self.problem = cp.Problem(cp.Maximize(cp.sum(self.lam)), [self.constraint])
+        if not self.problem.is_dcp(dpp=True):  # pragma: no cover - a construction bug, not an input error
+            raise SolverError("the relaxation's dual is not DPP")
 
     @classmethod
     def shared(cls, m: int) -> "SdpSolver":
@@ -315,27 +346,30 @@ class SdpSolver:
 
     def solve(self, Q: np.ndarray) -> RelaxationResult:
         """Solve the relaxation for ``Q`` (2m, 2m), round (eq. (17)) and certify."""
+        import warnings
+
         import cvxpy as cp
 
         start = time.perf_counter()
-        self.Q.value = 0.5 * (Q + Q.T)
+        W = _hermitian_form(0.5 * (Q + Q.T))
+        self.W.value = 0.5 * (W + W.conj().T)
         try:
-            self.problem.solve(solver=cp.CLARABEL, verbose=False)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", UserWarning)  # inaccuracy is reported in the status
+                self.problem.solve(solver=cp.CLARABEL, verbose=False)
         except cp.error.SolverError as err:
             raise SolverError(f"Clarabel failed on the relaxation: {err}") from None
         status = self.problem.status
         if status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) or self.constraint.dual_value is None:
-            m = self.m
-            return RelaxationResult(np.zeros(m), float("inf"), False, -np.inf, "sdp", str(status), 0,
+            return RelaxationResult(np.zeros(self.m), float("inf"), False, -np.inf, "sdp", str(status), 0,
                                     time.perf_counter() - start)
-        Z = np.asarray(self.constraint.dual_value)
-        theta = round_gram(Z)
-        Y = _stack(theta)
-        cost = float(np.trace(Y @ Q @ Y.T))
+        theta = round_gram(_embed(np.asarray(self.constraint.dual_value)))
+        z = np.exp(1j * theta)
+        cost = float((np.conj(z) @ W @ z).real)
         lam = certificate(Q, theta)
-        scale = max(np.abs(np.linalg.eigvalsh(Q)).max(), 1e-300)
-        # the rounding is optimal when its cost meets the SDP bound (tightness), which the certificate shows
-        certified = lam >= -CERT_TOL * scale * 10
+        # certified when the rounded point meets the bound (tight relaxation); a looser tolerance than
+        # the low-rank path since interior-point duals are accurate to ~1e-8 relative
+        certified = lam >= -100 * CERT_TOL * _scale(W)
         return RelaxationResult(theta, cost, bool(certified), lam, "sdp",
                                 "optimal" if status == cp.OPTIMAL else "optimal_inaccurate", 0,
                                 time.perf_counter() - start)
@@ -373,7 +407,7 @@ def solve_literal_primal(Q: np.ndarray) -> RelaxationResult:
                                 time.perf_counter() - start)
     theta = round_gram(Z.value[np.ix_(free, free)])
     Y = _stack(theta)
-    return RelaxationResult(theta, float(np.trace(Y @ Q @ Y.T)), False, certificate(Q, theta), "literal",
+    return RelaxationResult(theta, float(np.trace(Y @ Q @ Y.T)), False, certificate_o2(Q, theta), "literal",
                             str(problem.status), 0, time.perf_counter() - start)
 
 
