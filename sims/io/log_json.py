@@ -58,7 +58,7 @@ def load_json(path: str | os.PathLike) -> Any:
     """Load a JSON file, turning unreadable or malformed files into :class:`InputError`."""
     try:
         with open(path, encoding="utf-8") as fh:
-            return json.load(fh, parse_constant=_reject_constant)
+            return json.load(fh)  # NaN/Infinity parse as floats; validators reject them by field
     except FileNotFoundError:
         raise InputError("file not found", source=str(path)) from None
     except IsADirectoryError:
@@ -69,12 +69,6 @@ def load_json(path: str | os.PathLike) -> Any:
         raise InputError("not a UTF-8 text file", source=str(path)) from None
     except json.JSONDecodeError as err:
         raise InputError(f"not valid JSON ({err.msg} at line {err.lineno})", source=str(path)) from None
-    except InputError as err:
-        raise err.located(str(path)) from None
-
-
-def _reject_constant(name: str) -> None:
-    raise InputError(f"non-finite number {name} is not allowed")
 
 
 def _check_format(doc: Any, expected: str) -> dict:

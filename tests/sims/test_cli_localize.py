@@ -1,0 +1,124 @@
+"""``decentral localize``: the contract's output, and every bad input ends in one line and exit 2."""
+
+import copy
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from sims.cli.main import main
+from sims.io.log_json import log_to_dict, read_estimate
+from tests.synthetic import camera, circle_motion, l_config, line_config, make_log
+
+
+@pytest.fixture(scope="module")
+def good_doc():
+    n = 6
+    world = {"A0": [(0.0, np.array([0.02 * k, 0.0, 0.81])) for k in range(n)],
+             "A1": circle_motion(n, (2.0, 0.0), 0.3, 0.0, 0.05, 0.06)}
+    configs = {"A0": line_config([0, 1]), "A1": l_config([5, 6, 7])}
+    return log_to_dict(make_log(world, configs, [camera("A0")]))
+
+
+def write(tmp_path, doc, name="log.json"):
+    path = tmp_path / name
+    path.write_text(json.dumps(doc) if not isinstance(doc, str) else doc)
+    return path
+
+
+def test_localize_writes_a_contract_estimate(tmp_path, good_doc):
+    """A valid log gives exit 0 and a decentral.estimate/1 with A1 placed at every step but the first."""
+    out = tmp_path / "est.json"
+    assert main(["localize", str(write(tmp_path, good_doc)), "-o", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["format"] == "decentral.estimate/1" and doc["reference"] == "A0"
+    assert all("A1" in s["poses"] for s in doc["steps"])
+    assert doc["stats"]["all_certified"] is True
+    assert read_estimate(out).steps[0].poses["A1"].p.shape == (3,)
+
+
+def test_bearing_estimator_is_selectable(tmp_path, good_doc):
+    """--estimator bearing runs the baseline and says so in stats."""
+    out = tmp_path / "est.json"
+    assert main(["localize", str(write(tmp_path, good_doc)), "-o", str(out), "--estimator", "bearing"]) == 0
+    assert json.loads(out.read_text())["stats"]["estimator"] == "bearing"
+
+
+def mutate(doc, path, value):
+    doc = copy.deepcopy(doc)
+    *head, last = path
+    node = doc
+    for key in head:
+        node = node[key]
+    if value is DELETE:
+        del node[last]
+    else:
+        node[last] = value
+    return doc
+
+
+DELETE = object()
+CAM = ["assemblies", "A0", "cameras", "cam0"]
+BAD = {
+    "wrong format": (["format"], "decentral.log/0", "format"),
+    "missing steps": (["steps"], DELETE, "steps"),
+    "negative radius": (["node_radius"], -0.06, "node_radius"),
+    "nan radius": (["node_radius"], "NaN", "node_radius"),
+    "singular K": (CAM + ["K"], [[0, 0, 0], [0, 760, 384], [0, 0, 1]], "K"),
+    "not a rotation": (CAM + ["cam_in_strut", "R"], [[1, 0, 0], [0, 1, 0], [0, 0, 2]], "cam_in_strut.R"),
+    "reflection": (CAM + ["strut_in_root", "R"], [[1, 0, 0], [0, 1, 0], [0, 0, -1]], "strut_in_root.R"),
+    "short p": (CAM + ["strut_in_root", "p"], [0, 0], "strut_in_root.p"),
+    "time goes back": (["steps", 2, "t"], 0.0, "steps[2].t"),
+    "undeclared camera": (["steps", 1, "detections"], {"A0/cam9": []}, "A0/cam9"),
+    "missing radius": (["steps", 1, "detections", "A0/cam0", 0, "r"], DELETE, ".r"),
+    "zero radius": (["steps", 1, "detections", "A0/cam0", 0, "r"], 0, ".r"),
+    "string u": (["steps", 1, "detections", "A0/cam0", 0, "u"], "611", ".u"),
+    "undeclared assembly": (["steps", 0, "config", "B9"], {"99": [0, 0, 0]}, "config.B9"),
+    "bad dtheta": (["steps", 1, "odometry", "A1", "dtheta"], None, "dtheta"),
+    "non-integer node id": (["steps", 0, "config", "A1", "x"], [0, 0, 0], "config.A1.x"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_bad_input_exits_2_naming_file_and_field(tmp_path, good_doc, capsys, case):
+    """Each contract bad input: exit 2, one stderr line naming the file and field, no output file."""
+    path, value, field = BAD[case]
+    doc = mutate(good_doc, path, value)
+    text = json.dumps(doc).replace('"NaN"', "NaN")
+    log = write(tmp_path, text)
+    out = tmp_path / "est.json"
+    assert main(["localize", str(log), "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(log) in err and field in err, err
+    assert not out.exists() and not list(tmp_path.glob(".est.json*"))
+
+
+@pytest.mark.parametrize("content", ["", "{not json", "[1, 2]", "\x00\x01"])
+def test_unreadable_or_malformed_files_exit_2(tmp_path, content, capsys):
+    """Empty, malformed or non-object JSON files are rejected with exit 2."""
+    out = tmp_path / "est.json"
+    assert main(["localize", str(write(tmp_path, content)), "-o", str(out)]) == 2
+    assert "log.json" in capsys.readouterr().err and not out.exists()
+
+
+def test_missing_file_and_bad_options_exit_2(tmp_path, good_doc, capsys):
+    """A missing log, an unknown reference or a bad window exit 2 with one line."""
+    out = tmp_path / "est.json"
+    assert main(["localize", str(tmp_path / "nope.json"), "-o", str(out)]) == 2
+    log = write(tmp_path, good_doc)
+    assert main(["localize", str(log), "-o", str(out), "--reference", "Z9"]) == 2
+    assert main(["localize", str(log), "-o", str(out), "--window", "0"]) == 2
+    assert main(["localize", str(log), "-o", str(tmp_path / "no" / "dir.json")]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 4
+    assert not out.exists()
+
+
+def test_console_script_prints_no_traceback(tmp_path):
+    """Run as a process, bad input prints one line and no Python traceback."""
+    log = write(tmp_path, {"format": "decentral.log/1"})
+    proc = subprocess.run([sys.executable, "-m", "sims.cli.main", "localize", str(log), "-o", str(tmp_path / "e.json")],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
