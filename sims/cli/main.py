@@ -20,6 +20,7 @@ __all__ = ["COMMANDS", "build_parser", "main"]
 #: subcommand name -> module implementing it (imported lazily, so ``decentral --help`` stays fast)
 COMMANDS: dict[str, str] = {
     "localize": "sims.cli.localize",
+    "simulate": "sims.cli.simulate",
 }
 
 EXIT_BAD_INPUT = 2

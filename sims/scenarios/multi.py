@@ -1,0 +1,115 @@
+"""Several observers and targets: assemblies on a ring, each camera watching the next (a cyclic view graph).
+
+``n_assemblies`` assemblies (2-16) stand on a circle, neighbours ``spacing`` metres apart, each with
+a random configuration (library shapes and random lattice shapes). The first ``observers`` of them
+carry a camera aimed at the next assembly around the ring (all of them by default: the view graph is
+a cycle; cameras also see farther assemblies when they are in view). Everyone drifts smoothly; halfway
+through the run the first observer's camera strut turns (a mount change announced in the log).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from decentral.observations import Pose
+from sims.scenarios.base import Scenario, ScenarioConfig
+from sims.world.frames import rot_z
+from sims.world.motion import jitter
+from sims.world.rigs import strut_camera
+from sims.world.shapes import NODE_RADIUS, library_shape, random_lattice
+from sims.world.world import AssemblyTrack, World
+
+__all__ = ["MultiConfig", "Multi"]
+
+_SHAPES = ("pair", "line", "L", "triangle", "square", "T", "zigzag", "stack", "tower", "lattice")
+
+
+@dataclass(frozen=True)
+class MultiConfig(ScenarioConfig):
+    """Parameters of :class:`Multi` (plus those of :class:`ScenarioConfig`).
+
+    Attributes
+    ----------
+    n_assemblies : int
+        Assemblies on the ring (2-16).
+    observers : int or None
+        How many of them (the first ones) carry a camera; ``None``: all.
+    spacing : float
+        Distance [m] between ring neighbours.
+    drift : float
+        Amplitude [m] of each assembly's motion.
+    yaw_drift : float
+        Amplitude [rad] of each assembly's heading changes.
+    mount_turn_deg : float
+        Turn [deg] of the first observer's camera strut at mid-run (0: no mount change).
+    """
+
+    steps: int = 80
+    n_assemblies: int = 6
+    observers: int | None = None
+    spacing: float = 1.8
+    drift: float = 0.1
+    yaw_drift: float = 0.08
+    mount_turn_deg: float = 6.0
+
+    def __post_init__(self):
+        super().__post_init__()
+        if not 2 <= self.n_assemblies <= 16:
+            raise ValueError(f"n_assemblies must be in 2..16, got {self.n_assemblies!r}")
+        if self.observers is not None and not 1 <= self.observers <= self.n_assemblies:
+            raise ValueError("observers must be between 1 and n_assemblies")
+
+
+def _look_direction(centres: np.ndarray) -> float:
+    """Yaw in H_r of the horizontal direction along which the shape extends least (the camera looks there)."""
+    cands = np.linspace(-np.pi, np.pi, 24, endpoint=False)
+    dirs = np.column_stack([np.cos(cands), np.sin(cands)])
+    reach = (centres[:, :2] @ dirs.T).max(axis=0)
+    return float(cands[int(np.argmin(reach))])
+
+
+class Multi(Scenario):
+    """A ring of assemblies, each watching the next."""
+
+    name = "multi"
+    Config = MultiConfig
+
+    def make_world(self, rng: np.random.Generator) -> World:
+        c = self.config
+        n = c.n_assemblies
+        n_obs = n if c.observers is None else c.observers
+        times = np.arange(c.steps) * c.dt
+        ring = c.spacing / (2 * np.sin(np.pi / n))
+        angles = 2 * np.pi * np.arange(n) / n
+        homes = ring * np.column_stack([np.cos(angles), np.sin(angles)])
+        assemblies, cameras, kinds = [], [], []
+        for i in range(n):
+            kind = _SHAPES[int(rng.integers(len(_SHAPES)))]
+            kinds.append(kind)
+            if kind == "lattice":
+                shape = random_lattice(int(rng.integers(3, 7)), rng, p_up=0.2)
+            else:
+                shape = library_shape(kind)
+            shape = shape.with_ids(range(100 * i, 100 * i + len(shape.ids)))
+            look = _look_direction(shape.centres)
+            target = homes[(i + 1) % n] - homes[i]
+            world_look = float(np.arctan2(target[1], target[0]))
+            xy, yaw = jitter(c.steps, c.dt, homes[i], world_look - look, rng,
+                             amplitude=c.drift, yaw_amplitude=c.yaw_drift)
+            name = f"A{i}"
+            assemblies.append(AssemblyTrack(name, 0.0, xy, yaw, (shape,) * c.steps))
+            if i < n_obs:
+                d = np.array([np.cos(look), np.sin(look), 0.0])
+                reach = max(float((shape.centres @ d).max()), 0.0)
+                at = (reach + NODE_RADIUS + 0.04) * d
+                mounts = ()
+                if i == 0 and c.mount_turn_deg:
+                    turned = Pose(rot_z(look + np.radians(c.mount_turn_deg)), at)
+                    mounts = tuple(None if k < c.steps // 2 else turned for k in range(c.steps))
+                cameras.append(strut_camera(name, "cam0", at=at, look_yaw=look, mounts=mounts))
+        return World(NODE_RADIUS, times, tuple(assemblies), tuple(cameras), {"shapes": kinds})
+
+
+SCENARIO = Multi

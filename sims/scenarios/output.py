@@ -1,0 +1,44 @@
+"""Saving a simulated run: ``log.json`` (``decentral.log/1``), ``truth.json`` (``decentral.truth/1``), frames."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from decentral.errors import InputError
+from sims.scenarios.base import Simulation
+
+__all__ = ["SavedRun", "prepare_outdir", "save_simulation"]
+
+
+@dataclass(frozen=True)
+class SavedRun:
+    """Paths written for one run."""
+
+    log: Path
+    truth: Path
+    frames: tuple[Path, ...] = ()
+
+
+def prepare_outdir(outdir: str | os.PathLike) -> Path:
+    """Create ``outdir`` (and parents) if needed; refuse a path that exists and is not a folder."""
+    path = Path(outdir)
+    if path.exists() and not path.is_dir():
+        raise InputError("exists and is not a folder", source=str(path))
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise InputError(f"cannot create output folder ({err.strerror})", source=str(path)) from None
+    return path
+
+
+def save_simulation(sim: Simulation, outdir: str | os.PathLike) -> SavedRun:
+    """Write ``sim``'s log and truth into ``outdir`` atomically (frames are written by the renderer)."""
+    from sims.io.log_json import write_log
+    from sims.world.truth import write_truth
+
+    path = prepare_outdir(outdir)
+    write_log(path / "log.json", sim.log)
+    write_truth(path / "truth.json", sim.truth)
+    return SavedRun(path / "log.json", path / "truth.json")

@@ -1,0 +1,131 @@
+"""The pinhole camera model of the simulator: projection of nodes, field of view and occlusion.
+
+The noiseless detection of a node is exactly seed 000 eq. (1) inverted: the centre (u, v) is the
+projection of the node centre and the radius is ``r = f r_0 / z_c`` with ``z_c`` the depth of the
+centre in the camera frame and ``f = K[0, 0]``. The estimator's back-projection
+``p = K^{-1} (f r_0 / r) [u, v, 1]^T`` then returns the true centre.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from decentral.observations import Pose
+
+__all__ = ["default_K", "CameraSpec", "project_nodes", "visible_mask", "covered_fraction"]
+
+
+def default_K(width: int = 1024, height: int = 768, f: float = 760.0) -> np.ndarray:
+    """Pinhole intrinsics (3, 3) with focal length ``f`` px and the principal point at the image centre."""
+    return np.array([[f, 0.0, width / 2.0], [0.0, f, height / 2.0], [0.0, 0.0, 1.0]])
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    """Intrinsics and sensing limits of one simulated camera.
+
+    Attributes
+    ----------
+    K : ndarray, shape (3, 3)
+        Pinhole intrinsics (``fx == fy`` expected for eq. (1)).
+    width, height : int
+        Image size [px].
+    min_range, max_range : float
+        Depth limits [m] of the camera frame's z for a node to be detected.
+    min_radius : float
+        Smallest circle radius [px] a detector still finds.
+    """
+
+    K: np.ndarray
+    width: int = 1024
+    height: int = 768
+    min_range: float = 0.2
+    max_range: float = 6.0
+    min_radius: float = 4.0
+
+
+def project_nodes(K: np.ndarray, cam_in_world: Pose, centres: np.ndarray, node_radius: float):
+    """Project node centres into a camera.
+
+    Parameters
+    ----------
+    K : ndarray, shape (3, 3)
+    cam_in_world : Pose
+        Pose of the camera frame c in the world frame W.
+    centres : ndarray, shape (N, 3)
+        Node centres in W [m].
+    node_radius : float
+        r_0 [m].
+
+    Returns
+    -------
+    uvr : ndarray, shape (N, 3)
+        Image centre (u, v) and radius r [px]; meaningless where ``depth <= 0``.
+    depth : ndarray, shape (N,)
+        z_c of each centre in c [m].
+    """
+    pc = (np.asarray(centres, dtype=float) - cam_in_world.p) @ cam_in_world.R  # rows: R^T (x - p)
+    depth = pc[:, 2]
+    safe = np.where(depth > 1e-9, depth, 1.0)
+    hom = pc @ K.T / safe[:, None]
+    r = K[0, 0] * node_radius / safe  # seed 000 eq. (1) inverted: r = f r_0 / z_c
+    return np.column_stack([hom[:, 0], hom[:, 1], r]), depth
+
+
+def visible_mask(spec: CameraSpec, uvr: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """Nodes in front of the camera, within range, large enough, and whose whole circle is in the image."""
+    u, v, r = uvr[:, 0], uvr[:, 1], uvr[:, 2]
+    return (
+        (depth >= spec.min_range)
+        & (depth <= spec.max_range)
+        & (r >= spec.min_radius)
+        & (u - r >= 0.0)
+        & (u + r <= spec.width)
+        & (v - r >= 0.0)
+        & (v + r <= spec.height)
+    )
+
+
+def _lens_area(d: np.ndarray, r1: np.ndarray, r2: np.ndarray) -> np.ndarray:
+    """Area of the intersection of circles of radii r1, r2 whose centres are d apart."""
+    d = np.maximum(d, 1e-12)
+    out = np.zeros(np.broadcast(d, r1, r2).shape)
+    inside = d <= np.abs(r1 - r2)
+    out = np.where(inside, np.pi * np.minimum(r1, r2) ** 2, out)
+    part = (d < r1 + r2) & ~inside
+    c1 = np.clip((d**2 + r1**2 - r2**2) / (2 * d * r1), -1, 1)
+    c2 = np.clip((d**2 + r2**2 - r1**2) / (2 * d * r2), -1, 1)
+    k = (-d + r1 + r2) * (d + r1 - r2) * (d - r1 + r2) * (d + r1 + r2)
+    lens = r1**2 * np.arccos(c1) + r2**2 * np.arccos(c2) - 0.5 * np.sqrt(np.clip(k, 0, None))
+    return np.where(part, lens, out)
+
+
+def covered_fraction(uvr: np.ndarray, depth: np.ndarray, candidates: np.ndarray | None = None) -> np.ndarray:
+    """Fraction of each node's image circle hidden by nearer nodes' circles.
+
+    The covered area is approximated by the largest single overlap with a nearer circle (exact when
+    one sphere occludes another, a lower bound when several do). ``candidates`` (N,) bool restricts
+    the occluders to nodes in front of the camera (default: ``depth > 0``).
+
+    Returns
+    -------
+    ndarray, shape (N,)
+        Values in [0, 1]; 1 for a circle entirely behind a nearer one.
+    """
+    n = len(depth)
+    if candidates is None:
+        candidates = depth > 0
+    frac = np.zeros(n)
+    if n < 2:
+        return frac
+    du = uvr[:, None, 0] - uvr[None, :, 0]
+    dv = uvr[:, None, 1] - uvr[None, :, 1]
+    d = np.hypot(du, dv)
+    r_self, r_other = uvr[:, None, 2], uvr[None, :, 2]
+    area = _lens_area(d, np.broadcast_to(r_self, d.shape), np.broadcast_to(r_other, d.shape))
+    nearer = (depth[None, :] < depth[:, None]) & candidates[None, :] & candidates[:, None]
+    area = np.where(nearer, area, 0.0)
+    frac = area.max(axis=1) / (np.pi * np.maximum(uvr[:, 2], 1e-12) ** 2)
+    return np.clip(frac, 0.0, 1.0)
