@@ -76,6 +76,7 @@ __all__ = [
     "AdmmPrimal",
     "AdmmDual",
     "Heartbeat",
+    "OdometryReport",
 ]
 
 #: receiver marker of a message addressed to every other agent on the transport
@@ -592,3 +593,32 @@ class Heartbeat(Message):
     def __post_init__(self) -> None:
         Message.__post_init__(self)
         _set(self, "t", _finite_float(self.t, "t"))
+
+
+@register
+@dataclass(frozen=True, slots=True, eq=False, kw_only=True)
+class OdometryReport(Message):
+    """The sender's own planar motion over its last step, so peers can predict its pose.
+
+    Attributes
+    ----------
+    t : float
+        Time at the end of the step (s).
+    motion : ndarray, shape (3,), float64
+        ``(dx, dy, dtheta)``: the sender's root at ``t`` in its root frame at the previous step
+        (seed 000 eq. (6)).
+    covariance : ndarray, shape (3, 3), float64
+        Noise covariance of ``motion``.
+    """
+
+    KIND: ClassVar[str] = "odometry"
+
+    t: float
+    motion: np.ndarray
+    covariance: np.ndarray
+
+    def __post_init__(self) -> None:
+        Message.__post_init__(self)
+        _set(self, "t", _finite_float(self.t, "t"))
+        _set(self, "motion", _finite_array(self.motion, "motion", shape=(3,)))
+        _set(self, "covariance", _finite_array(self.covariance, "covariance", shape=(3, 3)))

@@ -21,6 +21,7 @@ from protocols.messages import (
     AdmmPrimal,
     Heartbeat,
     Message,
+    OdometryReport,
     PoseEstimates,
     Tracks,
     decode,
@@ -70,6 +71,8 @@ def poses(draw):
 
 any_message = st.one_of(
     tracks(), admm(), poses(),
+    st.builds(lambda s, t, m, c: OdometryReport(sender=s, receiver=BROADCAST, round=0, t=t, motion=m, covariance=c),
+              names, finite, hnp.arrays(np.float64, (3,), elements=finite), hnp.arrays(np.float64, (3, 3), elements=finite)),
     st.builds(lambda s, r, k, t: Heartbeat(sender=s, receiver=r, round=k, t=t), names, names, rounds, finite),
 )
 
