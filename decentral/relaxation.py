@@ -212,8 +212,12 @@ def yaw_hessian(Q: np.ndarray, theta: np.ndarray) -> np.ndarray:
 
 
 def _newton(W: np.ndarray, theta: np.ndarray, max_iter: int = 100, gtol: float = 1e-11):
-    """Minimize ``z^H W z`` over ``z = e^{i theta}`` by saddle-free Newton with backtracking."""
-    scale = max(np.abs(W).max(), 1e-300)
+    """Minimize ``z^H W z`` over ``z = e^{i theta}`` by saddle-free Newton with backtracking.
+
+    Stops when the gradient is at round-off level or the Newton decrement predicts a decrease
+    below round-off of the cost (the quadratic model can promise nothing more).
+    """
+    scale = _scale(W)
 
     def value(th):
         z = np.exp(1j * th)
@@ -230,11 +234,12 @@ def _newton(W: np.ndarray, theta: np.ndarray, max_iter: int = 100, gtol: float =
         np.fill_diagonal(A, 0.0)
         H = A - np.diag(A.sum(axis=1))
         lam, V = np.linalg.eigh(H)
-        mu = 1e-10 * scale
-        step = -V @ ((V.T @ g) / np.maximum(np.abs(lam), mu))
-        slope = g @ step
+        step = -V @ ((V.T @ g) / np.maximum(np.abs(lam), 1e-10 * scale))
+        slope = float(g @ step)
+        if -slope <= 1e-13 * (abs(f) + scale):
+            return theta, f, it - 1
         t = 1.0
-        while t > 1e-12:
+        while t > 1e-10:
             trial = theta + t * step
             f_trial = value(trial)
             if f_trial <= f + 1e-4 * t * slope:

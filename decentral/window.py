@@ -19,8 +19,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from decentral.factors import StepMeasurements
 from decentral.geometry import rot2
@@ -61,94 +59,107 @@ class WindowProblem:
         return {key: i for i, key in enumerate(self.variables)}
 
 
-def _window_links(measurements: list[StepMeasurements], steps: range, involved: list[str]):
-    """Edges (pairs of variable keys) of the factor graph inside the window."""
-    links = []
-    for k in steps:
-        vis = measurements[k].visual
-        links.extend(((o, k), (a, k)) for o, a in zip(vis.observer, vis.target))
-        if k != steps[0]:
-            links.extend(((a, k - 1), (a, k)) for a in involved if a in measurements[k].odometry)
-    return links
+def _components(n: int, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """Connected-component label (n,) of an undirected graph given by edge arrays (union-find)."""
+    parent = np.arange(n)
+
+    def find(x: int) -> int:
+        while parent[x] != x:
+            parent[x] = parent[parent[x]]
+            x = parent[x]
+        return x
+
+    for a, b in zip(src.tolist(), dst.tolist()):
+        ra, rb = find(a), find(b)
+        if ra != rb:
+            parent[max(ra, rb)] = min(ra, rb)
+    return np.array([find(x) for x in range(n)])
+
+
+def _factor_rows(measurements: list[StepMeasurements], steps: range, involved: list[str]):
+    """Every factor of the window as arrays: visual (step, observer, target, detection index) and
+    odometry (step, assembly)."""
+    vis = [(k, o, a, i) for k in steps for i, (o, a) in enumerate(zip(measurements[k].visual.observer,
+                                                                        measurements[k].visual.target))]
+    odo = [(k, a) for k in steps[1:] for a in involved if a in measurements[k].odometry]
+    return vis, odo
 
 
 def build_window(measurements: list[StepMeasurements], steps: range, reference: str) -> WindowProblem | None:
     """Build the window over ``steps`` (indices into ``measurements``), anchored at ``reference``.
 
-    Returns ``None`` when the reference takes part in no factor at the window's last step's component
-    (nothing can be placed then).
+    Returns ``None`` when the reference's root at the window's last step is tied to nothing.
     """
     last = steps[-1]
     involved = sorted({name for k in steps for name in measurements[k].visual.observer + measurements[k].visual.target})
     if reference not in involved:
         return None
-    keys = [(a, k) for k in steps for a in involved]
-    index = {key: i for i, key in enumerate(keys)}
-    links = _window_links(measurements, steps, involved)
-    if not links:
+    slot = {a: j for j, a in enumerate(involved)}
+    n_a = len(involved)
+    key = lambda a, k: (k - steps[0]) * n_a + slot[a]  # noqa: E731
+    vis, odo = _factor_rows(measurements, steps, involved)
+    src = np.array([key(o, k) for k, o, _, _ in vis] + [key(a, k - 1) for k, a in odo], dtype=int)
+    dst = np.array([key(a, k) for k, _, a, _ in vis] + [key(a, k) for k, a in odo], dtype=int)
+    label = _components(n_a * len(steps), src, dst)
+    keep = label == label[key(reference, last)]
+    if keep.sum() < 2:
         return None
-    src = [index[x] for x, _ in links]
-    dst = [index[y] for _, y in links]
-    graph = coo_matrix((np.ones(len(src)), (src, dst)), shape=(len(keys), len(keys)))
-    _, label = connected_components(graph, directed=False)
-    keep_label = label[index[(reference, last)]]
-    kept = [key for key in keys if label[index[key]] == keep_label]
-    if len(kept) < 2:
-        return None
-    return _assemble(measurements, steps, involved, tuple(kept))
+    variables = tuple((involved[j % n_a], steps[0] + j // n_a) for j in np.flatnonzero(keep))
+    return _assemble(measurements, variables, vis, odo)
 
 
-def _assemble(measurements, steps, involved, variables) -> WindowProblem:
+def _assemble(measurements, variables, vis, odo) -> WindowProblem:
+    """The quadratic form of the kept variables from the window's factor rows (vectorized)."""
     m = len(variables)
     index = {key: i for i, key in enumerate(variables)}
-    rows_C, rows_w, rows_s = [], [], []
-    n_vis = n_odo = 0
+    vis = [(k, o, a, i) for k, o, a, i in vis if (o, k) in index]
+    odo = [(k, a) for k, a in odo if (a, k) in index]
+    n_v, n_o = len(vis), len(odo)
+    C = np.zeros((n_v + n_o, 3 * m))
+    w = np.empty(n_v + n_o)
+    s = np.empty(n_v + n_o)
+    if n_v:
+        io = np.array([index[(o, k)] for k, o, _, _ in vis])
+        ia = np.array([index[(a, k)] for k, _, a, _ in vis])
+        q = np.array([measurements[k].visual.q[i] for k, _, _, i in vis])
+        t = np.array([measurements[k].visual.t[i] for k, _, _, i in vis])
+        w[:n_v] = [measurements[k].visual.weight[i] for k, _, _, i in vis]
+        rows = np.arange(n_v)
+        # seed 000 eq. (4): e = R_a q + p_a - p_o - R_o t
+        C[rows, ia] += 1.0
+        C[rows, io] -= 1.0
+        C[rows, m + 2 * ia] += q[:, 0]
+        C[rows, m + 2 * ia + 1] += q[:, 1]
+        C[rows, m + 2 * io] -= t[:, 0]
+        C[rows, m + 2 * io + 1] -= t[:, 1]
+        s[:n_v] = q[:, 2] - t[:, 2]
     M_rot = np.zeros((2 * m, 2 * m))
-    for k in steps:
-        vis = measurements[k].visual
-        for i, (o, a) in enumerate(zip(vis.observer, vis.target)):
-            if (o, k) not in index or (a, k) not in index:
-                continue
-            io, ia = index[(o, k)], index[(a, k)]
-            c = np.zeros(3 * m)
-            # seed 000 eq. (4): e = R_a q + p_a - p_o - R_o t
-            c[ia] += 1.0
-            c[io] -= 1.0
-            c[m + 2 * ia : m + 2 * ia + 2] += vis.q[i, :2]
-            c[m + 2 * io : m + 2 * io + 2] -= vis.t[i, :2]
-            rows_C.append(c)
-            rows_w.append(vis.weight[i])
-            rows_s.append(vis.q[i, 2] - vis.t[i, 2])
-            n_vis += 1
-        if k == steps[0]:
-            continue
-        for a in involved:
-            odo = measurements[k].odometry.get(a)
-            if odo is None or (a, k - 1) not in index or (a, k) not in index:
-                continue
-            iv, iu = index[(a, k - 1)], index[(a, k)]
-            c = np.zeros(3 * m)
-            # seed 000 eq. (7), position: e = p_u - p_v - R_v dp
-            c[iu] += 1.0
-            c[iv] -= 1.0
-            c[m + 2 * iv : m + 2 * iv + 2] -= odo.dp[:2]
-            rows_C.append(c)
-            rows_w.append(odo.weight_p)
-            rows_s.append(-odo.dp[2])
-            # seed 000 eq. (7), rotation: ||R_u - R_v R̂||_F^2 = tr(R C C^T R^T), C = [.., I (u), .., -R̂ (v), ..]
-            Rh = rot2(odo.dtheta)
-            su, sv = slice(2 * iu, 2 * iu + 2), slice(2 * iv, 2 * iv + 2)
-            M_rot[su, su] += odo.weight_R * np.eye(2)
-            M_rot[sv, sv] += odo.weight_R * np.eye(2)
-            M_rot[su, sv] -= odo.weight_R * Rh.T
-            M_rot[sv, su] -= odo.weight_R * Rh
-            n_odo += 1
-    C = np.array(rows_C)
-    w = np.array(rows_w)
-    s = np.array(rows_s)
+    if n_o:
+        iv = np.array([index[(a, k - 1)] for k, a in odo])
+        iu = np.array([index[(a, k)] for k, a in odo])
+        meas = [measurements[k].odometry[a] for k, a in odo]
+        dp = np.array([o.dp for o in meas])
+        w[n_v:] = [o.weight_p for o in meas]
+        rows = n_v + np.arange(n_o)
+        # seed 000 eq. (7), position: e = p_u - p_v - R_v dp
+        C[rows, iu] += 1.0
+        C[rows, iv] -= 1.0
+        C[rows, m + 2 * iv] -= dp[:, 0]
+        C[rows, m + 2 * iv + 1] -= dp[:, 1]
+        s[n_v:] = -dp[:, 2]
+        # seed 000 eq. (7), rotation: ||R_u - R_v R̂||_F^2 = tr(R C C^T R^T), C = [.., I (u), .., -R̂ (v), ..]
+        kappa = np.array([o.weight_R for o in meas])
+        Rh = rot2(np.array([o.dtheta for o in meas]))
+        B = M_rot.reshape(m, 2, m, 2)
+        eye = np.eye(2)
+        for j in range(n_o):
+            B[iu[j], :, iu[j], :] += kappa[j] * eye
+            B[iv[j], :, iv[j], :] += kappa[j] * eye
+            B[iu[j], :, iv[j], :] -= kappa[j] * Rh[j].T
+            B[iv[j], :, iu[j], :] -= kappa[j] * Rh[j]
     M = C.T @ (w[:, None] * C)  # eq. (11): sum of weighted outer products of residual coefficients
     M[m:, m:] += M_rot
     Cp = C[:, :m]
     b_z = -Cp.T @ (w * s)
     c_z = float(np.sum(w * s * s))
-    return WindowProblem(variables, M, b_z, c_z, n_vis, n_odo)
+    return WindowProblem(variables, M, b_z, c_z, n_v, n_o)
