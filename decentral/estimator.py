@@ -180,7 +180,8 @@ def estimate_log(log: ObservationLog, config: EstimatorConfig = EstimatorConfig(
         if problem is not None:
             theta0 = _warm_start(previous, problem, measurements) if config.warm_start else None
             solved = solve_window(problem, (reference, k), config, theta0)
-            for key in sorted(solved.placeable):
+            usable = solved.relaxation.status in ("optimal", "optimal_inaccurate", "uncertified")
+            for key in sorted(solved.placeable) if usable else ():
                 poses[key[0]] = solved.relative(key, (reference, k))
             windows.append(_window_stats(k, solved))
             previous = solved

@@ -64,8 +64,8 @@ class NoiseModel:
 
     sigma_pixel: float = 1.0
     sigma_radius: float = 0.5
-    sigma_odom_p: float = 0.02
-    sigma_odom_theta: float = 0.02
+    sigma_odom_p: float = 0.005
+    sigma_odom_theta: float = 0.005
     weighting: str = "information"
 
     def __post_init__(self) -> None:
