@@ -53,11 +53,41 @@ def _split(W: sparse.spmatrix) -> tuple[sparse.csr_matrix, np.ndarray, np.ndarra
     W = sparse.csr_matrix(W, dtype=float)
     if W.shape[0] != W.shape[1]:
         raise InputError("adjacency must be square", field="W")
-    diag = W.diagonal()
-    off = (W - sparse.diags(diag)).tocsr()
-    off.eliminate_zeros()
-    deg_full = np.asarray(W.sum(axis=1)).ravel()
-    return off, deg_full, diag
+    coo = W.tocoo()
+    offd = coo.row != coo.col
+    off = sparse.csr_matrix((coo.data[offd], (coo.row[offd], coo.col[offd])), shape=W.shape)
+    deg_full = np.bincount(coo.row, coo.data, W.shape[0])
+    return off, deg_full, np.bincount(coo.row[~offd], coo.data[~offd], W.shape[0])
+
+
+def _fiedler(off: sparse.csr_matrix, deg: np.ndarray) -> np.ndarray:
+    n = off.shape[0]
+    if n < 2:
+        return np.zeros(n)
+    if np.any(deg <= 0):
+        raise InputError("every node needs a positive degree (is the graph connected?)", field="W")
+    dm = 1.0 / np.sqrt(deg)
+    deg_off = np.asarray(off.sum(axis=1)).ravel()
+    if n < DENSE_BELOW:
+        from scipy.linalg import eigh
+
+        Ln = -(off.toarray() * dm[:, None] * dm[None, :])
+        Ln[np.diag_indices(n)] += deg_off * dm * dm
+        _, vecs = eigh(Ln, subset_by_index=[1, 1], driver="evr")
+        u = vecs[:, 0]
+    else:
+        coo = off.tocoo()
+        Ln = sparse.csc_matrix((np.concatenate([-coo.data * dm[coo.row] * dm[coo.col], deg_off * dm * dm]),
+                                (np.concatenate([coo.row, np.arange(n)]), np.concatenate([coo.col, np.arange(n)]))),
+                               shape=(n, n))
+        # seed 003 eq. (4) relaxed: second-smallest eigenpair of the normalized Laplacian
+        v0 = np.sqrt(deg) + 0.01 * np.cos(np.arange(n))  # deterministic start vector
+        vals, vecs = eigsh(Ln, k=2, sigma=-1e-3, which="LM", v0=v0, tol=1e-8)
+        u = vecs[:, int(np.argsort(vals)[1])]
+    y = u * dm
+    # fix the sign so the result does not depend on the eigensolver's choice
+    k = int(np.argmax(np.abs(y)))
+    return y if y[k] > 0 else -y
 
 
 def fiedler_vector(W: sparse.spmatrix) -> np.ndarray:
@@ -68,27 +98,7 @@ def fiedler_vector(W: sparse.spmatrix) -> np.ndarray:
     ``which='SA'``), dense ``eigh`` below :data:`DENSE_BELOW` nodes.
     """
     off, deg, _ = _split(W)
-    n = off.shape[0]
-    if n < 2:
-        return np.zeros(n)
-    if np.any(deg <= 0):
-        raise InputError("every node needs a positive degree (is the graph connected?)", field="W")
-    dm = 1.0 / np.sqrt(deg)
-    lap = sparse.diags(np.asarray(off.sum(axis=1)).ravel()) - off
-    Ln = (sparse.diags(dm) @ lap @ sparse.diags(dm)).tocsc()
-    if n < DENSE_BELOW:
-        vals, vecs = np.linalg.eigh(Ln.toarray())
-        u = vecs[:, 1]
-    else:
-        # seed 003 eq. (4) relaxed: second-smallest eigenpair of the normalized Laplacian
-        v0 = np.sqrt(deg) + 0.01 * np.cos(np.arange(n))  # deterministic start vector
-        vals, vecs = eigsh(Ln, k=2, sigma=-1e-3, which="LM", v0=v0, tol=1e-8)
-        order = np.argsort(vals)
-        u = vecs[:, order[1]]
-    y = u * dm
-    # fix the sign so the result does not depend on the eigensolver's choice
-    k = int(np.argmax(np.abs(y)))
-    return y if y[k] > 0 else -y
+    return _fiedler(off, deg)
 
 
 def normalized_cut(W: sparse.spmatrix) -> NcutResult:
@@ -108,14 +118,15 @@ def normalized_cut(W: sparse.spmatrix) -> NcutResult:
     n = off.shape[0]
     if n < 2:
         raise InputError("a cut needs at least two nodes", field="W")
-    y = fiedler_vector(W)
+    y = _fiedler(off, deg)
     order = np.argsort(y, kind="stable")
     rank = np.empty(n, dtype=np.int64)
     rank[order] = np.arange(n)
-    coo = sparse.triu(off, k=1).tocoo()
+    coo = off.tocoo()
+    upper = coo.row < coo.col
     # an edge is inside the prefix {order[0..k]} once k >= max(rank u, rank v)
-    inside = np.cumsum(np.bincount(np.maximum(rank[coo.row], rank[coo.col]), coo.data, n))
-    deg_off = np.asarray(off.sum(axis=1)).ravel()
+    inside = np.cumsum(np.bincount(np.maximum(rank[coo.row[upper]], rank[coo.col[upper]]), coo.data[upper], n))
+    deg_off = np.bincount(coo.row, coo.data, n)
     cut = np.cumsum(deg_off[order]) - 2.0 * inside
     assoc_a = np.cumsum(deg[order])
     total = assoc_a[-1]

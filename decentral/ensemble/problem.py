@@ -110,10 +110,12 @@ class EnsembleProblem:
         return int(self.i.shape[0])
 
     def adjacency(self) -> sparse.csr_matrix:
-        """Symmetric 0/1 contact graph (n, n) in CSR form: 1 where an observation pair exists."""
+        """Symmetric 0/1 contact graph (n, n) in CSR form: 1 where an observation pair exists.
+
+        Relies on the contract's symmetric pairs (checked by :meth:`validate`).
+        """
         if "adj" not in self._cache:
             a = sparse.csr_matrix((np.ones(self.i.size), (self.i, self.j)), shape=(self.n, self.n))
-            a = ((a + a.T) > 0).astype(float).tocsr()
             a.sort_indices()
             self._cache["adj"] = a
         return self._cache["adj"]

@@ -1,0 +1,304 @@
+"""Seed 003 Algorithm 1 (NormCutLocalize): recursive normalized cut, closed-form merges, refinement.
+
+The contact graph is split in two by normalized cut (eq. 4), each side is localized recursively,
+the two partial solutions are joined by the optimal rigid transform between the observations that
+cross the cut (eq. 5), and the union is refined to the maximum likelihood (eq. 3). Above a size
+threshold the cut is computed on an abstraction of the graph (random leaders, hop-count clusters;
+§IV-C). A side of a cut that is not connected is handled as several parts, merged one at a time in
+order of the number of observations linking them to what is already merged.
+
+Subproblems are extracted from their parent's, never from the whole problem, so the work per level
+is linear in the observations and the total is O(E log n) plus the refinements.
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.sparse.csgraph import connected_components
+
+from decentral.ensemble.abstraction import abstract_graph, choose_leaders, hop_clusters
+from decentral.ensemble.alignment import AlignmentStats, merge_point_pairs
+from decentral.ensemble.ncut import normalized_cut
+from decentral.ensemble.placement import place_breadth_first
+from decentral.ensemble.problem import EnsembleEstimate, EnsembleProblem
+from decentral.ensemble.refine import RefineConfig, refine
+
+__all__ = [
+    "HierarchyConfig",
+    "HierarchyNode",
+    "LocalizationResult",
+    "normcut_localize",
+    "split",
+    "merge_parts",
+    "layout_components",
+    "localize_components",
+]
+
+
+@dataclass(frozen=True)
+class HierarchyConfig:
+    """Parameters of Algorithm 1.
+
+    Attributes
+    ----------
+    leaf_size : int
+        A set of at most this many modules is "sufficiently small" (line 1): it is placed breadth
+        first and refined directly.
+    cut : str
+        ``"abstract"``: cut an abstraction of the graph with ``abstract_size`` random leaders
+        whenever the set is larger than ``4 * abstract_size`` (seed 003 §IV-C); ``"exact"``: always
+        cut the contact graph itself.
+    abstract_size : int
+        Number of leaders (abstract nodes) per abstraction (seed 003 Fig. 7: 20 or more suffice).
+    level_refine : RefineConfig
+        Refinement after each merge below the top (Algorithm 1 line 11).
+    final_refine : RefineConfig
+        Refinement of the whole ensemble (the top merge).
+    """
+
+    leaf_size: int = 128
+    cut: str = "abstract"
+    abstract_size: int = 64
+    level_refine: RefineConfig = RefineConfig(max_iter=100, gtol=1e-3)
+    final_refine: RefineConfig = RefineConfig(max_iter=300, gtol=1e-6)
+
+
+@dataclass(frozen=True)
+class HierarchyNode:
+    """One call of Algorithm 1: its modules (global ids), its parts and the cut that made them."""
+
+    nodes: np.ndarray
+    level: int
+    children: tuple[int, ...] = ()
+    ncut: float = float("nan")
+    refine_iterations: int = 0
+    refine_status: str = ""
+
+
+@dataclass(frozen=True)
+class LocalizationResult:
+    """Result of an ensemble localizer.
+
+    Attributes
+    ----------
+    estimate : EnsembleEstimate
+    cost : float
+        Negative log-likelihood at the estimate (metres^2), summed over components.
+    iterations_per_module : ndarray, shape (n,)
+        Refinement iterations charged to each module: the sum over all refinements that included it
+        (seed 003 Fig. 6 plots its mean).
+    status : str
+        ``"ok"``, or a short reason when a refinement did not converge (the estimate is still the
+        best found, never NaN).
+    hierarchy : tuple of HierarchyNode
+        The calls of Algorithm 1 in completion order (children before parents); empty for
+        baselines.
+    info : dict
+        Free-form numbers (depth, counts, timings).
+    """
+
+    estimate: EnsembleEstimate
+    cost: float
+    iterations_per_module: np.ndarray
+    status: str
+    hierarchy: tuple = ()
+    info: dict = field(default_factory=dict)
+
+
+def split(sub: EnsembleProblem, config: HierarchyConfig, rng: np.random.Generator) -> tuple[np.ndarray, float]:
+    """Line 4 of Algorithm 1: a normalized-cut partition of a connected subproblem.
+
+    Returns ``in_a`` (bool, n) and the Ncut value (of the graph that was cut: the abstraction when
+    one was used).
+    """
+    adj = sub.adjacency()
+    if config.cut == "abstract" and sub.n > 4 * config.abstract_size:
+        leaders = choose_leaders(sub.n, config.abstract_size, rng)
+        cl = hop_clusters(adj, leaders)
+        W = abstract_graph(adj, cl.cluster, leaders.size)
+        res = normalized_cut(W)
+        return res.in_a[cl.cluster], res.value
+    if config.cut not in ("abstract", "exact"):
+        raise ValueError(f"unknown cut {config.cut!r}")
+    res = normalized_cut(adj)
+    return res.in_a, res.value
+
+
+def merge_parts(sub: EnsembleProblem, part: np.ndarray, poses: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """Lines 7-10 of Algorithm 1: join partial solutions by closed-form rigid alignment.
+
+    Parameters
+    ----------
+    sub : EnsembleProblem
+        The (connected) subproblem.
+    part : ndarray of int, shape (n,)
+        Part index of each module, ``0..P-1``.
+    poses : list of (position (n_p, d), rotation (n_p, d, d))
+        Each part's estimate in its own frame, rows in increasing module order within the part.
+
+    Returns
+    -------
+    position, rotation : the union in the frame of the largest part.
+    """
+    n, d = sub.n, sub.dim
+    P = len(poses)
+    pos = np.zeros((n, d))
+    rot = np.tile(np.eye(d), (n, 1, 1))
+    members = [np.flatnonzero(part == p) for p in range(P)]
+    for p in range(P):
+        pos[members[p]], rot[members[p]] = poses[p]
+    sizes = np.array([m.size for m in members])
+    merged = np.zeros(P, dtype=bool)
+    merged[int(np.argmax(sizes))] = True
+    i, j, z = sub.i, sub.j, sub.z
+    rev = _reverse(sub)
+    pi, pj = part[i], part[j]
+    while not merged.all():
+        cross = merged[pi] & ~merged[pj]
+        links = np.bincount(pj[cross], minlength=P)
+        links[merged] = -1
+        p = int(np.argmax(links))
+        e = np.flatnonzero(cross & (pj == p))
+        # seed 003 eq. (5): align part p (frame q) onto the merged set (frame p) from the crossing pairs
+        a, b = i[e], j[e]
+        pts_p, pts_q = merge_point_pairs(pos[a], rot[a], pos[b], rot[b], z[e], z[rev[e]])
+        T = AlignmentStats.from_points(pts_p, pts_q).solve()
+        m = members[p]
+        pos[m], rot[m] = T.apply_pose(pos[m], rot[m])
+        merged[p] = True
+    return pos, rot
+
+
+def _reverse(sub: EnsembleProblem) -> np.ndarray:
+    n = sub.n
+    key = sub.i * n + sub.j
+    order = np.argsort(key)
+    return order[np.searchsorted(key[order], sub.j * n + sub.i)]
+
+
+class _Run:
+    def __init__(self, problem, config, rng):
+        self.problem, self.config, self.rng = problem, config, rng
+        self.iters = np.zeros(problem.n)
+        self.tree: list[HierarchyNode] = []
+        self.bad: list[str] = []
+        self.max_level = 0
+
+    def solve(self, sub: EnsembleProblem, nodes: np.ndarray, level: int, top: bool) -> tuple[np.ndarray, np.ndarray, int]:
+        cfg = self.config
+        self.max_level = max(self.max_level, level)
+        rcfg = cfg.final_refine if top else cfg.level_refine
+        if sub.n <= cfg.leaf_size:
+            # line 2: local heuristic for a small set
+            pos, rot, _ = place_breadth_first(sub)
+            res = refine(sub, pos, rot, rcfg)
+            self.iters[nodes] += res.iterations
+            self.tree.append(HierarchyNode(nodes, level, (), float("nan"), res.iterations, res.status))
+            if res.status == "stalled":
+                self.bad.append(f"leaf of {sub.n} modules: {res.status}")
+            return res.position, res.rotation, len(self.tree) - 1
+        in_a, value = split(sub, cfg, self.rng)
+        # lines 5-6: each connected piece of A and of B is localized on its own
+        side = in_a.astype(np.int64)
+        keep = side[sub.i] == side[sub.j]
+        import scipy.sparse as sp
+
+        g = sp.csr_matrix((np.ones(int(keep.sum())), (sub.i[keep], sub.j[keep])), shape=(sub.n, sub.n))
+        _, comp = connected_components(g, directed=False)
+        _, part = np.unique(comp, return_inverse=True)
+        P = int(part.max()) + 1
+        if P == 1:  # degenerate cut (cannot happen for a connected graph with n >= 2); split in order
+            part = (np.arange(sub.n) >= sub.n // 2).astype(np.int64)
+            P = 2
+        poses, kids = [], []
+        for p in range(P):
+            loc = np.flatnonzero(part == p)
+            child = sub.subproblem(loc)
+            cpos, crot, cid = self.solve(child, nodes[loc], level + 1, False)
+            poses.append((cpos, crot))
+            kids.append(cid)
+        pos, rot = merge_parts(sub, part, poses)
+        # line 11: refine the union starting from the aligned parts
+        res = refine(sub, pos, rot, rcfg)
+        self.iters[nodes] += res.iterations
+        if res.status == "stalled":
+            self.bad.append(f"merge of {sub.n} modules: {res.status}")
+        self.tree.append(HierarchyNode(nodes, level, tuple(kids), value, res.iterations, res.status))
+        return res.position, res.rotation, len(self.tree) - 1
+
+
+def layout_components(positions: list[np.ndarray], radius: float) -> list[np.ndarray]:
+    """Translate per-component estimates side by side along x (gap of 4 radii) so none overlap."""
+    out, x0 = [], 0.0
+    for p in positions:
+        lo, hi = p.min(axis=0), p.max(axis=0)
+        shift = np.zeros(p.shape[1])
+        shift[0] = x0 - lo[0] + radius
+        shift[1:] = -0.5 * (lo[1:] + hi[1:])
+        out.append(p + shift)
+        x0 += (hi[0] - lo[0]) + 4.0 * radius
+    return out
+
+
+def localize_components(problem: EnsembleProblem, solve_component) -> tuple[EnsembleEstimate, float, list]:
+    """Run ``solve_component(sub, nodes) -> (position, rotation, cost)`` per connected component and lay
+    the results side by side. Returns the estimate, the summed cost and the per-component outputs."""
+    k, labels = connected_components(problem.adjacency(), directed=False)
+    order = np.argsort(labels, kind="stable")
+    bounds = np.searchsorted(labels[order], np.arange(k + 1))
+    # largest component first so that it sits at the origin side
+    comps = sorted((order[bounds[c]:bounds[c + 1]] for c in range(k)), key=lambda m: (-m.size, m[0]))
+    pos = np.zeros((problem.n, problem.dim))
+    rot = np.tile(np.eye(problem.dim), (problem.n, 1, 1))
+    comp_label = np.zeros(problem.n, dtype=np.int64)
+    parts, cost, outs = [], 0.0, []
+    for c, nodes in enumerate(comps):
+        sub = problem.subproblem(nodes) if k > 1 else problem
+        p, r, cst = solve_component(sub, nodes)
+        parts.append(p)
+        rot[nodes] = r
+        comp_label[nodes] = c
+        cost += cst
+    for nodes, p in zip(comps, layout_components(parts, problem.radius) if k > 1 else parts):
+        pos[nodes] = p
+    return EnsembleEstimate(pos, rot, comp_label), cost, outs
+
+
+def normcut_localize(problem: EnsembleProblem, rng: np.random.Generator,
+                     config: HierarchyConfig = HierarchyConfig()) -> LocalizationResult:
+    """Localize every module by seed 003's Algorithm 1 (NormCutLocalize).
+
+    Parameters
+    ----------
+    problem : EnsembleProblem
+    rng : numpy.random.Generator
+        Draws the leaders of each graph abstraction (unused with ``config.cut == "exact"``).
+    config : HierarchyConfig
+
+    Returns
+    -------
+    LocalizationResult
+        Positions (n, d) and orientations in one arbitrary global frame; each connected component
+        of the contact graph is solved on its own and the components are laid side by side.
+    """
+    run = _Run(problem, config, rng)
+    limit = sys.getrecursionlimit()
+    sys.setrecursionlimit(max(limit, 10_000))
+    try:
+        def solve_component(sub, nodes):
+            p, r, _ = run.solve(sub, nodes, 0, True)
+            return p, r, 0.0
+
+        est, _, _ = localize_components(problem, solve_component)
+    finally:
+        sys.setrecursionlimit(limit)
+    from decentral.ensemble.model import residuals_from_matrices
+
+    r = residuals_from_matrices(problem, est.position, est.rotation)
+    cost = 0.5 * float(np.einsum("ea,ea->", r, r))
+    status = "ok" if not run.bad else "; ".join(run.bad[:3])
+    info = {"depth": run.max_level, "calls": len(run.tree)}
+    return LocalizationResult(est, cost, run.iters, status, tuple(run.tree), info)
