@@ -1,0 +1,35 @@
+"""An observer's perception front end (seed 000 §III): node circles, AprilTag ids, tracking.
+
+Each stage sits behind a small protocol (:class:`CircleDetector`, :class:`Identifier`,
+:class:`Tracker`) so it can be swapped; :class:`Perception` chains them. OpenCV is used here (and in
+``sims``) only.
+"""
+
+from agents.perception.apriltag import AprilTagConfig, AprilTagIdentifier
+from agents.perception.hough import HoughCircleDetector, HoughConfig
+from agents.perception.motion import FlowRegistration, odometry_homography
+from agents.perception.pipeline import FrameResult, Perception, perceive_frames
+from agents.perception.refine import RefineConfig
+from agents.perception.tracking import CircleTracker, TrackerConfig
+from agents.perception.types import Circle, CircleDetector, Identifier, TagRead, TrackedCircle, Tracker
+
+__all__ = [
+    "AprilTagConfig",
+    "AprilTagIdentifier",
+    "Circle",
+    "CircleDetector",
+    "CircleTracker",
+    "FlowRegistration",
+    "FrameResult",
+    "HoughCircleDetector",
+    "HoughConfig",
+    "Identifier",
+    "Perception",
+    "RefineConfig",
+    "TagRead",
+    "TrackedCircle",
+    "Tracker",
+    "TrackerConfig",
+    "odometry_homography",
+    "perceive_frames",
+]

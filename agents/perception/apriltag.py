@@ -1,0 +1,199 @@
+"""Identification: OpenCV's AprilTag 36h11 detector run inside each circle (seed 000 §III-B).
+
+Seed 000 filters AprilTag reads by the decision margin and the hamming distance. OpenCV's ArUco
+module (which decodes the AprilTag families) exposes neither: it returns corners, ids and, with
+``detectMarkersWithConfidence``, a confidence in [0, 1]. So each accepted read is re-measured here
+from its own pixels: the tag is rectified from its corners onto the family's cell grid, each cell's
+mean grey level is sampled, the black/white threshold is the midpoint of the mean grey levels of the
+cells that the dictionary code says are black and white, and
+
+- ``hamming`` = the number of data cells on the wrong side of that threshold,
+- ``margin`` = min(mean(white cells) - threshold, threshold - mean(black cells)), in grey levels
+  (AprilTag's decision margin is the analogous quantity of its own decoder).
+
+A read is kept if ``hamming <= max_hamming`` and ``margin >= min_margin`` and its centre lies inside
+the circle; of several, the one with the largest margin. The tag id becomes a node id through a tag
+table (default: the identity, the renderer's convention).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Mapping, Sequence
+
+import cv2
+import numpy as np
+
+from agents.perception.hough import to_grey
+from agents.perception.types import Circle, TagRead
+
+__all__ = ["AprilTagConfig", "AprilTagIdentifier", "FAMILIES", "tag_quality"]
+
+#: tag family name -> OpenCV predefined dictionary
+FAMILIES: dict[str, int] = {
+    "tag36h11": cv2.aruco.DICT_APRILTAG_36h11,
+    "tag25h9": cv2.aruco.DICT_APRILTAG_25h9,
+    "tag16h5": cv2.aruco.DICT_APRILTAG_16h5,
+    "tag36h10": cv2.aruco.DICT_APRILTAG_36h10,
+}
+
+
+@dataclass(frozen=True)
+class AprilTagConfig:
+    """Parameters of :class:`AprilTagIdentifier`.
+
+    Attributes
+    ----------
+    family : str
+        Tag family, a key of :data:`FAMILIES`.
+    tag_table : mapping of int to int, optional
+        Tag id -> node id. None: node id = tag id. With a table, a tag it does not list is read
+        (``node`` None) but names no node.
+    max_hamming : int
+        Largest accepted number of wrong data cells.
+    min_margin : float
+        Smallest accepted decision margin, grey levels.
+    roi_scale : float
+        The region searched around a circle is a square of half-side ``roi_scale * r``.
+    upscale_below : float
+        Circles smaller than this radius (px) are searched on a 2x upscaled region: tags under about
+        3 px per cell decode much better so.
+    adaptive_window : int
+        Single adaptive-threshold window (px, odd) of the tuned detector; None keeps OpenCV's
+        default three windows (slower).
+    """
+
+    family: str = "tag36h11"
+    tag_table: Mapping[int, int] | None = None
+    max_hamming: int = 2
+    min_margin: float = 15.0
+    roi_scale: float = 1.1
+    upscale_below: float = 30.0
+    adaptive_window: int | None = 15
+    extra: Mapping[str, float] = field(default_factory=dict)
+
+
+def _detector(cfg: AprilTagConfig) -> cv2.aruco.ArucoDetector:
+    params = cv2.aruco.DetectorParameters()
+    # tuned for a region that holds one node: a tag is a large part of it, so small candidate
+    # squares are rejected early (the default accepts 3 % of the region's perimeter) and a single
+    # threshold window suffices
+    params.minMarkerPerimeterRate = 0.15
+    params.maxMarkerPerimeterRate = 4.0
+    params.polygonalApproxAccuracyRate = 0.05
+    params.minCornerDistanceRate = 0.05
+    params.minDistanceToBorder = 1
+    if cfg.adaptive_window is not None:
+        params.adaptiveThreshWinSizeMin = cfg.adaptive_window
+        params.adaptiveThreshWinSizeMax = cfg.adaptive_window
+        params.adaptiveThreshWinSizeStep = 10
+    params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+    params.cornerRefinementWinSize = 3
+    for name, value in cfg.extra.items():
+        setattr(params, name, type(getattr(params, name))(value))
+    if cfg.family not in FAMILIES:
+        raise ValueError(f"unknown tag family {cfg.family!r}; known: {', '.join(FAMILIES)}")
+    dictionary = cv2.aruco.getPredefinedDictionary(FAMILIES[cfg.family])
+    return cv2.aruco.ArucoDetector(dictionary, params)
+
+
+def tag_quality(grey: np.ndarray, corners: np.ndarray, code: np.ndarray) -> tuple[int, float]:
+    """Hamming distance and decision margin of one tag read, measured from its pixels.
+
+    Parameters
+    ----------
+    grey : ndarray, shape (H, W), uint8
+    corners : ndarray, shape (4, 2)
+        Outer corners of the tag's black border, canonical order (top-left, top-right,
+        bottom-right, bottom-left of the upright tag), pixels.
+    code : ndarray of bool, shape (c, c)
+        The dictionary's cells including the one-cell black border (True = white).
+
+    Returns
+    -------
+    hamming : int
+        Data cells (inside the border) on the wrong side of the black/white threshold.
+    margin : float
+        min(mean white - threshold, threshold - mean black), grey levels (negative when the
+        cells do not separate).
+    """
+    cells = code.shape[0]
+    px = 6  # samples per cell side
+    side = cells * px
+    dst = np.array([[0, 0], [side, 0], [side, side], [0, side]], np.float32) - 0.5
+    H = cv2.getPerspectiveTransform(np.asarray(corners, np.float32), dst)
+    warped = cv2.warpPerspective(grey, H, (side, side), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    inner = warped.reshape(cells, px, cells, px)[:, 1:-1, :, 1:-1].astype(np.float32)
+    mean = inner.mean(axis=(1, 3))  # (cells, cells)
+    white, black = mean[code], mean[~code]
+    if white.size == 0 or black.size == 0:
+        return cells * cells, -np.inf
+    thr = 0.5 * (white.mean() + black.mean())
+    margin = float(min(white.mean() - thr, thr - black.mean()))
+    data = np.zeros_like(code)
+    data[1:-1, 1:-1] = True
+    hamming = int(((mean > thr) != code)[data].sum())
+    return hamming, margin
+
+
+class AprilTagIdentifier:
+    """AprilTag reads restricted to the circles; implements :class:`~agents.perception.types.Identifier`."""
+
+    def __init__(self, config: AprilTagConfig | None = None):
+        self.config = config or AprilTagConfig()
+        self._detector = _detector(self.config)
+        self._dictionary = self._detector.getDictionary()
+        self._codes: dict[int, np.ndarray] = {}
+
+    def code(self, tag: int) -> np.ndarray:
+        """The cells of tag ``tag`` with its black border, shape (c, c), True = white."""
+        if tag not in self._codes:
+            n = self._dictionary.markerSize + 2
+            self._codes[tag] = cv2.aruco.generateImageMarker(self._dictionary, int(tag), n, borderBits=1) > 127
+        return self._codes[tag]
+
+    def node_of(self, tag: int) -> int | None:
+        """Node id named by tag ``tag`` (None if a tag table is set and does not list it)."""
+        table = self.config.tag_table
+        return int(tag) if table is None else (int(table[tag]) if tag in table else None)
+
+    def read_region(self, grey: np.ndarray, x0: int, y0: int, x1: int, y1: int, scale: float) -> list[TagRead]:
+        """Every accepted tag read in ``grey[y0:y1, x0:x1]`` (upscaled by ``scale``), image coordinates."""
+        roi = grey[y0:y1, x0:x1]
+        if roi.size == 0 or min(roi.shape) < 8:
+            return []
+        if scale != 1.0:
+            roi = cv2.resize(roi, None, fx=scale, fy=scale, interpolation=cv2.INTER_LINEAR)
+        corners, ids, conf, _ = self._detector.detectMarkersWithConfidence(roi)
+        if ids is None or len(ids) == 0:
+            return []
+        out = []
+        for c, tag, cf in zip(corners, np.asarray(ids).ravel(), np.asarray(conf).ravel()):
+            c = np.asarray(c, dtype=float).reshape(4, 2)
+            hamming, margin = tag_quality(roi, c, self.code(int(tag)))
+            if hamming > self.config.max_hamming or margin < self.config.min_margin:
+                continue
+            # a resized pixel centre k sits at (k + 0.5) / scale - 0.5 in the region
+            full = (c + 0.5) / scale - 0.5 + np.array([x0, y0])
+            out.append(TagRead(int(tag), self.node_of(int(tag)), full, hamming, margin, float(cf)))
+        return out
+
+    def identify(self, image: np.ndarray, circles: Sequence[Circle]) -> list[TagRead | None]:
+        """One accepted read per circle (the largest margin among reads centred inside it) or None."""
+        grey = to_grey(np.asarray(image))
+        h, w = grey.shape[:2]
+        out: list[TagRead | None] = []
+        for circle in circles:
+            half = self.config.roi_scale * circle.r
+            x0, x1 = max(int(np.floor(circle.u - half)), 0), min(int(np.ceil(circle.u + half)) + 1, w)
+            y0, y1 = max(int(np.floor(circle.v - half)), 0), min(int(np.ceil(circle.v + half)) + 1, h)
+            scale = 2.0 if circle.r < self.config.upscale_below else 1.0
+            best = None
+            for read in self.read_region(grey, x0, y0, x1, y1, scale):
+                centre = read.corners.mean(axis=0)
+                if np.hypot(centre[0] - circle.u, centre[1] - circle.v) > circle.r:
+                    continue
+                if best is None or read.margin > best.margin:
+                    best = read
+            out.append(best)
+        return out

@@ -1,0 +1,176 @@
+"""The classical default circle detector: OpenCV Hough circles, sub-pixel refinement, suppression.
+
+Seed 000 §III-A detects nodes as bounding circles with a learned detector; this default needs no
+training: ``cv2.HoughCircles`` proposes rough circles on a smoothed image (generously: false
+proposals are cheap), each is refined to sub-pixel accuracy and scored by
+:func:`agents.perception.refine.refine_circles`,
+and overlapping proposals are suppressed (duplicates, and circles whose centre lies inside a larger,
+better circle: a node of the same physical size that looks smaller is farther, so its centre cannot
+be visible through a nearer one).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from agents.perception.refine import RefineConfig, coarse_fit, radius_hypotheses, refine_circles
+from agents.perception.types import Circle
+
+__all__ = ["HoughConfig", "HoughCircleDetector", "to_grey"]
+
+
+def to_grey(image: np.ndarray) -> np.ndarray:
+    """Return ``image`` as a (H, W) uint8 grey image (accepts grey, BGR or BGRA uint8)."""
+    if image.ndim == 2:
+        return image
+    if image.ndim == 3 and image.shape[2] == 3:
+        return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    if image.ndim == 3 and image.shape[2] == 4:
+        return cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY)
+    raise ValueError(f"expected a (H, W), (H, W, 3) or (H, W, 4) image, got shape {image.shape}")
+
+
+@dataclass(frozen=True)
+class HoughConfig:
+    """Parameters of :class:`HoughCircleDetector`.
+
+    Attributes
+    ----------
+    method : int
+        ``cv2.HOUGH_GRADIENT`` (default: fast, many proposals) or ``cv2.HOUGH_GRADIENT_ALT``.
+    levels : tuple of (scale, r_lo, r_hi)
+        Pyramid levels of the proposal stage: circles of full-resolution radius in [r_lo, r_hi] are
+        sought on the image resized by ``scale`` (proposals are only rough; the refinement runs at
+        full resolution). The Hough cost grows with the radius range in pixels, so large circles are
+        sought on coarser levels, and coarse levels blur the stickers' squares away.
+    blur : float
+        Gaussian sigma (px, at each level's scale) before the Hough transform.
+    dp, param1, param2 : float
+        ``cv2.HoughCircles`` accumulator resolution, Canny high threshold and accumulator threshold
+        (``HOUGH_GRADIENT``; for ``HOUGH_GRADIENT_ALT`` param2 is the circle "perfectness" in (0, 1)).
+    max_proposals : int
+        At most this many proposals (strongest accumulator first) are refined.
+    radius_multipliers : tuple of float
+        Each proposal is refined from these multiples of its radius (the best survives suppression).
+    radius_search : bool
+        Re-estimate each proposal's radius from the rim energy around its centre (slower; for
+        proposal methods whose radius locks onto the sticker, like ``HOUGH_GRADIENT``).
+    min_radius, max_radius : int
+        Radius range in pixels of the returned circles (the levels should cover it).
+    refine_blur : float
+        Gaussian sigma (px) of the image the rim search runs on.
+    min_score : float
+        Circles whose refined rim support is below this are dropped.
+    max_circles : int
+        At most this many circles are returned (best score first).
+    refine : RefineConfig
+        Rim search and fit parameters.
+    """
+
+    levels: tuple[tuple[float, float, float], ...] = ((0.5, 8.0, 36.0), (0.25, 32.0, 160.0))
+    method: int = cv2.HOUGH_GRADIENT
+    blur: float = 1.0
+    dp: float = 1.5
+    param1: float = 150.0
+    param2: float = 15.0
+    radius_multipliers: tuple[float, ...] = (1.0, 1.35, 2.2)
+    radius_search: bool = False
+    max_proposals: int = 120
+    min_radius: int = 8
+    max_radius: int = 160
+    refine_blur: float = 1.0
+    min_score: float = 0.3
+    max_circles: int = 64
+    refine: RefineConfig = field(default_factory=RefineConfig)
+
+
+class HoughCircleDetector:
+    """Hough proposals + sub-pixel rim refinement; implements :class:`~agents.perception.types.CircleDetector`."""
+
+    def __init__(self, config: HoughConfig | None = None):
+        self.config = config or HoughConfig()
+
+    def proposals(self, grey: np.ndarray) -> np.ndarray:
+        """Rough Hough circles of a grey uint8 image over all levels, shape (N, 3) as (u, v, r)."""
+        cfg = self.config
+        out = []
+        for s, r_lo, r_hi in cfg.levels:
+            small = grey if s == 1.0 else cv2.resize(grey, None, fx=s, fy=s, interpolation=cv2.INTER_AREA)
+            smooth = cv2.GaussianBlur(small, (0, 0), cfg.blur) if cfg.blur > 0 else small
+            lo = max(int(np.floor(max(r_lo, cfg.min_radius) * s)), 2)
+            hi = int(np.ceil(min(r_hi, cfg.max_radius) * s))
+            if hi <= lo:
+                continue
+            found = cv2.HoughCircles(
+                smooth, cfg.method, dp=cfg.dp, minDist=max(lo / 2.0, 2.0),
+                param1=cfg.param1, param2=cfg.param2, minRadius=lo, maxRadius=hi,
+            )
+            if found is None:
+                continue
+            rough = found[0, : cfg.max_proposals, :3].astype(float)
+            # a resized pixel centre k sits at (k + 0.5) / s - 0.5 in the full image
+            rough[:, :2] = (rough[:, :2] + 0.5) / s - 0.5
+            rough[:, 2] /= s
+            out.append(rough)
+        return np.concatenate(out) if out else np.zeros((0, 3))
+
+    def detect(self, image: np.ndarray) -> list[Circle]:
+        """Return the refined, suppressed circles of ``image``, best score first."""
+        cfg = self.config
+        grey = to_grey(np.asarray(image))
+        if grey.size == 0:
+            return []
+        rough = self.proposals(grey)
+        if len(rough) == 0:
+            return []
+        fine_img = grey.astype(np.float32)
+        if cfg.refine_blur > 0:
+            fine_img = cv2.GaussianBlur(fine_img, (0, 0), cfg.refine_blur)
+        # each proposal also stands for larger circles: a proposal that locked onto the square
+        # sticker inside a node (0.35-0.5 of its radius) or onto its lit side then still finds the rim
+        hyp = np.concatenate([rough * np.array([1.0, 1.0, m]) for m in cfg.radius_multipliers])
+        hyp = hyp[hyp[:, 2] <= cfg.max_radius * 1.2]
+        if cfg.radius_search:
+            # the Hough centres are good even where its radius locks onto the sticker: re-estimate radii
+            centres = _merge_centres(rough[:, :2], 2.0)
+            hyp = radius_hypotheses(fine_img, centres, cfg.min_radius, cfg.max_radius, per_centre=3)
+        # coarse pass on every proposal, suppression, then the fine pass on the survivors
+        circles, scores, ok = coarse_fit(fine_img, hyp, cfg.refine)
+        ok &= (scores >= cfg.min_score) & (circles[:, 2] >= 0.8 * cfg.min_radius) & (circles[:, 2] <= 1.2 * cfg.max_radius)
+        coarse = suppress([Circle(*map(float, c), float(s)) for c, s in zip(circles[ok], scores[ok])])
+        if not coarse:
+            return []
+        circles, scores, ok = refine_circles(fine_img, np.array([[c.u, c.v, c.r] for c in coarse]), cfg.refine)
+        ok &= scores >= cfg.min_score
+        found = [Circle(*map(float, c), float(min(s, 1.0))) for c, s in zip(circles[ok], scores[ok])]
+        return suppress(found)[: cfg.max_circles]
+
+
+def _merge_centres(centres: np.ndarray, dist: float) -> np.ndarray:
+    """Greedily merge centres closer than ``dist`` pixels (keeps the first of each cluster)."""
+    kept: list[np.ndarray] = []
+    for c in centres:
+        if all(np.hypot(*(c - k)) >= dist for k in kept):
+            kept.append(c)
+    return np.array(kept).reshape(-1, 2)
+
+
+def suppress(circles: list[Circle], strong: float = 0.45) -> list[Circle]:
+    """Greedy suppression of nested and duplicate circles; return the kept ones, best score first.
+
+    Two circles clash when the centre of one lies inside the other. Nodes share one physical size,
+    so of two nested circles the smaller is either not a node (the circle inscribed in a node's
+    square sticker) or a farther node whose centre the nearer one hides: strong circles (score >=
+    ``strong``) are therefore kept largest first, then the weaker ones best score first, each only
+    if it clashes with nothing kept.
+    """
+    kept: list[Circle] = []
+    first = sorted((c for c in circles if c.score >= strong), key=lambda c: (-c.r, -c.score))
+    then = sorted((c for c in circles if c.score < strong), key=lambda c: (-c.score, -c.r))
+    for c in first + then:
+        if all(np.hypot(c.u - k.u, c.v - k.v) >= 0.9 * max(k.r, c.r) for k in kept):
+            kept.append(c)
+    return sorted(kept, key=lambda c: -c.score)

@@ -1,0 +1,113 @@
+"""The perception front end of one camera: detect circles, read tags, track (seed 000 §III).
+
+:class:`Perception` chains the three swappable stages (any objects meeting the protocols of
+:mod:`agents.perception.types`) and the camera-motion source; :func:`perceive_frames` runs it over a
+sequence of images and returns one :class:`FrameResult` per image.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Callable, Iterable, Sequence
+
+import numpy as np
+
+from agents.perception.apriltag import AprilTagConfig, AprilTagIdentifier
+from agents.perception.hough import HoughCircleDetector
+from agents.perception.motion import FlowRegistration
+from agents.perception.tracking import CircleTracker
+from agents.perception.types import Circle, CircleDetector, Identifier, TrackedCircle, Tracker
+
+__all__ = ["FrameResult", "Perception", "perceive_frames"]
+
+MotionSource = Callable[[np.ndarray, Sequence[Circle]], "np.ndarray | None"]
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    """What perception made of one frame: its detections and the time each stage took (s)."""
+
+    source: str
+    detections: tuple[TrackedCircle, ...]
+    seconds: dict[str, float]
+
+
+class Perception:
+    """Detector + identifier + (optional) tracker + (optional) camera-motion source.
+
+    Parameters
+    ----------
+    detector : CircleDetector, optional
+        Default :class:`~agents.perception.hough.HoughCircleDetector`.
+    identifier : Identifier, optional
+        Default :class:`~agents.perception.apriltag.AprilTagIdentifier` (tag36h11).
+    tracker : Tracker or None
+        Default :class:`~agents.perception.tracking.CircleTracker`; ``track=False`` disables it
+        (then a detection's node id is its tag read's, and its track is None).
+    motion : callable or None
+        ``motion(image, circles) -> H (3, 3) or None``, the camera motion since the previous frame
+        when :meth:`process` is not given one; default :class:`FlowRegistration` when tracking.
+    """
+
+    def __init__(
+        self,
+        detector: CircleDetector | None = None,
+        identifier: Identifier | None = None,
+        tracker: Tracker | None = None,
+        *,
+        track: bool = True,
+        motion: MotionSource | None | str = "flow",
+    ):
+        self.detector = detector or HoughCircleDetector()
+        self.identifier = identifier or AprilTagIdentifier(AprilTagConfig())
+        self.tracker = (tracker or CircleTracker()) if track else None
+        if motion == "flow":
+            motion = FlowRegistration() if track else None
+        self.motion = motion
+
+    def reset(self) -> None:
+        """Start a new sequence."""
+        if self.tracker is not None:
+            self.tracker.reset()
+        reset = getattr(self.motion, "reset", None)
+        if reset is not None:
+            reset()
+
+    def process(self, image: np.ndarray, *, motion: np.ndarray | None = None) -> tuple[list[TrackedCircle], dict[str, float]]:
+        """Run one frame; ``motion`` (3, 3) overrides the motion source (e.g. from odometry)."""
+        t0 = time.perf_counter()
+        circles = self.detector.detect(image)
+        t1 = time.perf_counter()
+        reads = self.identifier.identify(image, circles)
+        t2 = time.perf_counter()
+        if self.tracker is None:
+            out = [TrackedCircle(c, r, r.node if r is not None else None, None) for c, r in zip(circles, reads)]
+            return out, {"detect": t1 - t0, "identify": t2 - t1}
+        if motion is None and self.motion is not None:
+            motion = self.motion(image, circles)
+        t3 = time.perf_counter()
+        out = self.tracker.update(circles, reads, motion=motion)
+        t4 = time.perf_counter()
+        return out, {"detect": t1 - t0, "identify": t2 - t1, "motion": t3 - t2, "track": t4 - t3}
+
+
+def perceive_frames(
+    frames: Iterable[tuple[str, np.ndarray]],
+    perception: Perception | None = None,
+    *,
+    motions: Sequence[np.ndarray | None] | None = None,
+) -> list[FrameResult]:
+    """Run perception over ``(source name, image)`` pairs in time order.
+
+    ``motions``, if given, holds one camera-motion homography (or None) per frame and replaces the
+    perception's own motion source (e.g. homographies from the observer's odometry).
+    """
+    perception = perception or Perception()
+    perception.reset()
+    results = []
+    for k, (name, image) in enumerate(frames):
+        given = motions[k] if motions is not None and k < len(motions) else None
+        dets, secs = perception.process(image, motion=given)
+        results.append(FrameResult(name, tuple(dets), secs))
+    return results

@@ -1,0 +1,252 @@
+"""A BoT-SORT-style tracker of node circles that carries node ids through tag drop-outs (seed 000 §III-C).
+
+Per frame: every track's Kalman state is predicted one frame ahead and moved by the camera motion
+(if given); detections are split by score; high-score detections are associated first with all
+active and lost tracks, then the low-score ones with the tracks still unmatched (BoT-SORT's
+two-stage association [1]_), on the cost 1 - IoU of circles whose radii are enlarged by a buffer
+(small, fast circles then still overlap their prediction). Tag reads steer the association: a
+detection whose tag names node X cannot join a track confidently carrying another node id, and
+joins a (possibly lost) track carrying X even without overlap, within a distance gate.
+
+Ids are votes: a track's node id is the node its tag reads named most often; a read that contradicts
+the current id adds a vote but flips the id only once it strictly outnumbers it, and a track with at
+least ``confident_votes`` reads for its id is never matched to a detection reading another tag. Two
+tracks never show the same node id in one frame: the one with more votes for it keeps it.
+
+References
+----------
+.. [1] N. Aharon, R. Orfaig, B.-Z. Bobrovsky, "BoT-SORT: Robust associations multi-pedestrian
+   tracking", arXiv:2206.14651, 2022.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from agents.perception.kalman import CircleKalman, KalmanConfig, circle_iou, warp_state
+from agents.perception.types import Circle, TagRead, TrackedCircle
+
+__all__ = ["TrackerConfig", "Track", "CircleTracker"]
+
+_BLOCK = 1e6  # cost of a forbidden pairing
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Parameters of :class:`CircleTracker`.
+
+    Attributes
+    ----------
+    high_score : float
+        Detections scoring at least this take part in the first association stage.
+    new_track_score : float
+        Unmatched detections scoring at least this start a track.
+    match_iou, low_iou, tentative_iou : float
+        Smallest (buffered) IoU accepted in the first stage, in the second (low-score) stage, and
+        between new (tentative) tracks and detections.
+    buffer : float
+        Radii are scaled by ``1 + buffer`` (plus 2 px) for the association IoU.
+    reid_distance : float
+        A detection whose tag names a track's node joins it if their centres are within this many
+        radii, even without overlap (re-identification after occlusion).
+    confirm_hits : int
+        Hits that turn a tentative track into a confirmed one (a track starting in the first frame
+        is confirmed at once).
+    max_lost : int
+        Frames a track survives without a detection.
+    confident_votes : int
+        Reads of its node id that make a track's id confident.
+    kalman : KalmanConfig
+        Noise model of the circle Kalman filter.
+    """
+
+    high_score: float = 0.45
+    new_track_score: float = 0.45
+    match_iou: float = 0.1
+    low_iou: float = 0.3
+    tentative_iou: float = 0.2
+    buffer: float = 0.3
+    reid_distance: float = 3.0
+    confirm_hits: int = 2
+    max_lost: int = 30
+    confident_votes: int = 3
+    kalman: KalmanConfig = field(default_factory=KalmanConfig)
+
+
+@dataclass
+class Track:
+    """Mutable state of one track (internal to :class:`CircleTracker`, exposed for inspection)."""
+
+    track_id: int
+    mean: np.ndarray
+    cov: np.ndarray
+    votes: dict[int, int] = field(default_factory=dict)
+    node: int | None = None
+    hits: int = 1
+    lost: int = 0
+    confirmed: bool = False
+
+    @property
+    def circle(self) -> np.ndarray:
+        """Current (u, v, r), shape (3,)."""
+        return self.mean[:3]
+
+    def vote(self, node: int) -> None:
+        """Count one tag read naming ``node``; the id flips only when strictly outnumbered."""
+        self.votes[node] = self.votes.get(node, 0) + 1
+        if self.node is None or self.votes[node] > self.votes.get(self.node, 0):
+            self.node = node
+
+
+class CircleTracker:
+    """BoT-SORT-style circle tracker; implements :class:`~agents.perception.types.Tracker`."""
+
+    def __init__(self, config: TrackerConfig | None = None):
+        self.config = config or TrackerConfig()
+        self.kf = CircleKalman(self.config.kalman)
+        self.tracks: list[Track] = []
+        self.frame = 0
+        self._next_id = 1
+
+    def reset(self) -> None:
+        """Forget every track (a new sequence starts)."""
+        self.tracks = []
+        self.frame = 0
+        self._next_id = 1
+
+    # -- association helpers -------------------------------------------------------------------
+    def _confident_node(self, t: Track) -> int | None:
+        if t.node is not None and t.votes.get(t.node, 0) >= self.config.confident_votes:
+            return t.node
+        return None
+
+    def _cost(self, tracks: list[Track], dets: np.ndarray, nodes: list[int | None], min_iou: float) -> np.ndarray:
+        """Cost matrix (tracks x dets): 1 - buffered IoU, id rules applied, gated to _BLOCK."""
+        cfg = self.config
+        if not tracks or len(dets) == 0:
+            return np.zeros((len(tracks), len(dets)))
+        tc = np.array([t.circle for t in tracks])
+        grow = np.array([1.0, 1.0, 1.0 + cfg.buffer])
+        iou = circle_iou(tc * grow + [0, 0, 2.0], dets * grow + [0, 0, 2.0])
+        cost = np.where(iou >= min_iou, 1.0 - iou, _BLOCK)
+        for i, t in enumerate(tracks):
+            sure = self._confident_node(t)
+            for j, node in enumerate(nodes):
+                if node is None:
+                    continue
+                if sure is not None and node != sure:
+                    cost[i, j] = _BLOCK  # refuse an id swap
+                elif t.node == node:
+                    d = np.hypot(*(tc[i, :2] - dets[j, :2]))
+                    if d <= cfg.reid_distance * max(tc[i, 2], dets[j, 2]):
+                        cost[i, j] = min(cost[i, j], 0.5 * (1.0 - iou[i, j]))  # a read agreeing with the id
+        return cost
+
+    @staticmethod
+    def _assign(cost: np.ndarray) -> list[tuple[int, int]]:
+        if cost.size == 0:
+            return []
+        rows, cols = linear_sum_assignment(cost)
+        return [(int(r), int(c)) for r, c in zip(rows, cols) if cost[r, c] < _BLOCK]
+
+    # -- one frame -----------------------------------------------------------------------------
+    def update(
+        self,
+        circles: Sequence[Circle],
+        reads: Sequence[TagRead | None],
+        *,
+        motion: np.ndarray | None = None,
+    ) -> list[TrackedCircle]:
+        """Advance one frame; return one :class:`TrackedCircle` per input circle, in order."""
+        cfg = self.config
+        if len(circles) != len(reads):
+            raise ValueError("circles and reads must have the same length")
+        first_frame = self.frame == 0
+        self.frame += 1
+        for t in self.tracks:
+            t.mean, t.cov = self.kf.predict(t.mean, t.cov)
+            if motion is not None:
+                t.mean, t.cov = warp_state(t.mean, t.cov, np.asarray(motion, dtype=float))
+        dets = np.array([[c.u, c.v, c.r] for c in circles], dtype=float).reshape(-1, 3)
+        scores = np.array([c.score for c in circles], dtype=float)
+        nodes = [r.node if r is not None else None for r in reads]
+        owner: dict[int, Track] = {}  # detection index -> track
+
+        def run(tracks: list[Track], idx: list[int], min_iou: float) -> list[Track]:
+            cost = self._cost(tracks, dets[idx], [nodes[j] for j in idx], min_iou)
+            matched = set()
+            for ti, dj in self._assign(cost):
+                owner[idx[dj]] = tracks[ti]
+                matched.add(ti)
+            return [t for i, t in enumerate(tracks) if i not in matched]
+
+        high = [j for j in range(len(dets)) if scores[j] >= cfg.high_score]
+        low = [j for j in range(len(dets)) if scores[j] < cfg.high_score]
+        pool = [t for t in self.tracks if t.confirmed]
+        tentative = [t for t in self.tracks if not t.confirmed]
+        # stage 1: high-score detections with confirmed tracks (active and lost)
+        left = run(pool, high, cfg.match_iou)
+        # stage 2: low-score detections with the active tracks left over
+        run([t for t in left if t.lost == 0], [j for j in low if j not in owner], cfg.low_iou)
+        # tentative tracks with the high-score detections left over
+        run(tentative, [j for j in high if j not in owner], cfg.tentative_iou)
+
+        updated = set()
+        for j, t in owner.items():
+            t.mean, t.cov = self.kf.update(t.mean, t.cov, dets[j])
+            t.hits += 1
+            t.lost = 0
+            if t.hits >= cfg.confirm_hits:
+                t.confirmed = True
+            if nodes[j] is not None:
+                t.vote(nodes[j])
+            updated.add(id(t))
+        survivors = []
+        for t in self.tracks:
+            if id(t) in updated:
+                survivors.append(t)
+            elif t.confirmed and t.lost < cfg.max_lost:
+                t.lost += 1
+                survivors.append(t)
+        self.tracks = survivors
+        for j in range(len(dets)):
+            if j in owner or scores[j] < cfg.new_track_score:
+                continue
+            mean, cov = self.kf.initiate(dets[j])
+            t = Track(self._next_id, mean, cov, confirmed=first_frame)
+            self._next_id += 1
+            if nodes[j] is not None:
+                t.vote(nodes[j])
+            self.tracks.append(t)
+            owner[j] = t
+        self._retire_duplicates(owner)
+        return self._outputs(circles, reads, owner)
+
+    def _retire_duplicates(self, owner: dict[int, Track]) -> None:
+        """Drop lost tracks whose confident node id now belongs to a track seen in this frame."""
+        seen = {self._confident_node(t) for t in owner.values()} - {None}
+        self.tracks = [t for t in self.tracks if not (t.lost > 0 and self._confident_node(t) in seen)]
+
+    def _outputs(self, circles, reads, owner: dict[int, Track]) -> list[TrackedCircle]:
+        # a node id shows on at most one detection: the track with the most votes for it keeps it
+        claim: dict[int, tuple[int, int]] = {}  # node -> (votes, detection index)
+        for j, t in owner.items():
+            if t.node is not None:
+                v = t.votes.get(t.node, 0)
+                if t.node not in claim or v > claim[t.node][0]:
+                    claim[t.node] = (v, j)
+        out = []
+        for j, (c, r) in enumerate(zip(circles, reads)):
+            t = owner.get(j)
+            node = None
+            if t is not None and t.node is not None and claim[t.node][1] == j:
+                node = t.node
+            elif t is None and r is not None and r.node is not None and r.node not in claim:
+                node = r.node
+                claim[node] = (0, j)
+            out.append(TrackedCircle(c, r, node, t.track_id if t is not None else None))
+        return out
