@@ -41,14 +41,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import minimize_scalar
+from scipy.linalg import eigh
 
-from decentral.geometry import rot2, wrap_angle
+from decentral.geometry import wrap_angle
 
 __all__ = [
     "compose",
     "invert",
     "compose_jacobians",
+    "invert_jacobian",
     "predict_pose",
     "predict_relative",
     "project_target",
@@ -60,6 +61,12 @@ __all__ = [
 ]
 
 _DR = np.array([[0.0, -1.0], [1.0, 0.0]])  # d R(theta) / d theta = R(theta) @ _DR
+
+
+def rot2(theta: float) -> np.ndarray:
+    """SO(2) matrix (2, 2) of one angle (a scalar fast path of :func:`decentral.geometry.rot2`)."""
+    c, s = np.cos(theta), np.sin(theta)
+    return np.array([[c, -s], [s, c]])
 
 
 def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -87,7 +94,7 @@ def compose_jacobians(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndar
     return Ja, Jb
 
 
-def _invert_jacobian(a: np.ndarray) -> np.ndarray:
+def invert_jacobian(a: np.ndarray) -> np.ndarray:
     """Jacobian (3, 3) of ``⊖a`` with respect to ``a``."""
     R = rot2(a[2])
     J = -np.eye(3)
@@ -162,7 +169,7 @@ def predict_relative(
     """
     odometry = np.asarray(odometry, dtype=float)
     inv_u = invert(odometry)
-    J_inv = _invert_jacobian(odometry)
+    J_inv = invert_jacobian(odometry)
     Ja, Jb = compose_jacobians(inv_u, mean)
     moved = compose(inv_u, mean)
     G = Ja @ J_inv
@@ -253,6 +260,7 @@ def update_detection(
     *,
     mutual: bool = False,
     gate: float = np.inf,
+    iterations: int = 5,
 ) -> UpdateResult:
     """EKF update of a track ``s`` (target's pose in the observer's frame) with one pixel circle.
 
@@ -273,34 +281,49 @@ def update_detection(
         The measuring camera (see :func:`project_target`).
     mutual : bool
     gate : float
-        Largest NIS accepted (e.g. ``scipy.stats.chi2.ppf(0.999, 3)``).
+        Largest NIS accepted (e.g. ``scipy.stats.chi2.ppf(0.999, 3)``), tested at the prior.
+    iterations : int
+        Iterated-EKF relinearizations (1 = the plain EKF update).
     """
-    mean = np.asarray(mean, dtype=float)
-    if mutual:
-        pos = invert(mean)[:2]
-        J = _invert_jacobian(mean)[:2, :]
-    else:
-        pos = mean[:2]
-        J = np.eye(3)[:2, :]
-    pred, H_pos, depth = project_target(pos, K, cam_R, cam_p, node_radius)
-    if depth <= 1e-6:
-        return UpdateResult(mean, cov, float("inf"), False)
-    H = H_pos @ J
-    S = _sym(H @ cov @ H.T + uvr_cov)
-    innov = np.asarray(uvr, dtype=float) - pred
-    try:
-        S_inv_innov = np.linalg.solve(S, innov)
-        nis = float(innov @ S_inv_innov)
-        gain = np.linalg.solve(S, H @ cov).T
-    except np.linalg.LinAlgError:
-        return UpdateResult(mean, cov, float("inf"), False)
-    if not np.isfinite(nis) or nis > gate:
-        return UpdateResult(mean, cov, nis, False)
-    new = mean + gain @ innov
-    new[2] = wrap_angle(new[2])
+    prior = np.asarray(mean, dtype=float)
+    z = np.asarray(uvr, dtype=float)
+    x = prior.copy()
+    nis = float("inf")
+    for it in range(max(int(iterations), 1)):
+        # iterated EKF (Gauss-Newton on the MAP cost): relinearize at the current iterate, which
+        # matters at close range where the pinhole model bends within the prior's spread
+        if mutual:
+            pos = invert(x)[:2]
+            J = invert_jacobian(x)[:2, :]
+        else:
+            pos = x[:2]
+            J = np.eye(3)[:2, :]
+        pred, H_pos, depth = project_target(pos, K, cam_R, cam_p, node_radius)
+        if depth <= 1e-6:
+            return UpdateResult(prior, cov, float("inf"), False)
+        H = H_pos @ J
+        S = _sym(H @ cov @ H.T + uvr_cov)
+        dx = prior - x
+        dx[2] = wrap_angle(dx[2])
+        innov = z - pred - H @ dx  # z - h(x_i) - H_i (x_0 - x_i)
+        try:
+            gain = np.linalg.solve(S, H @ cov).T
+        except np.linalg.LinAlgError:
+            return UpdateResult(prior, cov, float("inf"), False)
+        if it == 0:
+            nis = float(innov @ np.linalg.solve(S, innov))
+            if not np.isfinite(nis) or nis > gate:
+                return UpdateResult(prior, cov, nis, False)
+        new = prior + gain @ innov
+        new[2] = wrap_angle(new[2])
+        step = new - x
+        step[2] = wrap_angle(step[2])
+        x = new
+        if np.max(np.abs(step)) < 1e-10:
+            break
     IKH = np.eye(3) - gain @ H
     P = IKH @ cov @ IKH.T + gain @ uvr_cov @ gain.T  # Joseph form
-    return UpdateResult(new, _sym(P), nis, True)
+    return UpdateResult(x, _sym(P), nis, True)
 
 
 def yaw_from_mutual(target_in_observer: np.ndarray, observer_in_target: np.ndarray) -> float:
@@ -330,7 +353,7 @@ def covariance_intersection(a: np.ndarray, A: np.ndarray, b: np.ndarray, B: np.n
     .. math:: C^{-1} = \\omega A^{-1} + (1 - \\omega) B^{-1}, \\quad
               c = C (\\omega A^{-1} a + (1 - \\omega) B^{-1} b)
 
-    with ``omega`` in [0, 1] minimizing ``log det C``. The yaw of ``b`` is unwrapped next to ``a``'s.
+    with ``omega`` in [0, 1] minimizing ``log det C`` (found by bisection: the objective is convex). The yaw of ``b`` is unwrapped next to ``a``'s.
 
     Parameters
     ----------
@@ -348,16 +371,23 @@ def covariance_intersection(a: np.ndarray, A: np.ndarray, b: np.ndarray, B: np.n
     b = np.asarray(b, dtype=float).copy()
     b[2] = a[2] + wrap_angle(b[2] - a[2])
     Ai, Bi = np.linalg.inv(A), np.linalg.inv(B)
+    # det(w Ai + (1-w) Bi) = det(Bi) prod(1 + w (lam - 1)) with lam the generalized eigenvalues of
+    # (Ai, Bi), so -log det is a convex scalar function of w: bisect on its derivative
+    lam = eigh(_sym(Ai), _sym(Bi), eigvals_only=True) - 1.0
 
-    def logdet(w: float) -> float:
-        sign, val = np.linalg.slogdet(w * Ai + (1 - w) * Bi)
-        return -val if sign > 0 else np.inf
+    def slope(w: float) -> float:
+        return float(-np.sum(lam / (1.0 + w * lam)))
 
-    res = minimize_scalar(logdet, bounds=(0.0, 1.0), method="bounded", options={"xatol": 1e-4})
-    w = float(res.x)
-    for edge in (0.0, 1.0):  # the optimum may sit on the boundary
-        if logdet(edge) < logdet(w):
-            w = edge
+    if slope(0.0) >= 0.0:
+        w = 0.0
+    elif slope(1.0) <= 0.0:
+        w = 1.0
+    else:
+        lo, hi = 0.0, 1.0
+        for _ in range(40):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if slope(mid) < 0.0 else (lo, mid)
+        w = 0.5 * (lo + hi)
     C = np.linalg.inv(w * Ai + (1 - w) * Bi)
     c = C @ (w * Ai @ a + (1 - w) * Bi @ b)
     c[2] = wrap_angle(c[2])

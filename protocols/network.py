@@ -21,6 +21,7 @@ pattern. Time is in seconds; :meth:`SimulatedNetwork.time_of_round` maps synchro
 
 from __future__ import annotations
 
+import functools
 import heapq
 import math
 import zlib
@@ -35,6 +36,10 @@ from protocols.messages import BROADCAST, Message, decode
 from protocols.transport import Counts, Delivery, Transport, TransportStats
 
 __all__ = ["LinkConfig", "Partition", "Crash", "NetworkConfig", "SimulatedNetwork"]
+
+#: a broadcast is one frame delivered to many receivers; messages are immutable, so decoding the same
+#: bytes once and sharing the result is exact (a corrupted copy has other bytes and fails on its own)
+_decode_frame = functools.lru_cache(maxsize=2048)(decode)
 
 
 def _prob(value: float, name: str) -> None:
@@ -264,7 +269,7 @@ class SimulatedNetwork(Transport):
                 self._drop(keys, size, "receiver_down")
                 continue
             try:
-                message = decode(item.frame)
+                message = _decode_frame(item.frame)
             except ProtocolError:
                 self._drop(keys, size, "corrupt")
                 continue
