@@ -1,0 +1,86 @@
+"""Tests of seed 003's Algorithm 1 (normalized-cut localization)."""
+
+import numpy as np
+import pytest
+
+from decentral.ensemble.hierarchical import HierarchyConfig, normcut_localize
+from decentral.ensemble.metrics import aligned
+from decentral.ensemble.problem import EnsembleProblem
+from decentral.ensemble.refine import RefineConfig, refine
+
+SMALL = HierarchyConfig(leaf_size=16, abstract_size=8)
+
+
+def _rms(est, truth, radius):
+    return np.sqrt(np.mean(np.sum((aligned(est, truth) - truth) ** 2, axis=1))) / radius
+
+
+@pytest.mark.parametrize("cut", ["abstract", "exact"])
+def test_exact_recovery_on_noiseless_planar_lattice(lattice, cut):
+    """Noiseless 2D lattice: every module recovered exactly up to one rigid motion."""
+    prob, x, R = lattice(2, (14, 12))
+    res = normcut_localize(prob, np.random.default_rng(0), HierarchyConfig(leaf_size=16, abstract_size=8, cut=cut))
+    assert _rms(res.estimate.position, x, prob.radius) < 1e-6
+    assert res.status == "ok"
+
+
+def test_exact_recovery_on_noiseless_cubic_lattice(lattice):
+    """Noiseless 3D lattice: positions and relative orientations recovered exactly."""
+    prob, x, R = lattice(3, (6, 5, 5))
+    res = normcut_localize(prob, np.random.default_rng(0), SMALL)
+    est = res.estimate
+    assert _rms(est.position, x, prob.radius) < 1e-6
+    # relative orientations: R_est_0^T R_est_i equals R_0^T R_i (the global rotation cancels)
+    rel_est = np.einsum("ba,nbc->nac", est.rotation[0], est.rotation)
+    rel_true = np.einsum("ba,nbc->nac", R[0], R)
+    np.testing.assert_allclose(rel_est, rel_true, atol=1e-6)
+
+
+def test_relabelling_leaves_aligned_estimate_unchanged(lattice):
+    """Permuting module ids gives the same estimate after rigid alignment (noisy data)."""
+    prob, x, R = lattice(2, (12, 12), noise=0.15, seed=2)
+    perm = np.random.default_rng(9).permutation(prob.n)
+    inv = np.argsort(perm)  # new id of old module k is inv[k]
+    p2 = EnsembleProblem.create(2, prob.n, prob.radius, inv[prob.i], inv[prob.j], prob.z)
+    cfg = HierarchyConfig(leaf_size=16, cut="exact", final_refine=RefineConfig(max_iter=500, gtol=1e-9))
+    a = normcut_localize(prob, np.random.default_rng(0), cfg).estimate.position
+    b = normcut_localize(p2, np.random.default_rng(0), cfg).estimate.position[inv]
+    assert _rms(b, a, prob.radius) < 1e-5
+
+
+def test_result_is_a_likelihood_optimum(lattice):
+    """Further refinement from the returned estimate does not lower the cost noticeably."""
+    prob, x, R = lattice(2, (10, 10), noise=0.2, seed=4)
+    res = normcut_localize(prob, np.random.default_rng(1), SMALL)
+    more = refine(prob, res.estimate.position, res.estimate.rotation, RefineConfig(method="lm", gtol=1e-10))
+    assert more.cost >= res.cost * (1 - 1e-6)
+
+
+def test_disconnected_components_do_not_overlap(lattice):
+    """Two separate ensembles are each localized and laid side by side without overlap."""
+    a, xa, _ = lattice(2, (5, 5), seed=1)
+    b, xb, _ = lattice(2, (4, 6), seed=2)
+    prob = EnsembleProblem.create(2, a.n + b.n, a.radius, np.r_[a.i, b.i + a.n], np.r_[a.j, b.j + a.n],
+                                  np.r_[a.z, b.z])
+    est = normcut_localize(prob, np.random.default_rng(0), SMALL).estimate
+    assert set(est.component[: a.n]) != set(est.component[a.n:])
+    assert _rms(est.position[: a.n], xa, a.radius) < 1e-6 and _rms(est.position[a.n:], xb, a.radius) < 1e-6
+    gap = np.linalg.norm(est.position[: a.n, None] - est.position[None, a.n:], axis=2).min()
+    assert gap > 2 * a.radius
+
+
+def test_iterations_are_charged_to_every_module(lattice):
+    """Each module is charged at least the iterations of the final refinement it took part in."""
+    prob, _, _ = lattice(2, (10, 10), noise=0.1)
+    res = normcut_localize(prob, np.random.default_rng(0), SMALL)
+    top = res.hierarchy[-1]
+    assert top.nodes.size == prob.n
+    assert np.all(res.iterations_per_module >= top.refine_iterations)
+
+
+def test_isolated_module_is_placed_without_nan():
+    """A module with no observations still gets a finite pose, in its own component."""
+    prob = EnsembleProblem.create(2, 3, 1.0, [0, 1], [1, 0], [[1.0, 0.0], [-1.0, 0.0]])
+    est = normcut_localize(prob, np.random.default_rng(0)).estimate
+    assert np.all(np.isfinite(est.position)) and np.all(np.isfinite(est.orientation))
+    assert est.component[2] != est.component[0]
