@@ -1,0 +1,289 @@
+"""PettingZoo parallel env for decentralized relative localization (issue 4 part 5).
+
+Agents are assemblies; in the ``"swarm"`` scenario (seed 004) each assembly is a one-node robot with
+a camera, running the on-board agent of :mod:`sims.swarm.robot` (EKF tracks of every other robot,
+shared over the simulated lossy radio of :mod:`protocols.network`). The policy chooses motion
+commands; the env returns what each agent really has, and puts errors against truth in ``infos``
+(for evaluation only: the agents never see them).
+
+Spaces (``n`` robots, ``m = n - 1`` peers, rows in the order of ``possible_agents`` without self):
+
+* action: ``Box([-v_max, -w_max], [v_max, w_max])`` float32 -- forward speed [m/s], yaw rate [rad/s].
+* observation: ``Dict`` of float32 boxes
+
+  - ``detections`` (m, 4): ``seen, u, v, r`` of each peer in this step's image [px];
+  - ``odometry`` (4,): ``valid, dx, dy, dtheta`` since the previous step (own root frame);
+  - ``inbox`` (m, 4): from each peer this step, ``odometry heard, detections heard, estimates
+    heard``, and the age in steps of the newest estimate report (capped at 100);
+  - ``estimates`` (m, 8): ``tracked, yaw_known, x, y, theta, std_x, std_y, std_theta`` of each
+    peer's pose in this agent's frame (zeros when not tracked);
+  - ``own_pose`` (6,): ``x, y, theta, std_x, std_y, std_theta`` in the agent's start frame.
+
+* reward: fraction of peers tracked minus the mean position error [m] of the tracked ones.
+* infos: ``position_error`` / ``yaw_error`` per tracked peer, their means, ``own_pose_error``,
+  and the agent's message counters.
+
+Episodes end by truncation after ``max_cycles`` steps (all agents then leave ``agents``).
+``render_mode="rgb_array"`` returns an OpenCV top view (truth, each agent's estimates placed through
+its true pose -- so the drawn offset *is* the error --, radio links coloured by recent loss) next to
+every robot's camera view.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import fields, replace
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+from pettingzoo import ParallelEnv
+
+from decentral.errors import InputError
+from decentral.filtering import compose
+from protocols.network import LinkConfig
+from sims.swarm.config import SwarmConfig
+from sims.swarm.sim import StepReport, SwarmSim
+
+__all__ = ["RelativeLocalizationEnv", "parallel_env", "raw_env", "SCENARIOS", "ENV_NAME"]
+
+ENV_NAME = "relative_localization_v0"
+#: scenarios this env can run
+SCENARIOS = ("swarm",)
+_LINK_KEYS = {"loss": "drop", "latency": "latency", "jitter": "jitter", "duplicate": "duplicate",
+              "corrupt": "corrupt", "bandwidth": "bandwidth"}
+_AGE_CAP = 100.0
+
+
+class RelativeLocalizationEnv(ParallelEnv):
+    """Parallel env: one agent per assembly (see the module docstring for spaces and rewards).
+
+    Parameters
+    ----------
+    scenario : str
+        ``"swarm"`` (seed 004's one-node robots).
+    max_cycles : int
+        Steps per episode before truncation.
+    render_mode : str or None
+        ``"rgb_array"`` or ``None``.
+    crashes, partitions : tuple
+        Radio faults (:class:`protocols.network.Crash`, :class:`protocols.network.Partition`).
+    loss, latency, jitter, duplicate, corrupt, bandwidth :
+        Shortcuts for the radio's :class:`protocols.network.LinkConfig`.
+    **params
+        Any field of :class:`sims.swarm.config.SwarmConfig` (``n_robots``, ``arena``, ...).
+        Unknown parameters raise :class:`InputError`.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "name": ENV_NAME, "is_parallelizable": True, "render_fps": 5}
+
+    def __init__(self, scenario: str = "swarm", max_cycles: int = 200, render_mode: str | None = None,
+                 crashes: tuple = (), partitions: tuple = (), **params: Any):
+        if scenario not in SCENARIOS:
+            raise InputError(f"unknown scenario {scenario!r}; known: {', '.join(SCENARIOS)}", field="scenario")
+        if render_mode not in (None, "rgb_array"):
+            raise InputError(f"render_mode must be None or 'rgb_array', got {render_mode!r}", field="render_mode")
+        if not (isinstance(max_cycles, int) and max_cycles >= 1):
+            raise InputError("must be a positive integer", field="max_cycles")
+        own = {f.name for f in fields(SwarmConfig)}
+        unknown = sorted(set(params) - own - set(_LINK_KEYS))
+        if unknown:
+            raise InputError(
+                f"unknown parameter(s) {', '.join(unknown)}; known: "
+                f"{', '.join(sorted(own | set(_LINK_KEYS) | {'scenario', 'max_cycles', 'render_mode', 'crashes', 'partitions'}))}",
+                field="params",
+            )
+        link_kw = {_LINK_KEYS[k]: params.pop(k) for k in list(params) if k in _LINK_KEYS}
+        try:
+            config = SwarmConfig(**params)
+            if link_kw:
+                config = replace(config, link=replace(config.link, **link_kw))
+        except TypeError as err:
+            raise InputError(str(err), field="params") from None
+        self.scenario = scenario
+        self.config = config
+        self.max_cycles = max_cycles
+        self.render_mode = render_mode
+        self.crashes, self.partitions = tuple(crashes), tuple(partitions)
+        self.possible_agents = list(config.names)
+        self.agents: list[str] = []
+        self._peers = {a: [b for b in self.possible_agents if b != a] for a in self.possible_agents}
+        self._seeder = np.random.default_rng()
+        self._sim: SwarmSim | None = None
+        self._last: StepReport | None = None
+        self._cycle = 0
+        self._link_history: list[dict] = []
+
+    # ------------------------------------------------------------------ spaces
+    @functools.lru_cache(maxsize=None)
+    def observation_space(self, agent: str) -> spaces.Dict:
+        m = self.config.n_robots - 1
+        inf = np.float32(np.inf)
+        box = lambda shape, lo=-inf, hi=inf: spaces.Box(lo, hi, shape=shape, dtype=np.float32)
+        return spaces.Dict({
+            "detections": box((m, 4)),
+            "odometry": box((4,)),
+            "inbox": box((m, 4), 0.0, _AGE_CAP),
+            "estimates": box((m, 8)),
+            "own_pose": box((6,)),
+        })
+
+    @functools.lru_cache(maxsize=None)
+    def action_space(self, agent: str) -> spaces.Box:
+        c = self.config
+        hi = np.array([c.max_speed, c.max_yaw_rate], dtype=np.float32)
+        return spaces.Box(-hi, hi, dtype=np.float32)
+
+    # ------------------------------------------------------------------ episode
+    def reset(self, seed: int | None = None, options: dict | None = None):
+        if seed is not None:
+            self._seeder = np.random.default_rng(seed)
+        run_seed = int(self._seeder.integers(0, 2**31 - 1))
+        self._sim = SwarmSim(self.config, run_seed, crashes=self.crashes, partitions=self.partitions)
+        self.agents = list(self.possible_agents)
+        self._cycle = 0
+        self._link_history = [self._link_counts()]
+        self._last = self._sim.step()  # step 0: sense without moving
+        self._link_history.append(self._link_counts())
+        obs = {a: self._observe(a) for a in self.agents}
+        infos = {a: self._info(a) for a in self.agents}
+        return obs, infos
+
+    def step(self, actions: dict[str, np.ndarray]):
+        if self._sim is None:
+            raise InputError("call reset() before step()", field="env")
+        c = self.config
+        cmd = np.zeros((c.n_robots, 2))
+        for i, a in enumerate(self.possible_agents):
+            if a in self.agents and a in actions and actions[a] is not None:
+                cmd[i] = np.clip(np.asarray(actions[a], dtype=float).reshape(2),
+                                 [-c.max_speed, -c.max_yaw_rate], [c.max_speed, c.max_yaw_rate])
+        self._last = self._sim.step(cmd)
+        self._cycle += 1
+        self._link_history.append(self._link_counts())
+        self._link_history = self._link_history[-11:]
+        live = list(self.agents)
+        obs = {a: self._observe(a) for a in live}
+        infos = {a: self._info(a) for a in live}
+        rewards = {a: self._reward(a) for a in live}
+        terminations = {a: False for a in live}
+        done = self._cycle >= self.max_cycles
+        truncations = {a: done for a in live}
+        if done:
+            self.agents = []
+        return obs, rewards, terminations, truncations, infos
+
+    def close(self) -> None:
+        self._sim = None
+
+    # ------------------------------------------------------------------ what an agent has
+    def _observe(self, agent: str) -> dict[str, np.ndarray]:
+        sim, rep = self._sim, self._last
+        robot = sim.robots[agent]
+        peers = self._peers[agent]
+        index = {p: r for r, p in enumerate(peers)}
+        names = self.config.names
+        det = np.zeros((len(peers), 4), np.float32)
+        for d in rep.sensing.detections[f"{agent}/cam0"]:
+            if 0 <= d.node < len(names) and names[d.node] in index:
+                det[index[names[d.node]]] = (1.0, d.u, d.v, d.r)
+        odo = np.zeros(4, np.float32)
+        o = rep.sensing.odometry.get(agent)
+        if o is not None:
+            odo[:] = (1.0, o.dp[0], o.dp[1], o.dtheta)
+        inbox = np.zeros((len(peers), 4), np.float32)
+        reports = robot.last_reports
+        for p, r in index.items():
+            inbox[r, 0] = p in reports["odometry"].fresh
+            inbox[r, 1] = p in reports["tracks"].fresh
+            est = reports["estimates"]
+            inbox[r, 2] = p in est.fresh
+            inbox[r, 3] = min(est.ages.get(p, _AGE_CAP), _AGE_CAP)
+        ests = np.zeros((len(peers), 8), np.float32)
+        for p, r in index.items():
+            tr = robot.tracks.get(p)
+            if tr is not None:
+                sd = np.sqrt(np.diag(tr.cov))
+                ests[r] = (1.0, float(tr.yaw_known), *tr.mean, *sd)
+        own = np.zeros(6, np.float32)
+        own[:3] = robot.pose
+        own[3:] = np.sqrt(np.maximum(np.diag(robot.pose_cov), 0.0))
+        return {"detections": det, "odometry": odo, "inbox": inbox, "estimates": ests, "own_pose": own}
+
+    def _info(self, agent: str) -> dict:
+        errs = self._last.errors[agent]
+        pos = {t: e.position for t, e in sorted(errs.items())}
+        yaw = {t: e.yaw for t, e in sorted(errs.items()) if e.yaw is not None}
+        sent = self._sim.network.stats().per_sender.get(agent)
+        return {
+            "position_error": pos,
+            "yaw_error": yaw,
+            "mean_position_error": float(np.mean(list(pos.values()))) if pos else None,
+            "mean_yaw_error": float(np.mean(list(yaw.values()))) if yaw else None,
+            "tracked": len(pos),
+            "own_pose_error": self._last.own_pose_error[agent],
+            "messages_sent": 0 if sent is None else sent.sent,
+            "bytes_sent": 0 if sent is None else sent.bytes_sent,
+            "step": self._last.k,
+        }
+
+    def _reward(self, agent: str) -> float:
+        errs = self._last.errors[agent]
+        m = len(self._peers[agent])
+        if not errs:
+            return 0.0
+        return float(len(errs) / m - np.mean([e.position for e in errs.values()]))
+
+    # ------------------------------------------------------------------ rendering
+    def _link_counts(self) -> dict:
+        if self._sim is None:
+            return {}
+        return {k: (v.sent, v.delivered, v.dropped) for k, v in self._sim.network.stats().per_link.items()}
+
+    def link_loss(self) -> dict[tuple[int, int], float]:
+        """Recent (last 10 steps) loss fraction per undirected robot pair with traffic."""
+        if len(self._link_history) < 2:
+            return {}
+        old, new = self._link_history[0], self._link_history[-1]
+        idx = {n: i for i, n in enumerate(self.possible_agents)}
+        acc: dict[tuple[int, int], list[int]] = {}
+        for (a, b), (s, d, x) in new.items():
+            s0, d0, x0 = old.get((a, b), (0, 0, 0))
+            key = tuple(sorted((idx[a], idx[b])))
+            tot = acc.setdefault(key, [0, 0])
+            tot[0] += x - x0
+            tot[1] += (d - d0) + (x - x0)
+        return {k: v[0] / v[1] for k, v in acc.items() if v[1] > 0}
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode is None or self._sim is None:
+            return None
+        from sims.envs.drawing import camera_view, compose_frame, top_view
+
+        c, rep = self.config, self._last
+        estimates = {}
+        for i, a in enumerate(self.possible_agents):
+            items = []
+            for name, tr in sorted(self._sim.robots[a].tracks.items()):
+                items.append((c.names.index(name), compose(rep.state[i], tr.mean)))
+            estimates[i] = items
+        top = top_view(rep.state, c.arena, estimates=estimates, link_loss=self.link_loss(),
+                       max_angle=np.radians(c.max_angle_deg), max_distance=c.max_distance,
+                       node_radius=c.node_radius)
+        cams = [
+            camera_view([(d.node, d.u, d.v, d.r) for d in rep.sensing.detections[f"{a}/cam0"]],
+                        c.image_width, c.image_height, label=a)
+            for a in self.possible_agents
+        ]
+        frame = compose_frame(top, cams)
+        return np.ascontiguousarray(frame)  # colours were given in RGB order
+
+
+def raw_env(**config: Any) -> RelativeLocalizationEnv:
+    """The env itself (no wrappers)."""
+    return RelativeLocalizationEnv(**config)
+
+
+def parallel_env(**config: Any) -> RelativeLocalizationEnv:
+    """PettingZoo entry point: ``sims.envs.relative_localization_v0.parallel_env(**config)``."""
+    return raw_env(**config)
