@@ -55,9 +55,12 @@ class AprilTagConfig:
         Smallest accepted decision margin, grey levels.
     roi_scale : float
         The region searched around a circle is a square of half-side ``roi_scale * r``.
-    upscale_below : float
-        Circles smaller than this radius (px) are searched on a 2x upscaled region: tags under about
-        3 px per cell decode much better so.
+    target_radius : float
+        Regions of circles smaller than this radius (px) are upscaled (bilinear) so that the circle
+        has this radius, by at most ``max_upscale``: tags under about 3 px per cell decode much
+        better so.
+    max_upscale : float
+        Largest upscaling factor.
     adaptive_window : int
         Single adaptive-threshold window (px, odd) of the tuned detector; None keeps OpenCV's
         default three windows (slower).
@@ -68,7 +71,8 @@ class AprilTagConfig:
     max_hamming: int = 2
     min_margin: float = 15.0
     roi_scale: float = 1.1
-    upscale_below: float = 30.0
+    target_radius: float = 40.0
+    max_upscale: float = 4.0
     adaptive_window: int | None = 15
     extra: Mapping[str, float] = field(default_factory=dict)
 
@@ -187,7 +191,7 @@ class AprilTagIdentifier:
             half = self.config.roi_scale * circle.r
             x0, x1 = max(int(np.floor(circle.u - half)), 0), min(int(np.ceil(circle.u + half)) + 1, w)
             y0, y1 = max(int(np.floor(circle.v - half)), 0), min(int(np.ceil(circle.v + half)) + 1, h)
-            scale = 2.0 if circle.r < self.config.upscale_below else 1.0
+            scale = float(np.clip(self.config.target_radius / max(circle.r, 1.0), 1.0, self.config.max_upscale))
             best = None
             for read in self.read_region(grey, x0, y0, x1, y1, scale):
                 centre = read.corners.mean(axis=0)

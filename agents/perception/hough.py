@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from agents.perception.refine import RefineConfig, coarse_fit, radius_hypotheses, refine_circles
+from agents.perception.refine import RefineConfig, coarse_fit, refine_circles
 from agents.perception.types import Circle
 
 __all__ = ["HoughConfig", "HoughCircleDetector", "to_grey"]
@@ -55,9 +55,6 @@ class HoughConfig:
         At most this many proposals (strongest accumulator first) are refined.
     radius_multipliers : tuple of float
         Each proposal is refined from these multiples of its radius (the best survives suppression).
-    radius_search : bool
-        Re-estimate each proposal's radius from the rim energy around its centre (slower; for
-        proposal methods whose radius locks onto the sticker, like ``HOUGH_GRADIENT``).
     min_radius, max_radius : int
         Radius range in pixels of the returned circles (the levels should cover it).
     refine_blur : float
@@ -77,7 +74,6 @@ class HoughConfig:
     param1: float = 150.0
     param2: float = 15.0
     radius_multipliers: tuple[float, ...] = (1.0, 1.35, 2.2)
-    radius_search: bool = False
     max_proposals: int = 120
     min_radius: int = 8
     max_radius: int = 160
@@ -126,17 +122,15 @@ class HoughCircleDetector:
         rough = self.proposals(grey)
         if len(rough) == 0:
             return []
-        fine_img = grey.astype(np.float32)
+        image = np.asarray(image)
+        # the rim search runs on the colour image when there is one (chroma edges count too)
+        fine_img = (image if image.ndim == 3 and image.shape[2] == 3 else grey).astype(np.float32)
         if cfg.refine_blur > 0:
             fine_img = cv2.GaussianBlur(fine_img, (0, 0), cfg.refine_blur)
         # each proposal also stands for larger circles: a proposal that locked onto the square
         # sticker inside a node (0.35-0.5 of its radius) or onto its lit side then still finds the rim
         hyp = np.concatenate([rough * np.array([1.0, 1.0, m]) for m in cfg.radius_multipliers])
         hyp = hyp[hyp[:, 2] <= cfg.max_radius * 1.2]
-        if cfg.radius_search:
-            # the Hough centres are good even where its radius locks onto the sticker: re-estimate radii
-            centres = _merge_centres(rough[:, :2], 2.0)
-            hyp = radius_hypotheses(fine_img, centres, cfg.min_radius, cfg.max_radius, per_centre=3)
         # coarse pass on every proposal, suppression, then the fine pass on the survivors
         circles, scores, ok = coarse_fit(fine_img, hyp, cfg.refine)
         ok &= (scores >= cfg.min_score) & (circles[:, 2] >= 0.8 * cfg.min_radius) & (circles[:, 2] <= 1.2 * cfg.max_radius)
@@ -147,15 +141,6 @@ class HoughCircleDetector:
         ok &= scores >= cfg.min_score
         found = [Circle(*map(float, c), float(min(s, 1.0))) for c, s in zip(circles[ok], scores[ok])]
         return suppress(found)[: cfg.max_circles]
-
-
-def _merge_centres(centres: np.ndarray, dist: float) -> np.ndarray:
-    """Greedily merge centres closer than ``dist`` pixels (keeps the first of each cluster)."""
-    kept: list[np.ndarray] = []
-    for c in centres:
-        if all(np.hypot(*(c - k)) >= dist for k in kept):
-            kept.append(c)
-    return np.array(kept).reshape(-1, 2)
 
 
 def suppress(circles: list[Circle], strong: float = 0.45) -> list[Circle]:

@@ -18,7 +18,7 @@ import numpy as np
 
 from agents.perception.circle_fit import circle_residuals, fit_circles_algebraic, fit_circles_geometric
 
-__all__ = ["RefineConfig", "coarse_fit", "radius_hypotheses", "refine_circles", "rim_points"]
+__all__ = ["RefineConfig", "coarse_fit", "refine_circles", "rim_points"]
 
 
 @dataclass(frozen=True)
@@ -74,8 +74,8 @@ def rim_points(
 
     Parameters
     ----------
-    image : ndarray, shape (H, W), float32
-        Grey image (lightly smoothed).
+    image : ndarray, shape (H, W) or (H, W, C), float32
+        Grey or colour image (lightly smoothed).
     circles : ndarray, shape (N, 3)
         Rough circles (u, v, r).
     rays, samples : int, optional
@@ -88,7 +88,7 @@ def rim_points(
     strength : ndarray, shape (N, rays)
         Edge strength (absolute radial derivative) at each rim point; 0 where not valid.
     """
-    h, w = image.shape
+    h, w = image.shape[:2]
     n = len(circles)
     n_rays = rays or cfg.rays
     n_samples = samples or cfg.samples
@@ -106,8 +106,10 @@ def rim_points(
         my.reshape(n * n_rays, n_samples).astype(np.float32),
         cv2.INTER_LINEAR,
         borderMode=cv2.BORDER_REPLICATE,
-    ).reshape(n, n_rays, n_samples)
-    deriv = np.abs(np.diff(prof, axis=2)) / step[:, None, None]  # between samples i and i+1
+    ).reshape(n, n_rays, n_samples, -1)
+    # between samples i and i+1; on a colour image the channels' steps add (a grey sphere on a
+    # brown floor can have almost no step in brightness on its shaded side)
+    deriv = np.abs(np.diff(prof, axis=2)).sum(axis=3) / step[:, None, None]
     last = deriv.shape[2] - 1
     # the outermost local maximum with at least ``outer_frac`` of the ray's strongest step: a node's
     # rim is the outermost edge of the node, while its sticker's edges (often stronger) lie inside
@@ -128,71 +130,6 @@ def rim_points(
     pts = np.stack([circles[:, 0, None] + dist * cos, circles[:, 1, None] + dist * sin], axis=2)
     valid = inside & (peak >= cfg.min_step)
     return pts, np.where(valid, peak, 0.0)
-
-
-def radius_hypotheses(
-    image: np.ndarray,
-    centres: np.ndarray,
-    r_min: float,
-    r_max: float,
-    *,
-    rays: int = 32,
-    per_centre: int = 2,
-) -> np.ndarray:
-    """Likely radii of circles around given centres, from the rim energy at each radius.
-
-    For each centre, the absolute radial derivative of the image is summed over ``rays`` rays at
-    every radius in [r_min, r_max] (1 px steps); a circle centred there shows as a sharp peak of
-    that energy, while a square sticker or texture spreads it. The ``per_centre`` strongest local
-    peaks (with at least a third of the best peak's energy) become hypotheses.
-
-    Parameters
-    ----------
-    image : ndarray, shape (H, W), float32
-    centres : ndarray, shape (N, 2)
-
-    Returns
-    -------
-    ndarray, shape (M, 3)
-        Hypotheses (u, v, r), M <= per_centre * N.
-    """
-    centres = np.asarray(centres, dtype=float).reshape(-1, 2)
-    if len(centres) == 0:
-        return np.zeros((0, 3))
-    rad = np.arange(max(r_min * 0.8, 2.0), r_max * 1.1 + 1.0, 1.0)
-    ang = np.linspace(0.0, 2.0 * np.pi, rays, endpoint=False)
-    n = len(centres)
-    mx = centres[:, 0, None, None] + rad[None, None, :] * np.cos(ang)[None, :, None]
-    my = centres[:, 1, None, None] + rad[None, None, :] * np.sin(ang)[None, :, None]
-    prof = cv2.remap(
-        image,
-        mx.reshape(n * rays, len(rad)).astype(np.float32),
-        my.reshape(n * rays, len(rad)).astype(np.float32),
-        cv2.INTER_LINEAR,
-        borderMode=cv2.BORDER_CONSTANT,
-        borderValue=0.0,
-    ).reshape(n, rays, len(rad))
-    out_of_image = (mx < 0) | (mx > image.shape[1] - 1) | (my < 0) | (my > image.shape[0] - 1)
-    deriv = np.abs(np.diff(prof, axis=2))
-    deriv[out_of_image[:, :, 1:] | out_of_image[:, :, :-1]] = 0.0
-    energy = deriv.sum(axis=1)  # (N, len(rad) - 1)
-    # smooth along the radius so a centre a few pixels off still shows one (broader) rim peak
-    energy = cv2.blur(energy.astype(np.float32), (5, 1), borderType=cv2.BORDER_REPLICATE)
-    mid = 0.5 * (rad[1:] + rad[:-1])
-    ok = (mid >= r_min) & (mid <= r_max)
-    left = np.concatenate([np.full((n, 1), -np.inf), energy[:, :-1]], axis=1)
-    right = np.concatenate([energy[:, 1:], np.full((n, 1), -np.inf)], axis=1)
-    peak = (energy >= left) & (energy > right) & ok[None, :]
-    score = np.where(peak, energy, 0.0)
-    best = score.max(axis=1, keepdims=True)
-    score = np.where(score >= best / 3.0, score, 0.0)
-    order = np.argsort(-score, axis=1)[:, :per_centre]
-    out = []
-    for i in range(n):
-        for j in order[i]:
-            if score[i, j] > 0:
-                out.append((centres[i, 0], centres[i, 1], mid[j]))
-    return np.array(out, dtype=float).reshape(-1, 3)
 
 
 def _robust_fit(pts: np.ndarray, strength: np.ndarray, start: np.ndarray, gates: list[np.ndarray]):

@@ -21,6 +21,7 @@ __all__ = ["COMMANDS", "build_parser", "main"]
 COMMANDS: dict[str, str] = {
     "localize": "sims.cli.localize",
     "simulate": "sims.cli.simulate",
+    "perceive": "sims.cli.perceive",
 }
 
 EXIT_BAD_INPUT = 2

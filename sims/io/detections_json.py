@@ -1,0 +1,202 @@
+"""Perception output ``decentral.detections/1`` (JSON): writer, validated reader, and log assembly.
+
+.. code-block:: json
+
+    {"format": "decentral.detections/1",
+     "frames": [{"source": "f0001.png",
+                 "detections": [{"u": 611.2, "v": 402.9, "r": 23.1, "score": 0.97, "id": 5, "track": 3,
+                                 "tag": {"id": 5, "hamming": 0, "margin": 61.0,
+                                         "corners": [[600.1, 395.0], [620.3, 395.4], [620.0, 410.8], [600.4, 410.2]]}}]}]}
+
+``id`` is the node id (null where neither the tag nor the track names the node), ``track`` the track
+number (null when untracked). ``tag`` (optional, beyond the contract) is the accepted tag read inside
+the circle: its tag id, hamming distance, decision margin and image corners (canonical order).
+
+:func:`assemble_log` fills the detections of an observation log (``decentral.log/1``) from per-frame
+detections: frame k of a camera becomes that camera's detections at step k; only identified
+detections (``id`` not null) enter the log.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, replace
+from typing import Any, Sequence
+
+import numpy as np
+
+from decentral.errors import InputError
+from decentral.observations import Detection, ObservationLog
+from sims.io.atomic import write_json_atomic
+from sims.io.log_json import load_json
+from sims.io.validate import require_list, require_mapping, require_number, require_positive
+
+__all__ = [
+    "DETECTIONS_FORMAT",
+    "TagRecord",
+    "DetectionRecord",
+    "DetectionFrame",
+    "detections_to_dict",
+    "write_detections",
+    "parse_detections",
+    "read_detections",
+    "assemble_log",
+]
+
+DETECTIONS_FORMAT = "decentral.detections/1"
+
+
+@dataclass(frozen=True)
+class TagRecord:
+    """An accepted tag read: tag id, hamming distance, decision margin, corners (4, 2) pixels."""
+
+    tag: int
+    hamming: int
+    margin: float
+    corners: np.ndarray
+
+
+@dataclass(frozen=True)
+class DetectionRecord:
+    """One detection of a frame: circle (u, v, r) px, score, node id, track number, tag read."""
+
+    u: float
+    v: float
+    r: float
+    score: float
+    node: int | None
+    track: int | None
+    tag: TagRecord | None = None
+
+
+@dataclass(frozen=True)
+class DetectionFrame:
+    """The detections of one frame, and the file (or ``video#index``) it came from."""
+
+    source: str
+    detections: tuple[DetectionRecord, ...]
+
+
+def _finite(x: float) -> float:
+    return float(np.round(float(x), 4))
+
+
+def detections_to_dict(frames: Sequence[DetectionFrame]) -> dict:
+    """The JSON document of ``frames``."""
+    out = []
+    for fr in frames:
+        dets = []
+        for d in fr.detections:
+            rec: dict[str, Any] = {
+                "u": _finite(d.u), "v": _finite(d.v), "r": _finite(d.r), "score": _finite(d.score),
+                "id": None if d.node is None else int(d.node),
+                "track": None if d.track is None else int(d.track),
+            }
+            if d.tag is not None:
+                rec["tag"] = {
+                    "id": int(d.tag.tag), "hamming": int(d.tag.hamming), "margin": _finite(d.tag.margin),
+                    "corners": [[_finite(x), _finite(y)] for x, y in np.asarray(d.tag.corners).reshape(4, 2)],
+                }
+            dets.append(rec)
+        out.append({"source": fr.source, "detections": dets})
+    return {"format": DETECTIONS_FORMAT, "frames": out}
+
+
+def write_detections(path: str | os.PathLike, frames: Sequence[DetectionFrame]) -> None:
+    """Write ``frames`` as ``decentral.detections/1`` to ``path``, atomically."""
+    write_json_atomic(path, detections_to_dict(frames))
+
+
+def _optional_int(value: Any, field: str) -> int | None:
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not float(value).is_integer():
+        raise InputError("must be an integer or null", field=field)
+    return int(value)
+
+
+def parse_detections(doc: Any) -> list[DetectionFrame]:
+    """Validate a parsed ``decentral.detections/1`` document; raise :class:`InputError` naming the field."""
+    doc = require_mapping(doc, "(document)")
+    if doc.get("format") != DETECTIONS_FORMAT:
+        raise InputError(f"expected format {DETECTIONS_FORMAT!r}, got {doc.get('format')!r}", field="format")
+    frames = []
+    for k, fr in enumerate(require_list(doc.get("frames"), "frames")):
+        where = f"frames[{k}]"
+        fr = require_mapping(fr, where)
+        source = fr.get("source", "")
+        if not isinstance(source, str):
+            raise InputError("must be a string", field=f"{where}.source")
+        dets = []
+        for j, d in enumerate(require_list(fr.get("detections"), f"{where}.detections")):
+            f = f"{where}.detections[{j}]"
+            d = require_mapping(d, f)
+            tag = None
+            if d.get("tag") is not None:
+                t = require_mapping(d["tag"], f"{f}.tag")
+                corners = np.array(
+                    [[require_number(c, f"{f}.tag.corners") for c in row] for row in require_list(t.get("corners"), f"{f}.tag.corners")],
+                    dtype=float,
+                )
+                if corners.shape != (4, 2):
+                    raise InputError("must be 4 [x, y] pairs", field=f"{f}.tag.corners")
+                tag = TagRecord(
+                    _optional_int(t.get("id"), f"{f}.tag.id") or 0,
+                    _optional_int(t.get("hamming"), f"{f}.tag.hamming") or 0,
+                    require_number(t.get("margin"), f"{f}.tag.margin"),
+                    corners,
+                )
+            dets.append(DetectionRecord(
+                require_number(d.get("u"), f"{f}.u"),
+                require_number(d.get("v"), f"{f}.v"),
+                require_positive(d.get("r"), f"{f}.r"),
+                require_number(d.get("score", 1.0), f"{f}.score"),
+                _optional_int(d.get("id"), f"{f}.id"),
+                _optional_int(d.get("track"), f"{f}.track"),
+                tag,
+            ))
+        frames.append(DetectionFrame(source, tuple(dets)))
+    return frames
+
+
+def read_detections(path: str | os.PathLike) -> list[DetectionFrame]:
+    """Read and validate a ``decentral.detections/1`` file; errors name the file and the field."""
+    try:
+        return parse_detections(load_json(path))
+    except InputError as err:
+        raise err.located(str(path)) from None
+
+
+def assemble_log(template: ObservationLog, detections: dict[str, Sequence[DetectionFrame]]) -> ObservationLog:
+    """Return ``template`` with each listed camera's detections replaced by the perceived ones.
+
+    Parameters
+    ----------
+    template : ObservationLog
+        A complete log (assemblies, cameras, configurations, odometry); its detections for the
+        cameras in ``detections`` are discarded, other cameras' are kept.
+    detections : dict
+        Camera key ``"assembly/camera"`` -> one :class:`DetectionFrame` per step, in step order.
+
+    Raises
+    ------
+    InputError
+        If a camera is not declared in the template or the frame count differs from the step count.
+    """
+    for key, frames in detections.items():
+        if key not in template.cameras:
+            raise InputError(f"camera {key!r} is not declared in the log template", field="--camera")
+        if len(frames) != len(template.steps):
+            raise InputError(
+                f"{len(frames)} frames for camera {key!r} but the log template has {len(template.steps)} steps",
+                field="--camera",
+            )
+    steps = []
+    for k, step in enumerate(template.steps):
+        dets = dict(step.detections)
+        for key, frames in detections.items():
+            dets[key] = tuple(
+                Detection(int(d.node), float(d.u), float(d.v), float(d.r)) for d in frames[k].detections if d.node is not None
+            )
+        steps.append(replace(step, detections=dets))
+    return replace(template, steps=tuple(steps))
