@@ -22,6 +22,7 @@ COMMANDS: dict[str, str] = {
     "localize": "sims.cli.localize",
     "simulate": "sims.cli.simulate",
     "perceive": "sims.cli.perceive",
+    "make-ensemble": "sims.cli.make_ensemble",
 }
 
 EXIT_BAD_INPUT = 2

@@ -1,0 +1,38 @@
+"""``decentral make-ensemble``: generate a seed 003 test ensemble (``decentral.ensemble/1`` + truth)."""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from decentral.errors import InputError
+from sims.ensembles.generator import SHAPES, EnsembleSpec, generate, save_observations, save_truth
+from sims.ensembles.sensors import SensorModel
+
+__all__ = ["HELP", "add_arguments", "run"]
+
+HELP = "make a module ensemble (2D settled under gravity, or 3D lattice) and its IR observations"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("shape", choices=tuple(SHAPES), help="2D container or 3D solid")
+    parser.add_argument("-n", type=int, default=1000, help="modules requested (default 1000)")
+    parser.add_argument("-o", "--output", required=True, metavar="OBS.npz", help="observations to write")
+    parser.add_argument("--truth", metavar="TRUTH.npz", help="also write the true poses here")
+    parser.add_argument("--radius", type=float, default=0.05, help="module radius, m (default 0.05)")
+    parser.add_argument("--lattice", choices=("hcp", "cubic"), default="hcp", help="3D lattice (default hcp)")
+    parser.add_argument("--jitter", type=float, default=0.03, help="3D lattice jitter, module radii")
+    parser.add_argument("--threshold", type=float, default=0.2, help="IR detection threshold, fraction of peak")
+    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+
+
+def run(args: argparse.Namespace) -> int:
+    if not 0 < args.threshold < 1:
+        raise InputError("must be in (0, 1)", field="--threshold")
+    spec = EnsembleSpec(args.shape, args.n, args.radius, args.lattice, args.jitter, SensorModel(threshold=args.threshold))
+    ens = generate(spec, np.random.default_rng(args.seed))
+    if args.truth:
+        save_truth(args.truth, ens, seed=args.seed)
+    save_observations(args.output, ens)
+    return 0

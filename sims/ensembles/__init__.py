@@ -1,0 +1,33 @@
+"""sims.ensembles: ensembles of modules for seed 003's internal localization.
+
+The generator settles circular modules under gravity into 2D containers or rasterizes 3D solids into
+a lattice, simulates the IR contact sensors and writes ``decentral.ensemble/1`` observations plus the
+truth (:mod:`sims.ensembles.generator`); :mod:`sims.ensembles.distributed` runs seed 003 §V as one
+agent per module over the simulated network.
+"""
+
+from sims.ensembles.generator import (
+    OBSERVATION_FORMAT,
+    SHAPES,
+    TRUTH_FORMAT,
+    Ensemble,
+    EnsembleSpec,
+    generate,
+    load_truth,
+    save_observations,
+    save_truth,
+)
+from sims.ensembles.sensors import SensorModel
+
+__all__ = [
+    "OBSERVATION_FORMAT",
+    "SHAPES",
+    "TRUTH_FORMAT",
+    "Ensemble",
+    "EnsembleSpec",
+    "SensorModel",
+    "generate",
+    "load_truth",
+    "save_observations",
+    "save_truth",
+]
