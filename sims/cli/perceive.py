@@ -115,8 +115,28 @@ def perceive_paths(
                 motions.append(None if odo is None else odometry_homography(K, R, odo.dtheta))
     elif motion == "odometry":
         raise InputError("--motion odometry needs --log-template and --camera", field="--motion")
-    perception = Perception(detector, identifier, track=track, motion="flow" if motion == "flow" else None)
-    results = perceive_frames(iter_frames(list(paths)), perception, motions=motions)
+    if log is None:
+        perception = Perception(detector, identifier, track=track, motion="flow" if motion == "flow" else None)
+        return to_records(perceive_frames(iter_frames(list(paths)), perception, motions=motions))
+    # with the camera model, tags are read through the sphere model (small, curved prints), against
+    # the tags of the nodes configured at each step
+    from agents.perception.pipeline import FrameResult
+    from agents.perception.sphere_tags import SphereTagConfig, SphereTagIdentifier
+
+    sphere_ids = SphereTagIdentifier(K, log.node_radius, SphereTagConfig(family=family, tag_table=tag_table))
+    perception = Perception(detector, sphere_ids, track=track, motion="flow" if motion == "flow" else None)
+    inverse = None if tag_table is None else {n: t for t, n in tag_table.items()}
+    results = []
+    for k, (name, image) in enumerate(iter_frames(list(paths))):
+        if k >= len(log.steps):
+            raise InputError(f"more frames than the {len(log.steps)} steps of the log template", field="FRAME")
+        step = log.steps[k]
+        nodes = [n for cfg in step.config.values() for n in cfg]
+        tags = nodes if inverse is None else [inverse[n] for n in nodes if n in inverse]
+        sphere_ids.set_view(log.camera_pose(camera, step).R, tags)
+        given = motions[k] if motions is not None else None
+        dets, secs = perception.process(image, motion=given)
+        results.append(FrameResult(name, tuple(dets), secs))
     return to_records(results, K=K)
 
 
