@@ -22,6 +22,7 @@ COMMANDS: dict[str, str] = {
     "localize": "sims.cli.localize",
     "simulate": "sims.cli.simulate",
     "perceive": "sims.cli.perceive",
+    "experiment": "sims.cli.experiment",
     "make-ensemble": "sims.cli.make_ensemble",
 }
 

@@ -92,7 +92,6 @@ def perceive_paths(
     """
     from agents.perception import AprilTagConfig, AprilTagIdentifier, HoughCircleDetector, HoughConfig, Perception
     from agents.perception.frames import iter_frames
-    from agents.perception.motion import odometry_homography
     from agents.perception.pipeline import perceive_frames
 
     if max_radius <= min_radius or min_radius <= 0:
@@ -102,42 +101,15 @@ def perceive_paths(
         identifier = AprilTagIdentifier(AprilTagConfig(family=family, tag_table=tag_table))
     except ValueError as err:
         raise InputError(str(err), field="--family") from None
-    K = None
-    motions = None
-    if log is not None:
-        cam = log.cameras[camera]
-        K = cam.K
-        if motion == "odometry":
-            motions = []
-            for step in log.steps:
-                odo = step.odometry.get(cam.assembly)
-                R = log.camera_pose(camera, step).R
-                motions.append(None if odo is None else odometry_homography(K, R, odo.dtheta))
-    elif motion == "odometry":
-        raise InputError("--motion odometry needs --log-template and --camera", field="--motion")
     if log is None:
+        if motion == "odometry":
+            raise InputError("--motion odometry needs --log-template and --camera", field="--motion")
         perception = Perception(detector, identifier, track=track, motion="flow" if motion == "flow" else None)
-        return to_records(perceive_frames(iter_frames(list(paths)), perception, motions=motions))
-    # with the camera model, tags are read through the sphere model (small, curved prints), against
-    # the tags of the nodes configured at each step
-    from agents.perception.pipeline import FrameResult
-    from agents.perception.sphere_tags import SphereTagConfig, SphereTagIdentifier
+        return to_records(perceive_frames(iter_frames(list(paths)), perception))
+    from sims.experiments.perception_run import perceive_with_log
 
-    sphere_ids = SphereTagIdentifier(K, log.node_radius, SphereTagConfig(family=family, tag_table=tag_table))
-    perception = Perception(detector, sphere_ids, track=track, motion="flow" if motion == "flow" else None)
-    inverse = None if tag_table is None else {n: t for t, n in tag_table.items()}
-    results = []
-    for k, (name, image) in enumerate(iter_frames(list(paths))):
-        if k >= len(log.steps):
-            raise InputError(f"more frames than the {len(log.steps)} steps of the log template", field="FRAME")
-        step = log.steps[k]
-        nodes = [n for cfg in step.config.values() for n in cfg]
-        tags = nodes if inverse is None else [inverse[n] for n in nodes if n in inverse]
-        sphere_ids.set_view(log.camera_pose(camera, step).R, tags)
-        given = motions[k] if motions is not None else None
-        dets, secs = perception.process(image, motion=given)
-        results.append(FrameResult(name, tuple(dets), secs))
-    return to_records(results, K=K)
+    return list(perceive_with_log(iter_frames(list(paths)), log, camera, family=family, tag_table=tag_table,
+                                  track=track, motion=motion, min_radius=min_radius, max_radius=max_radius).frames)
 
 
 def run(args: argparse.Namespace) -> int:
