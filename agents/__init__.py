@@ -2,3 +2,7 @@
 agents. Depends on ``decentral`` and ``protocols``; never reads ground truth."""
 
 __all__: list[str] = []
+
+from agents.assembly import AgentConfig, AssemblyAgent, OwnStep  # noqa: E402
+
+__all__ += ["AgentConfig", "AssemblyAgent", "OwnStep"]

@@ -74,5 +74,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run_admm(log, args, noise, reference):
-    raise InputError("the decentralized ADMM mode is not available in this build yet; use --mode centralized",
-                     field="--mode")
+    from sims.admm_run import AdmmRunConfig, run_admm
+
+    config = AdmmRunConfig(window=args.window, noise=noise, loss=args.loss)
+    return run_admm(log, reference, config, seed=args.seed).estimate

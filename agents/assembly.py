@@ -1,0 +1,420 @@
+"""The assembly agent: one per assembly, consensus-ADMM over the pairs it observes (:mod:`decentral.admm`).
+
+An agent holds only what its assembly really has: its own node configuration, odometry and camera
+detections (never ground truth), plus what arrives in its inbox. Per log step it
+
+1. back-projects its own detections (seed 000 eq. (1), (4)) and announces its configuration
+   (``admm.config``, a broadcast, when it changes and every ``announce_every`` steps);
+2. names the owner of every node it sees from the announced configurations and builds one
+   directed pair subproblem ``self -> target`` per observed assembly over the sliding window;
+3. runs ADMM rounds, two phases each (:meth:`AssemblyAgent.tick`):
+
+   * phase 0: every owned pair updates its copies with the newest consensus values (its own, and
+     the target's from the last ``admm.primal``) and sends the target's ``copy + dual`` as
+     ``admm.dual`` (with its penalties) to the target;
+   * phase 1: the agent updates its own consensus poses from its pairs and from the ``admm.dual``
+     messages of the agents that observe it, then sends them as ``admm.primal`` to those observers.
+
+Messages that do not arrive are not waited for: the newest value received from each neighbour is
+reused, and its age (in rounds) is kept and reported. Both ADMM kinds also carry a small gossip
+table (``(assembly index, step, round, x, y, z, theta)`` rows, the newest consensus pose of every
+assembly at its latest step) so every agent learns the poses of assemblies it does not talk to;
+:meth:`AssemblyAgent.estimates` turns it into poses relative to the agent (seed 000 eq. (19)).
+
+Message counts per round and agent: one ``admm.dual`` per observed assembly and one ``admm.primal``
+per observer, i.e. the agent's degree in the view graph.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from decentral.admm import AdmmConfig, ConsensusState, PairState, quadratic_form
+from decentral.errors import InputError
+from decentral.factors import NoiseModel, detection_weights
+from decentral.geometry import backproject, wrap_angle
+from decentral.observations import Camera, Detection, Odometry, PlanarPose, Pose
+from protocols.admm_messages import ConfigAnnounce
+from protocols.messages import BROADCAST, AdmmDual, AdmmPrimal, Message
+
+__all__ = ["AgentConfig", "OwnStep", "AssemblyAgent"]
+
+
+@dataclass(frozen=True)
+class AgentConfig:
+    """What an agent is told when it starts.
+
+    Attributes
+    ----------
+    name : str
+        Its assembly.
+    assemblies : tuple of str
+        Every assembly's name (the log header); rows of the gossip table are indices into it.
+    reference : str
+        The assembly whose agent pins the gauge (its pose at each window's first step).
+    cameras : tuple of Camera
+        Its own cameras.
+    node_radius : float
+        Node radius r_0 (m), for the radius depth cue.
+    noise : NoiseModel
+        Factor weights (the same model the centralized estimator uses).
+    window : int
+        Sliding-window length K.
+    admm : AdmmConfig
+        ADMM parameters.
+    announce_every : int
+        Re-announce the configuration every this many steps (repairs lost announcements).
+    stale_rounds : int
+        Inputs older than this many rounds keep the agent from reporting convergence.
+    """
+
+    name: str
+    assemblies: tuple[str, ...]
+    reference: str
+    cameras: tuple[Camera, ...] = ()
+    node_radius: float = 0.06
+    noise: NoiseModel = field(default_factory=NoiseModel)
+    window: int = 5
+    admm: AdmmConfig = field(default_factory=AdmmConfig)
+    announce_every: int = 5
+    stale_rounds: int = 2
+
+    def __post_init__(self) -> None:
+        if self.name not in self.assemblies or self.reference not in self.assemblies:
+            raise InputError("name and reference must be listed in assemblies", field="assemblies")
+        if any(cam.assembly != self.name for cam in self.cameras):
+            raise InputError("an agent only holds its own cameras", field="cameras")
+        if not (isinstance(self.window, int) and self.window >= 1):
+            raise InputError(f"window must be an integer >= 1, got {self.window!r}", field="window")
+        if not (isinstance(self.announce_every, int) and self.announce_every >= 1):
+            raise InputError("announce_every must be an integer >= 1", field="announce_every")
+
+
+@dataclass(frozen=True)
+class OwnStep:
+    """What an assembly's own sensors give at one step (no other assembly's data, no truth).
+
+    Attributes
+    ----------
+    step : int
+        Log step index.
+    t : float
+        Time (s).
+    config : dict[int, ndarray]
+        Own node id -> centre (3,) in the root horizontal frame.
+    odometry : Odometry or None
+        Own root motion since the previous step.
+    detections : dict[str, tuple[Detection, ...]]
+        Own camera key -> identified detections.
+    mounts : dict[str, Pose]
+        Own camera key -> strut pose overriding the default at this step.
+    """
+
+    step: int
+    t: float
+    config: dict[int, np.ndarray]
+    odometry: Odometry | None = None
+    detections: dict[str, tuple[Detection, ...]] = field(default_factory=dict)
+    mounts: dict[str, Pose] = field(default_factory=dict)
+
+
+@dataclass
+class _Inbound:
+    """The newest ADMM values heard from one neighbour."""
+
+    round: int
+    values: dict  # step -> (R (2, 2), p (3,))
+    ready: bool
+    rho: tuple[float, float] = (0.0, 0.0)
+
+
+class AssemblyAgent:
+    """Config + private state + message handlers (house style 9).
+
+    Drive it with :meth:`on_step` once per log step, then per ADMM round deliver its inbox with
+    :meth:`handle`, call :meth:`tick` (twice per round: phase 0 then phase 1) and send what
+    :meth:`outbox` returns. :meth:`estimates` gives the poses it can place relative to itself and
+    :attr:`converged` says whether its part of the consensus has converged.
+    """
+
+    def __init__(self, config: AgentConfig):
+        self.config = config
+        self._index = {name: i for i, name in enumerate(config.assemblies)}
+        self._step: int | None = None
+        self._t = 0.0
+        self._steps: list[int] = []
+        self._own_config: dict[int, np.ndarray] = {}
+        self._announced: tuple[int, dict] | None = None  # (step, config) last announced
+        self._configs: dict[str, list[tuple[int, dict]]] = {}  # others' announced configurations
+        self._seen: dict[int, list[tuple[int, np.ndarray, float]]] = {}  # step -> [(node, t, w)]
+        self._odometry: dict[int, tuple] = {}
+        self._pairs: dict[str, PairState] = {}
+        self._pair_steps: set[int] = set()
+        self._consensus = ConsensusState(config.name, config.name == config.reference)
+        self._targets_z: dict[str, _Inbound] = {}
+        self._observers: dict[str, _Inbound] = {}
+        self._table: dict[int, np.ndarray] = {}
+        self._outbox: list[Message] = []
+        self._dirty = True
+        self._phase = 0
+        self._round = 0
+        self._converged = False
+        self._last_ages: dict[str, int] = {}
+        self.counters = {"ignored": 0, "stale_inputs": 0, "uncertified": 0, "unknown_nodes": 0}
+
+    # ------------------------------------------------------------------ sensing
+    @property
+    def name(self) -> str:
+        return self.config.name
+
+    def on_step(self, own: OwnStep) -> None:
+        """Take the assembly's own observations of a new step and slide the window."""
+        cfg = self.config
+        self._step, self._t = own.step, own.t
+        self._own_config = {int(k): np.asarray(v, float) for k, v in own.config.items()}
+        if own.odometry is not None:
+            w_p, w_R = cfg.noise.odometry_weights()
+            self._odometry[own.step] = (np.asarray(own.odometry.dp, float), float(own.odometry.dtheta), w_p, w_R)
+        self._seen[own.step] = self._measure(own)
+        changed = self._announced is None or not _same_config(self._announced[1], self._own_config)
+        if changed or own.step - self._announced[0] >= cfg.announce_every:
+            ids = np.array(sorted(self._own_config), dtype=np.int64)
+            centres = np.array([self._own_config[i] for i in ids]).reshape(-1, 3)
+            self._outbox.append(ConfigAnnounce(sender=self.name, receiver=BROADCAST, round=self._round,
+                                               step=own.step, ids=ids, centres=centres))
+            self._announced = (own.step, dict(self._own_config))
+        first = max(0, own.step - cfg.window + 1)
+        self._steps = list(range(first, own.step + 1))
+        for store in (self._seen, self._odometry):
+            for k in [k for k in store if k < first]:
+                del store[k]
+        self._consensus.slide(self._steps, self._odometry)
+        self._dirty = True
+        self._converged = False
+
+    def _measure(self, own: OwnStep) -> list[tuple[int, np.ndarray, float]]:
+        """Own detections as (node, centre in own root frame (3,), weight), seed 000 eq. (1), (4)."""
+        out = []
+        for cam in self.config.cameras:
+            dets = [d for d in own.detections.get(cam.key, ()) if d.node not in self._own_config]
+            if not dets:
+                continue
+            u, v, r = (np.array([getattr(d, a) for d in dets]) for a in ("u", "v", "r"))
+            p_cam = backproject(cam.K, u, v, r, self.config.node_radius)  # seed 000 eq. (1)
+            pose = cam.in_root(own.mounts.get(cam.key))
+            t = pose.apply(p_cam)  # eq. (4): t_i in the own root frame
+            f = 0.5 * (cam.K[0, 0] + cam.K[1, 1])
+            w = detection_weights(p_cam[:, 2], r, f, self.config.noise)
+            out += [(d.node, t[i], float(w[i])) for i, d in enumerate(dets)]
+        return out
+
+    # ------------------------------------------------------------------ messages
+    def handle(self, message: Message) -> None:
+        """Route one received message by its type (anything else is counted and ignored)."""
+        if isinstance(message, ConfigAnnounce):
+            entry = (message.step, {int(i): np.array(c) for i, c in zip(message.ids, message.centres)})
+            hist = [h for h in self._configs.get(message.sender, []) if h[0] != message.step]
+            self._configs[message.sender] = sorted(hist + [entry], key=lambda h: h[0])
+            self._dirty = True
+        elif isinstance(message, (AdmmPrimal, AdmmDual)):
+            self._merge_table(message.blocks.get("table"))
+            b = message.blocks
+            x, meta = b.get("x"), b.get("meta")
+            if x is None or meta is None or x.ndim != 2 or x.shape[1] != 8 or meta.shape != (3,):
+                self.counters["ignored"] += 1
+                return
+            store = self._targets_z if isinstance(message, AdmmPrimal) else self._observers
+            old = store.get(message.sender)
+            if old is not None and old.round >= message.round:
+                return  # a duplicate or an overtaken (reordered) copy
+            values = {int(row[0]): (row[1:5].reshape(2, 2).copy(), row[5:8].copy()) for row in x}
+            store[message.sender] = _Inbound(message.round, values, bool(meta[0] > 0.5), (float(meta[1]), float(meta[2])))
+        else:
+            self.counters["ignored"] += 1
+
+    def outbox(self) -> list[Message]:
+        """Messages queued since the last call (and forget them)."""
+        out, self._outbox = self._outbox, []
+        return out
+
+    # ------------------------------------------------------------------ ADMM
+    def _owner_of(self, node: int, step: int) -> tuple[str, np.ndarray] | None:
+        for name, hist in self._configs.items():
+            usable = [h for h in hist if h[0] <= step] or hist[:1]
+            conf = usable[-1][1]
+            if node in conf:
+                return name, conf[node]
+        return None
+
+    def _rebuild(self) -> None:
+        """Directed pair subproblems ``self -> target`` over the window from own detections."""
+        rows: dict[str, list] = {}
+        unknown = 0
+        for k in self._steps:
+            for node, t, w in self._seen.get(k, []):
+                hit = self._owner_of(node, k)
+                if hit is None:
+                    unknown += 1
+                    continue
+                rows.setdefault(hit[0], []).append((k, hit[1], t, w))
+        self.counters["unknown_nodes"] = unknown
+        self._pair_steps = {k for r in rows.values() for k, *_ in r}
+        for target in [t for t in self._pairs if t not in rows]:
+            del self._pairs[target]
+        for target, facts in rows.items():
+            keys, io, ia, q, t, w = [], [], [], [], [], []
+            slot = {}
+            for k, qk, tk, wk in facts:
+                if k not in slot:
+                    slot[k] = len(keys)
+                    keys += [(self.name, k), (target, k)]
+                io.append(slot[k])
+                ia.append(slot[k] + 1)
+                q.append(qk), t.append(tk), w.append(wk)
+            problem = quadratic_form(keys, visual=(np.array(io), np.array(ia), np.array(q), np.array(t), np.array(w)))
+            pair = self._pairs.get(target) or PairState(self.name, target, self.config.admm)
+            pair.set_problem(problem)
+            self._pairs[target] = pair
+        self._dirty = False
+
+    def tick(self, round_index: int) -> None:
+        """Run the next phase of ADMM round ``round_index`` (phase 0: pairs; phase 1: consensus)."""
+        if self._step is None:
+            return
+        self._round = round_index
+        if self._phase == 0:
+            self._pair_phase()
+        else:
+            self._consensus_phase()
+        self._phase = 1 - self._phase
+
+    def _age(self, inbound: _Inbound | None) -> int:
+        return 10**9 if inbound is None else max(0, self._round - inbound.round)
+
+    def _pair_phase(self) -> None:
+        if self._dirty:
+            self._rebuild()
+        me, cons = self.name, self._consensus
+        self._own_contrib = []
+        for target, pair in self._pairs.items():
+            z = {(me, k): v for k, v in cons.z.items()}
+            inbound = self._targets_z.get(target)
+            ready = {me: cons.ready, target: False}
+            if inbound is not None:
+                z.update({(target, k): v for k, v in inbound.values.items() if k in cons.z})
+                ready[target] = inbound.ready
+            out = pair.iterate(z, ready)
+            if not pair.certified:
+                self.counters["uncertified"] += 1
+            mine = {k[1]: v for k, v in out.items() if k[0] == me}
+            if cons.ready or ready[target]:
+                self._own_contrib.append((mine, pair.rho_R, pair.rho_p))
+            theirs = sorted((k[1], v) for k, v in out.items() if k[0] == target)
+            if theirs:
+                self._outbox.append(AdmmDual(
+                    sender=me, receiver=target, round=self._round, window=self._step, rho=pair.rho_R,
+                    blocks=self._blocks(theirs, cons.ready, rho=(pair.rho_R, pair.rho_p))))
+
+    def _consensus_phase(self) -> None:
+        cons = self._consensus
+        contributions = list(getattr(self, "_own_contrib", []))
+        ages = {}
+        for sender, inbound in self._observers.items():
+            age = self._age(inbound)
+            if age > self.config.window + 2 * self.config.stale_rounds + 10:
+                continue  # an observer gone for long: its copies no longer count
+            ages[sender] = age
+            if inbound.ready or cons.ready:
+                contributions.append((inbound.values, inbound.rho[0], inbound.rho[1]))
+        for target in self._pairs:
+            ages[target] = self._age(self._targets_z.get(target))
+        self._last_ages = ages
+        stale = sum(1 for a in ages.values() if a > 1)
+        self.counters["stale_inputs"] += stale
+        cons.update(contributions)
+        last = self._steps[-1]
+        if cons.ready and cons.anchored(last, self._pair_steps | self._remote_steps()):
+            R, p = cons.z[last]
+            self._table[self._index[self.name]] = np.array(
+                [self._index[self.name], last, self._round, p[0], p[1], p[2], np.arctan2(R[1, 0], R[0, 0])])
+        values = sorted(cons.z.items())
+        for observer, inbound in self._observers.items():
+            if ages.get(observer, 10**9) <= self.config.window + 2 * self.config.stale_rounds + 10:
+                self._outbox.append(AdmmPrimal(sender=self.name, receiver=observer, round=self._round,
+                                               window=self._step, blocks=self._blocks(values, cons.ready)))
+        eps = self.config.admm
+        self._converged = bool(
+            cons.ready
+            and all(p.converged() for p in self._pairs.values())
+            and cons.change <= max(eps.eps_rot, eps.eps_pos)
+            and all(a <= self.config.stale_rounds for a in ages.values())
+        )
+
+    def _remote_steps(self) -> set[int]:
+        """Steps at which an observer holds copies of this assembly (factors it cannot see itself)."""
+        return {k for inbound in self._observers.values() for k in inbound.values}
+
+    def _blocks(self, values: list, ready: bool, rho: tuple[float, float] | None = None) -> dict:
+        """Wire blocks: ``x`` rows ``(step, R00, R01, R10, R11, px, py, pz)``, ``meta`` = (ready, rho_R, rho_p),
+        ``table`` the gossip rows (few arrays: each costs a ~128-byte ``.npy`` header)."""
+        x = np.array([[k, *v[0].ravel(), *v[1]] for k, v in values], float).reshape(-1, 8)
+        rho = rho or (0.0, 0.0)
+        blocks = {"x": x, "meta": np.array([1.0 if ready else 0.0, rho[0], rho[1]])}
+        if self._table:
+            blocks["table"] = np.array([self._table[i] for i in sorted(self._table)])
+        return blocks
+
+    def _merge_table(self, table) -> None:
+        if table is None:
+            return
+        for row in np.asarray(table).reshape(-1, 7):
+            i = int(row[0])
+            if not 0 <= i < len(self.config.assemblies) or i == self._index[self.name]:
+                continue
+            old = self._table.get(i)
+            if old is None or (row[1], row[2]) > (old[1], old[2]):
+                self._table[i] = np.array(row)
+
+    # ------------------------------------------------------------------ results
+    @property
+    def converged(self) -> bool:
+        """Whether its pairs' residuals and its consensus change are below tolerance with fresh inputs."""
+        return self._converged
+
+    @property
+    def ready(self) -> bool:
+        """Whether its consensus poses are in the pinned gauge."""
+        return self._consensus.ready
+
+    @property
+    def neighbours(self) -> tuple[str, ...]:
+        """Assemblies it observes or is observed by in the current window."""
+        return tuple(sorted(set(self._pairs) | set(self._observers)))
+
+    @property
+    def ages(self) -> dict[str, int]:
+        """Rounds since the newest value used from each neighbour (0 or 1: fresh)."""
+        return dict(self._last_ages)
+
+    def estimates(self) -> dict[str, PlanarPose]:
+        """Pose of every assembly it can place at the current step, in its own root frame (eq. (19))."""
+        if self._step is None or not self._consensus.ready:
+            return {}
+        me = self._table.get(self._index[self.name])
+        if me is None or int(me[1]) != self._step:
+            return {}
+        c, s = np.cos(me[6]), np.sin(me[6])
+        out = {}
+        for i, row in self._table.items():
+            if i == self._index[self.name] or int(row[1]) != self._step:
+                continue
+            d = row[3:6] - me[3:6]
+            p = np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1], d[2]])  # seed 000 eq. (19)
+            out[self.config.assemblies[i]] = PlanarPose(p, float(wrap_angle(row[6] - me[6])))
+        return out
+
+
+def _same_config(a: dict, b: dict) -> bool:
+    return a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
