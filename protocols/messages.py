@@ -598,27 +598,37 @@ class Heartbeat(Message):
 @register
 @dataclass(frozen=True, slots=True, eq=False, kw_only=True)
 class OdometryReport(Message):
-    """The sender's own planar motion over its last step, so peers can predict its pose.
+    """The sender's own planar motion over its last ``L`` steps, so peers can predict its pose.
+
+    Repeating recent steps lets a receiver that lost a report recover the motion from the next one.
 
     Attributes
     ----------
     t : float
-        Time at the end of the step (s).
-    motion : ndarray, shape (3,), float64
-        ``(dx, dy, dtheta)``: the sender's root at ``t`` in its root frame at the previous step
-        (seed 000 eq. (6)).
-    covariance : ndarray, shape (3, 3), float64
-        Noise covariance of ``motion``.
+        Time at the end of step ``round`` (s).
+    motions : ndarray, shape (L, 3), float64
+        Row ``l`` is ``(dx, dy, dtheta)`` of step ``round - L + 1 + l``: the sender's root at the end
+        of that step in its root frame at the previous step (seed 000 eq. (6)).
+    covariances : ndarray, shape (L, 3, 3), float64
+        Noise covariance of each row of ``motions``.
     """
 
     KIND: ClassVar[str] = "odometry"
 
     t: float
-    motion: np.ndarray
-    covariance: np.ndarray
+    motions: np.ndarray
+    covariances: np.ndarray
 
     def __post_init__(self) -> None:
         Message.__post_init__(self)
         _set(self, "t", _finite_float(self.t, "t"))
-        _set(self, "motion", _finite_array(self.motion, "motion", shape=(3,)))
-        _set(self, "covariance", _finite_array(self.covariance, "covariance", shape=(3, 3)))
+        motions = _finite_array(self.motions, "motions", ndim=2)
+        if motions.shape[1] != 3 or motions.shape[0] < 1:
+            raise ProtocolError(f"field 'motions': expected shape (L >= 1, 3), got {motions.shape}")
+        _set(self, "motions", motions)
+        _set(self, "covariances", _finite_array(self.covariances, "covariances", shape=(motions.shape[0], 3, 3)))
+
+    @property
+    def first_round(self) -> int:
+        """Round of the first row of ``motions``."""
+        return self.round - self.motions.shape[0] + 1

@@ -200,8 +200,9 @@ class RelativeLocalizationEnv(ParallelEnv):
             inbox[r, 2] = p in est.fresh
             inbox[r, 3] = min(est.ages.get(p, _AGE_CAP), _AGE_CAP)
         ests = np.zeros((len(peers), 8), np.float32)
+        current = robot.estimates()
         for p, r in index.items():
-            tr = robot.tracks.get(p)
+            tr = current.get(p)
             if tr is not None:
                 sd = np.sqrt(np.diag(tr.cov))
                 ests[r] = (1.0, float(tr.yaw_known), *tr.mean, *sd)
@@ -264,7 +265,7 @@ class RelativeLocalizationEnv(ParallelEnv):
         estimates = {}
         for i, a in enumerate(self.possible_agents):
             items = []
-            for name, tr in sorted(self._sim.robots[a].tracks.items()):
+            for name, tr in self._sim.robots[a].estimates().items():
                 items.append((c.names.index(name), compose(rep.state[i], tr.mean)))
             estimates[i] = items
         top = top_view(rep.state, c.arena, estimates=estimates, link_loss=self.link_loss(),

@@ -21,7 +21,8 @@ B. *share*: it broadcasts its tracks (:class:`PoseEstimates`); at the deadline i
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from collections import deque
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy import stats
@@ -54,6 +55,8 @@ YAW_PRIOR_VAR = np.pi**2 / 3
 #: tracks are shared only while their position std is below this [m]
 SHARE_MAX_STD = 1.0
 GATE = float(stats.chi2.ppf(0.999, 3))
+#: steps of own motion repeated in each odometry report (a lost report is recovered from a later one)
+ODOMETRY_HISTORY = 4
 
 
 @dataclass
@@ -64,6 +67,7 @@ class Track:
     cov: np.ndarray
     last_direct: float
     source: str = "camera"
+    applied: int = 0  # last round whose motion of the target has been applied
 
     @property
     def yaw_known(self) -> bool:
@@ -113,6 +117,7 @@ class SwarmRobot:
         self._t = 0.0
         self._odometry: np.ndarray | None = None
         self._odometry_cov = np.zeros((3, 3))
+        self._history: deque = deque(maxlen=ODOMETRY_HISTORY)
         self._detections: tuple[Detection, ...] = ()
         self._direct: set[str] = set()
         self.last_reports: dict[str, GatherResult] = {}
@@ -123,13 +128,16 @@ class SwarmRobot:
         self._k, self._t = k, t
         self._detections = tuple(detections)
         out: list[Message] = []
-        if odometry is not None:
-            u = np.array([odometry.dp[0], odometry.dp[1], odometry.dtheta])
-            self._odometry, self._odometry_cov = u, self.config.odometry_cov(u)
-            out.append(OdometryReport(sender=self.name, receiver=BROADCAST, round=k, t=t, motion=u,
-                                      covariance=self._odometry_cov))
-        else:
-            self._odometry = None
+        if k > 0:
+            if odometry is not None:
+                u = np.array([odometry.dp[0], odometry.dp[1], odometry.dtheta])
+                self._odometry, self._odometry_cov = u, self.config.odometry_cov(u)
+            else:
+                self._odometry, self._odometry_cov = None, self.config.unknown_motion_cov()
+            self._history.append((np.zeros(3) if self._odometry is None else self._odometry, self._odometry_cov))
+            out.append(OdometryReport(sender=self.name, receiver=BROADCAST, round=k, t=t,
+                                      motions=np.array([m for m, _ in self._history]),
+                                      covariances=np.array([c for _, c in self._history])))
         ids = np.array([d.node for d in self._detections], dtype=np.int64)
         uvr = np.array([[d.u, d.v, d.r] for d in self._detections], dtype=float).reshape(-1, 3)
         out.append(Tracks(sender=self.name, receiver=BROADCAST, round=k, t=t, camera=f"{self.name}/cam0",
@@ -153,26 +161,60 @@ class SwarmRobot:
             U = self._odometry_cov if self._odometry is not None else c.unknown_motion_cov()
             self.pose, self.pose_cov = predict_pose(self.pose, self.pose_cov, u, U)
             for name, tr in self.tracks.items():
-                rep = odo.fresh.get(name)
-                if rep is not None:
-                    w, W = rep.motion, rep.covariance
-                else:
-                    w, W = np.zeros(3), c.unknown_motion_cov()
-                    self.stats.odometry_missing += 1
-                if tr.yaw_known:
-                    tr.mean, tr.cov = predict_relative(tr.mean, tr.cov, u, U, w, W)
-                else:
-                    # the target's heading is unknown, so is the direction of its motion, and it keeps
-                    # that direction from step to step: its position std grows linearly by the step
-                    # length (a random walk would grow as sqrt and be overconfident)
-                    tr.mean, tr.cov = predict_relative(tr.mean, tr.cov, u, U)
-                    a = float(np.hypot(w[0], w[1]) + np.sqrt(W[0, 0] + W[1, 1]))
-                    sd = float(np.sqrt(np.linalg.eigvalsh(tr.cov[:2, :2])[-1]))
-                    tr.cov[:2, :2] += (2 * sd * a + a * a) * np.eye(2)
-                _forget_unknown_yaw(tr)
+                # own motion now; the target's motion when its report arrives (it composes on the
+                # other side, so the order does not matter): s_k = -u_k + s_{k-1} + w_k
+                tr.mean, tr.cov = predict_relative(tr.mean, tr.cov, u, U)
+                self._advance(tr, odo.fresh.get(name))
         self.stats.reports_late += len(peer_tracks.late)
         self._own_updates()
         self._mutual_updates(peer_tracks)
+
+    def _apply_target_motion(self, tr: Track, w: np.ndarray, W: np.ndarray) -> None:
+        if tr.yaw_known:
+            tr.mean, tr.cov = predict_relative(tr.mean, tr.cov, np.zeros(3), np.zeros((3, 3)), w, W)
+        else:
+            # the target's heading is unknown, so is the direction of its motion, and it keeps that
+            # direction from step to step: its position std grows linearly by the step length (a
+            # random walk would grow as sqrt and be overconfident)
+            a = float(np.hypot(w[0], w[1]) + np.sqrt(W[0, 0] + W[1, 1]))
+            sd = float(np.sqrt(np.linalg.eigvalsh(tr.cov[:2, :2])[-1]))
+            tr.cov = tr.cov.copy()
+            tr.cov[:2, :2] += (2 * sd * a + a * a) * np.eye(2)
+            tr.cov[2, 2] += W[2, 2] + w[2] ** 2
+        _forget_unknown_yaw(tr)
+
+    def _advance(self, tr: Track, report: OdometryReport | None, *, force: bool = False, count: bool = True) -> None:
+        """Apply the target's motions up to this round that are known, or can no longer be learned.
+
+        A round missing from every report so far is waited for while a later report may still carry
+        it (``ODOMETRY_HISTORY``); after that, or when ``force`` is set (the track is about to be
+        measured or read), it becomes the unknown-motion covariance -- an explicit, counted failure.
+        """
+        k = self._k
+        known = {}
+        if report is not None:
+            for row, (w, W) in enumerate(zip(report.motions, report.covariances)):
+                known[report.first_round + row] = (w, W)
+        for r in range(tr.applied + 1, k + 1):
+            if r in known:
+                self._apply_target_motion(tr, *known[r])
+            elif force or r < k + 2 - ODOMETRY_HISTORY:
+                self._apply_target_motion(tr, np.zeros(3), self.config.unknown_motion_cov())
+                self.stats.odometry_missing += int(count)
+            else:
+                break
+            tr.applied = r
+
+    def _settle(self, tr: Track, *, count: bool = True) -> Track:
+        """Bring a track fully to the current round (before a measurement or a read-out)."""
+        if tr.applied < self._k:
+            self._advance(tr, None, force=True, count=count)
+        return tr
+
+    def pending(self, name: str) -> bool:
+        """Whether the track of ``name`` still waits for some of the target's motion."""
+        tr = self.tracks.get(name)
+        return tr is not None and tr.applied < self._k
 
     def _own_updates(self) -> None:
         c = self.config
@@ -186,6 +228,7 @@ class SwarmRobot:
                 self.tracks[name] = self._new_track(uvr)
                 self._direct.add(name)
                 continue
+            self._settle(tr)
             res = update_detection(tr.mean, tr.cov, uvr, c.pixel_cov, self._K, self._cam_R, self._cam_p,
                                    c.node_radius, gate=GATE)
             if res.accepted:
@@ -210,7 +253,7 @@ class SwarmRobot:
         cov = np.zeros((3, 3))
         cov[:2, :2] = P
         cov[2, 2] = YAW_PRIOR_VAR
-        return Track(np.array([xy[0], xy[1], 0.0]), cov, self._t)
+        return Track(np.array([xy[0], xy[1], 0.0]), cov, self._t, applied=self._k)
 
     def _mutual_updates(self, peer_tracks: GatherResult) -> None:
         c = self.config
@@ -220,6 +263,7 @@ class SwarmRobot:
             if len(hits) == 0 or tr is None:
                 continue
             uvr = np.asarray(msg.uvr[hits[0]], dtype=float)
+            self._settle(tr)
             if not tr.yaw_known:
                 if name not in self._direct:
                     continue  # the closed form needs both views of the same instant
@@ -272,18 +316,22 @@ class SwarmRobot:
                 if m == self.name:
                     if peer not in self.tracks or peer in self._direct or C[2, 2] >= YAW_UNKNOWN_VAR:
                         continue  # inverting a pose of unknown yaw gives no usable position
+                    if self.pending(peer):
+                        continue  # its motion report is still to come: fusing now would settle it
                     J = invert_jacobian(pose)
                     self._fuse(peer, invert(pose), J @ C @ J.T)
                     continue
                 via = self.tracks.get(peer)
                 if via is None or not via.yaw_known or m in self._direct or m not in self.config.names:
                     continue
+                if self.pending(peer) or self.pending(m):
+                    continue
                 Ja, Jb = compose_jacobians(via.mean, pose)
                 self._fuse(m, compose(via.mean, pose), Ja @ via.cov @ Ja.T + Jb @ C @ Jb.T)
 
     def _fuse(self, name: str, est: np.ndarray, cov: np.ndarray) -> None:
         cov = 0.5 * (cov + cov.T) + 1e-12 * np.eye(3)
-        incoming = Track(est.copy(), cov, -np.inf, "peer")
+        incoming = Track(est.copy(), cov, -np.inf, "peer", applied=self._k)
         _forget_unknown_yaw(incoming)
         tr = self.tracks.get(name)
         if tr is None:
@@ -297,10 +345,16 @@ class SwarmRobot:
         self.stats.fused += 1
 
     # ------------------------------------------------------------------ read-out
-    def estimate(self, name: str) -> tuple[np.ndarray, np.ndarray] | None:
-        """Current ``(mean (3,), cov (3, 3))`` of robot ``name`` in this robot's frame, or ``None``."""
+    def estimate(self, name: str) -> Track | None:
+        """Current belief about robot ``name`` (a copy, brought to this round), or ``None``."""
         tr = self.tracks.get(name)
-        return None if tr is None else (tr.mean.copy(), tr.cov.copy())
+        if tr is None:
+            return None
+        return self._settle(replace(tr, mean=tr.mean.copy(), cov=tr.cov.copy()), count=False)
+
+    def estimates(self) -> dict[str, Track]:
+        """Current beliefs about every tracked robot (copies, brought to this round)."""
+        return {name: self.estimate(name) for name in sorted(self.tracks)}
 
 
 def _forget_unknown_yaw(tr: Track) -> None:

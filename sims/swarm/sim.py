@@ -143,7 +143,7 @@ class SwarmSim:
         for i, obs in enumerate(self.config.names):
             robot = self.robots[obs]
             row = {}
-            for name, tr in robot.tracks.items():
+            for name, tr in robot.estimates().items():
                 j = self.config.names.index(name)
                 true = self.world.relative(i, j)
                 e = true - tr.mean

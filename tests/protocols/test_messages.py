@@ -71,8 +71,9 @@ def poses(draw):
 
 any_message = st.one_of(
     tracks(), admm(), poses(),
-    st.builds(lambda s, t, m, c: OdometryReport(sender=s, receiver=BROADCAST, round=0, t=t, motion=m, covariance=c),
-              names, finite, hnp.arrays(np.float64, (3,), elements=finite), hnp.arrays(np.float64, (3, 3), elements=finite)),
+    st.integers(1, 4).flatmap(lambda L: st.builds(
+        lambda s, t, m, c: OdometryReport(sender=s, receiver=BROADCAST, round=7, t=t, motions=m, covariances=c),
+        names, finite, hnp.arrays(np.float64, (L, 3), elements=finite), hnp.arrays(np.float64, (L, 3, 3), elements=finite))),
     st.builds(lambda s, r, k, t: Heartbeat(sender=s, receiver=r, round=k, t=t), names, names, rounds, finite),
 )
 
