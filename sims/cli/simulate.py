@@ -53,15 +53,8 @@ def run(args: argparse.Namespace) -> int:
         params["noise"] = False
     scenario = get_scenario(args.scenario, **params)
     sim = simulate(scenario, seed=args.seed)
-    saved = save_simulation(sim, args.output)
-    n_frames = 0
-    if args.frames != "none":
-        try:
-            from sims.render.frames import write_frames
-        except ImportError:
-            raise InputError("frame rendering is not available in this version", field="--frames") from None
-
-        n_frames = len(write_frames(sim, saved.log.parent, mode=args.frames))
+    saved = save_simulation(sim, args.output, frames=args.frames, seed=args.seed)
+    n_frames = len(saved.frames)
     n_det = sum(len(d) for step in sim.log.steps for d in step.detections.values())
     print(
         f"{args.scenario}: {len(sim.log.steps)} steps, {len(sim.log.assemblies)} assemblies, "

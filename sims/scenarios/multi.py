@@ -92,7 +92,7 @@ class Multi(Scenario):
                 shape = random_lattice(int(rng.integers(3, 7)), rng, p_up=0.2)
             else:
                 shape = library_shape(kind)
-            shape = shape.with_ids(range(100 * i, 100 * i + len(shape.ids)))
+            shape = shape.with_ids(range(20 * i, 20 * i + len(shape.ids)))  # ids < 587: each has a 36h11 tag
             look = _look_direction(shape.centres)
             target = homes[(i + 1) % n] - homes[i]
             world_look = float(np.arctan2(target[1], target[0]))

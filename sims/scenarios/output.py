@@ -33,12 +33,26 @@ def prepare_outdir(outdir: str | os.PathLike) -> Path:
     return path
 
 
-def save_simulation(sim: Simulation, outdir: str | os.PathLike) -> SavedRun:
-    """Write ``sim``'s log and truth into ``outdir`` atomically (frames are written by the renderer)."""
+def save_simulation(sim: Simulation, outdir: str | os.PathLike, *, frames: str = "none", seed: int = 0) -> SavedRun:
+    """Write ``sim``'s log and truth (and its frames) into ``outdir``; each file atomically.
+
+    ``frames`` is ``"none"``, ``"png"`` or ``"video"``; with frames, the truth also records what
+    each frame shows (see :mod:`sims.world.truth`), and the frames are rendered with ``seed``.
+    """
+    from dataclasses import replace
+
     from sims.io.log_json import write_log
     from sims.world.truth import write_truth
 
+    if frames not in ("none", "png", "video"):
+        raise InputError(f"unknown frame mode {frames!r} (png, video or none)", field="--frames")
     path = prepare_outdir(outdir)
+    truth, written = sim.truth, ()
+    if frames != "none":
+        from sims.render.frames import write_frames
+
+        files, per_step = write_frames(sim, path, mode=frames, seed=seed)
+        truth, written = replace(truth, frames=per_step), tuple(files)
     write_log(path / "log.json", sim.log)
-    write_truth(path / "truth.json", sim.truth)
-    return SavedRun(path / "log.json", path / "truth.json")
+    write_truth(path / "truth.json", truth)
+    return SavedRun(path / "log.json", path / "truth.json", written)

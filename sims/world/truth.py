@@ -11,7 +11,10 @@
 ``poses`` holds every assembly root's pose (R_{H_r}^W, p_{H_r}^W) in one world frame W (z up, floor
 at ``z = 0``). ``visible`` lists, per camera, the nodes the geometric model finds in view at that step
 with their noiseless circle (seed 000 eq. (1) inverted) and the fraction of the circle hidden by
-nearer nodes, before drop-outs and noise.
+nearer nodes, before drop-outs and noise. Runs rendered with frames add, per step and camera,
+``"frames": {"A0/cam0": {"file": "frames/A0/cam0/00000.png", "nodes": [{"id", "u", "v", "r", "su",
+"sv", "sr", "visible"}]}}``: every node with a visible pixel, its eq. (1) circle, its exact
+silhouette circle (``su``, ``sv``, ``sr``) and the visible fraction of its silhouette.
 """
 
 from __future__ import annotations
@@ -44,6 +47,8 @@ class Truth:
     visible : tuple[dict, ...]
         Per step, camera key -> list of ``{"id", "u", "v", "r", "covered"}`` dicts.
     meta : dict
+    frames : tuple[dict, ...]
+        Per step, camera key -> ``{"file", "nodes"}`` for rendered frames (empty without frames).
     """
 
     poses: GroundTruth
@@ -51,6 +56,7 @@ class Truth:
     reference: str
     visible: tuple = ()
     meta: dict = field(default_factory=dict)
+    frames: tuple = ()
 
 
 def truth_to_dict(truth: Truth) -> dict:
@@ -64,6 +70,8 @@ def truth_to_dict(truth: Truth) -> dict:
         }
         if truth.visible:
             raw["visible"] = truth.visible[k]
+        if truth.frames:
+            raw["frames"] = truth.frames[k]
         steps.append(raw)
     return {
         "format": TRUTH_FORMAT,
@@ -92,7 +100,7 @@ def parse_truth(doc: Any) -> Truth:
     steps = doc.get("steps")
     if not isinstance(steps, list) or not steps:
         raise InputError("missing or empty", field="steps")
-    times, R, p, visible = [], {}, {}, []
+    times, R, p, visible, frames = [], {}, {}, [], []
     names = None
     for k, raw in enumerate(steps):
         if not isinstance(raw, dict) or not isinstance(raw.get("poses"), dict):
@@ -111,6 +119,7 @@ def parse_truth(doc: Any) -> Truth:
             R[n].append(_array(pose.get("R"), (3, 3), f"steps[{k}].poses.{n}.R"))
             p[n].append(_array(pose.get("p"), (3,), f"steps[{k}].poses.{n}.p"))
         visible.append(raw.get("visible", {}))
+        frames.append(raw.get("frames", {}))
     try:
         gt = GroundTruth(np.asarray(times), {n: np.stack(R[n]) for n in names}, {n: np.stack(p[n]) for n in names})
     except InputError as err:
@@ -119,7 +128,9 @@ def parse_truth(doc: Any) -> Truth:
     reference = doc.get("reference", names[0])
     if reference not in names:
         raise InputError(f"reference {reference!r} has no poses", field="reference")
-    return Truth(gt, float(radius), reference, tuple(visible), dict(doc.get("meta", {})))
+    has_frames = any(frames)
+    return Truth(gt, float(radius), reference, tuple(visible), dict(doc.get("meta", {})),
+                 tuple(frames) if has_frames else ())
 
 
 def read_truth(path: str | os.PathLike) -> Truth:

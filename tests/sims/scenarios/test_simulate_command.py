@@ -46,3 +46,13 @@ def test_output_path_that_is_a_file_is_bad_input(tmp_path, capsys):
     out.write_text("x")
     assert main(["simulate", "single_node", "-o", str(out), "--steps", "2"]) == 2
     assert out.read_text() == "x"
+
+
+def test_frames_png_writes_frames_and_records_them_in_truth(tmp_path):
+    """--frames png writes frames/<assembly>/<camera>/<step>.png and the truth lists what each shows."""
+    out = tmp_path / "run"
+    assert main(["simulate", "single_node", "-o", str(out), "--steps", "2", "--frames", "png"]) == 0
+    assert (out / "frames" / "A0" / "cam0" / "00001.png").is_file()
+    truth = read_truth(out / "truth.json")
+    (node,) = truth.frames[0]["A0/cam0"]["nodes"]
+    assert node["id"] == 10 and node["visible"] == 1.0
