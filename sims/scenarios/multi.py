@@ -1,6 +1,6 @@
 """Several observers and targets: assemblies on a ring, each camera watching the next (a cyclic view graph).
 
-``n_assemblies`` assemblies (2-16) stand on a circle, neighbours ``spacing`` metres apart, each with
+``n_assemblies`` assemblies (2-16 in the issue; up to 64 for scaling runs) stand on a circle, neighbours ``spacing`` metres apart, each with
 a random configuration (library shapes and random lattice shapes). The first ``observers`` of them
 carry a camera aimed at the next assembly around the ring (all of them by default: the view graph is
 a cycle; cameras also see farther assemblies when they are in view). Everyone drifts smoothly; halfway
@@ -33,7 +33,7 @@ class MultiConfig(ScenarioConfig):
     Attributes
     ----------
     n_assemblies : int
-        Assemblies on the ring (2-16).
+        Assemblies on the ring (2-64).
     observers : int or None
         How many of them (the first ones) carry a camera; ``None``: all.
     spacing : float
@@ -56,8 +56,8 @@ class MultiConfig(ScenarioConfig):
 
     def __post_init__(self):
         super().__post_init__()
-        if not 2 <= self.n_assemblies <= 16:
-            raise ValueError(f"n_assemblies must be in 2..16, got {self.n_assemblies!r}")
+        if not 2 <= self.n_assemblies <= 64:
+            raise ValueError(f"n_assemblies must be in 2..64, got {self.n_assemblies!r}")
         if self.observers is not None and not 1 <= self.observers <= self.n_assemblies:
             raise ValueError("observers must be between 1 and n_assemblies")
 
@@ -85,6 +85,7 @@ class Multi(Scenario):
         angles = 2 * np.pi * np.arange(n) / n
         homes = ring * np.column_stack([np.cos(angles), np.sin(angles)])
         assemblies, cameras, kinds = [], [], []
+        next_id = 0  # consecutive ids: 64 assemblies of <= 6 nodes stay below 587, so all carry a 36h11 tag
         for i in range(n):
             kind = _SHAPES[int(rng.integers(len(_SHAPES)))]
             kinds.append(kind)
@@ -92,7 +93,8 @@ class Multi(Scenario):
                 shape = random_lattice(int(rng.integers(3, 7)), rng, p_up=0.2)
             else:
                 shape = library_shape(kind)
-            shape = shape.with_ids(range(20 * i, 20 * i + len(shape.ids)))  # ids < 587: each has a 36h11 tag
+            shape = shape.with_ids(range(next_id, next_id + len(shape.ids)))
+            next_id += len(shape.ids)
             look = _look_direction(shape.centres)
             target = homes[(i + 1) % n] - homes[i]
             world_look = float(np.arctan2(target[1], target[0]))

@@ -44,9 +44,9 @@ def test_wrongly_typed_parameter_names_the_field():
 
 
 def test_out_of_range_parameter_is_bad_input():
-    """A ring of 40 assemblies is refused (2-16)."""
+    """A ring of 100 assemblies is refused (2-64)."""
     with pytest.raises(InputError):
-        get_scenario("multi", n_assemblies=40)
+        get_scenario("multi", n_assemblies=100)
 
 
 def test_unknown_scenario_is_bad_input():

@@ -28,7 +28,7 @@ def test_no_noise_and_set_reach_the_scenario(tmp_path):
 
 @pytest.mark.parametrize(
     "args",
-    [["nope"], ["multi", "--set", "n_assemblies=40"], ["multi", "--set", "colour=3"],
+    [["nope"], ["multi", "--set", "n_assemblies=100"], ["multi", "--set", "colour=3"],
      ["table1", "--steps", "0"], ["table1", "--set", "noequals"]],
 )
 def test_bad_input_exits_2_with_one_line_and_writes_nothing(tmp_path, capsys, args):
