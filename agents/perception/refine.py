@@ -58,7 +58,7 @@ class RefineConfig:
     tol: float = 0.7
     tol_rel: float = 0.01
     max_shift: float = 0.6
-    outer_frac: float = 0.35
+    outer_frac: float = 0.1
 
 
 def rim_points(

@@ -53,6 +53,8 @@ class TrackerConfig:
     reid_distance : float
         A detection whose tag names a track's node joins it if their centres are within this many
         radii, even without overlap (re-identification after occlusion).
+    radius_ratio : float
+        A detection and a track whose radii differ by more than this ratio are never associated.
     confirm_hits : int
         Hits that turn a tentative track into a confirmed one (a track starting in the first frame
         is confirmed at once).
@@ -71,6 +73,7 @@ class TrackerConfig:
     tentative_iou: float = 0.2
     buffer: float = 0.3
     reid_distance: float = 3.0
+    radius_ratio: float = 0.7
     confirm_hits: int = 2
     max_lost: int = 30
     confident_votes: int = 3
@@ -133,6 +136,9 @@ class CircleTracker:
         grow = np.array([1.0, 1.0, 1.0 + cfg.buffer])
         iou = circle_iou(tc * grow + [0, 0, 2.0], dets * grow + [0, 0, 2.0])
         cost = np.where(iou >= min_iou, 1.0 - iou, _BLOCK)
+        # a circle much smaller or larger than the track is another object (e.g. a sticker's square)
+        ratio = np.minimum(tc[:, None, 2], dets[None, :, 2]) / np.maximum(tc[:, None, 2], dets[None, :, 2])
+        cost[ratio < cfg.radius_ratio] = _BLOCK
         for i, t in enumerate(tracks):
             sure = self._confident_node(t)
             for j, node in enumerate(nodes):

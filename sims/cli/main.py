@@ -24,6 +24,7 @@ COMMANDS: dict[str, str] = {
     "perceive": "sims.cli.perceive",
     "experiment": "sims.cli.experiment",
     "make-ensemble": "sims.cli.make_ensemble",
+    "ensemble": "sims.cli.ensemble",
 }
 
 EXIT_BAD_INPUT = 2

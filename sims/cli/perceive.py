@@ -37,6 +37,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--log-template", metavar="LOG.json", help="a decentral.log/1 whose detections to fill")
     parser.add_argument("--camera", metavar="ASSEMBLY/CAMERA", help="the camera of the frames in --log-template")
     parser.add_argument("--log-out", metavar="LOG_OUT.json", help="where to write the filled decentral.log/1")
+    parser.add_argument("--log-min-score", type=float, default=0.5,
+                        help="detections with a lower rim score stay out of --log-out (default 0.5); so do "
+                             "circles not wholly inside the image")
 
 
 def _tag_table(path: str | None) -> dict[int, int] | None:
@@ -139,7 +142,11 @@ def run(args: argparse.Namespace) -> int:
     filled = None
     if log is not None:
         try:
-            filled = assemble_log(log, {args.camera: frames})
+            from agents.perception.frames import iter_frames
+
+            _, first = next(iter(iter_frames(args.frames)))
+            sizes = {args.camera: (first.shape[1], first.shape[0])}
+            filled = assemble_log(log, {args.camera: frames}, min_score=args.log_min_score, image_sizes=sizes)
         except InputError as err:
             raise err.located(args.log_template) from None
     write_detections(args.output, frames)

@@ -25,7 +25,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["TableConfig", "run_table1", "run_reconfig", "table_markdown", "plot_table1", "plot_reconfig"]
+#: detections scoring below this (rim support) stay out of the perceived log: partly hidden rims
+LOG_MIN_SCORE = 0.5
+
+__all__ = ["LOG_MIN_SCORE", "TableConfig", "run_table1", "run_reconfig", "table_markdown", "plot_table1", "plot_reconfig"]
 
 
 @dataclass(frozen=True)
@@ -78,7 +81,9 @@ def _render_and_perceive(sim, seed: int, clean: bool):
             per_step.append({r.node: r.corners for r in reads if r is not None and r.node is not None})
             tag_seconds.append(time.perf_counter() - start)
         tag_reads[key] = per_step
-    return assemble_log(sim.log, perceived), perceived, seconds, tag_reads, tag_seconds
+    sizes = {key: frames[0][1].shape[1::-1] for key, frames in images.items()}
+    log = assemble_log(sim.log, perceived, min_score=LOG_MIN_SCORE, image_sizes=sizes)
+    return log, perceived, seconds, tag_reads, tag_seconds
 
 
 def run_table1(config: TableConfig = TableConfig(), progress=None) -> dict:

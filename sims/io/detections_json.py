@@ -167,7 +167,13 @@ def read_detections(path: str | os.PathLike) -> list[DetectionFrame]:
         raise err.located(str(path)) from None
 
 
-def assemble_log(template: ObservationLog, detections: dict[str, Sequence[DetectionFrame]]) -> ObservationLog:
+def assemble_log(
+    template: ObservationLog,
+    detections: dict[str, Sequence[DetectionFrame]],
+    *,
+    min_score: float = 0.0,
+    image_sizes: dict[str, tuple[int, int]] | None = None,
+) -> ObservationLog:
     """Return ``template`` with each listed camera's detections replaced by the perceived ones.
 
     Parameters
@@ -177,6 +183,11 @@ def assemble_log(template: ObservationLog, detections: dict[str, Sequence[Detect
         cameras in ``detections`` are discarded, other cameras' are kept.
     detections : dict
         Camera key ``"assembly/camera"`` -> one :class:`DetectionFrame` per step, in step order.
+    min_score : float
+        Detections scoring below this stay out of the log (partly hidden rims fit worse).
+    image_sizes : dict, optional
+        Camera key -> (width, height): circles not wholly inside the image stay out of the log (a
+        rim cut by the image border fits badly).
 
     Raises
     ------
@@ -191,12 +202,20 @@ def assemble_log(template: ObservationLog, detections: dict[str, Sequence[Detect
                 f"{len(frames)} frames for camera {key!r} but the log template has {len(template.steps)} steps",
                 field="--camera",
             )
+    def inside(key: str, d: DetectionRecord) -> bool:
+        if not image_sizes or key not in image_sizes:
+            return True
+        w, h = image_sizes[key]
+        return d.u - d.r >= 0 and d.v - d.r >= 0 and d.u + d.r <= w - 1 and d.v + d.r <= h - 1
+
     steps = []
     for k, step in enumerate(template.steps):
         dets = dict(step.detections)
         for key, frames in detections.items():
             dets[key] = tuple(
-                Detection(int(d.node), float(d.u), float(d.v), float(d.r)) for d in frames[k].detections if d.node is not None
+                Detection(int(d.node), float(d.u), float(d.v), float(d.r))
+                for d in frames[k].detections
+                if d.node is not None and d.score >= min_score and inside(key, d)
             )
         steps.append(replace(step, detections=dets))
     return replace(template, steps=tuple(steps))
