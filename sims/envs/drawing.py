@@ -41,8 +41,9 @@ def top_view(
     arena : float
         Side of the square arena [m].
     estimates : dict, optional
-        Observer index -> list of (target index, estimated target pose (3,) in W); drawn as crosses
-        in the observer's colour, joined to the target's true position (the error).
+        Observer index -> list of (target index, estimated target pose (3,) in W[, position
+        covariance (2, 2) in W]); drawn as crosses in the observer's colour joined to the target's
+        true position (the error), with a 2-sigma ellipse when the covariance is given.
     link_loss : dict, optional
         ``(i, j)`` -> recent loss fraction in [0, 1]; drawn as lines from green (0) to red (1).
     max_angle, max_distance : float
@@ -74,10 +75,16 @@ def top_view(
                     (0, 0, 0), 1, cv2.LINE_AA)
     for i, items in sorted((estimates or {}).items()):
         col = colour(i)
-        for j, pose in items:
+        for item in items:
+            j, pose = item[0], item[1]
             p = px(pose[:2])
             cv2.line(img, p, px(states[j, :2]), col, 1, cv2.LINE_AA)
             cv2.drawMarker(img, p, col, cv2.MARKER_CROSS, 7, 1, cv2.LINE_AA)
+            if len(item) > 2:  # 2-sigma position ellipse, covariance (2, 2) in W
+                vals, vecs = np.linalg.eigh(item[2])
+                axes = tuple(int(min(2 * np.sqrt(max(v, 0.0)) * scale, 4 * size)) for v in vals[::-1])
+                angle = -np.degrees(np.arctan2(vecs[1, 1], vecs[0, 1]))
+                cv2.ellipse(img, p, axes, angle, 0, 360, col, 1, cv2.LINE_AA)
     return img
 
 

@@ -41,6 +41,7 @@ from pettingzoo import ParallelEnv
 
 from decentral.errors import InputError
 from decentral.filtering import compose
+from decentral.geometry import rot2
 from protocols.network import LinkConfig
 from sims.swarm.config import SwarmConfig
 from sims.swarm.sim import StepReport, SwarmSim
@@ -265,8 +266,9 @@ class RelativeLocalizationEnv(ParallelEnv):
         estimates = {}
         for i, a in enumerate(self.possible_agents):
             items = []
+            R = rot2(rep.state[i, 2])
             for name, tr in self._sim.robots[a].estimates().items():
-                items.append((c.names.index(name), compose(rep.state[i], tr.mean)))
+                items.append((c.names.index(name), compose(rep.state[i], tr.mean), R @ tr.cov[:2, :2] @ R.T))
             estimates[i] = items
         top = top_view(rep.state, c.arena, estimates=estimates, link_loss=self.link_loss(),
                        max_angle=np.radians(c.max_angle_deg), max_distance=c.max_distance,
