@@ -17,7 +17,7 @@ from decentral.ensemble.abstraction import csr_neighbours
 from decentral.ensemble.problem import EnsembleProblem
 from decentral.ensemble.rotation import project_to_rotation
 
-__all__ = ["bfs_layers", "place_breadth_first"]
+__all__ = ["bfs_layers", "place_breadth_first", "LayerPlacer"]
 
 
 def bfs_layers(adjacency: sparse.csr_matrix, root: int) -> list[np.ndarray]:
@@ -55,31 +55,56 @@ def place_breadth_first(problem: EnsembleProblem, root: int | None = None) -> tu
     if n == 0:
         return pos, rot, placed
     placed[root] = True
-    i, j, z = problem.i, problem.j, problem.z
-    # observations grouped by the observed module for fast per-layer selection
-    by_j = np.argsort(j, kind="stable")
-    starts = np.searchsorted(j[by_j], np.arange(n + 1))
-    rev = _reverse_index(problem)
+    placer = LayerPlacer(problem)
     for layer in bfs_layers(A, root)[1:]:
+        placer.place(pos, rot, placed, layer)
+    return pos, rot, placed
+
+
+class LayerPlacer:
+    """Places a set of new modules from their already placed neighbours (in place, vectorized).
+
+    A new module m gets the mean of the centres its placed neighbours k predict for it,
+    c_k + 2 R_k z_km (seed 003 eq. 1 with zero residual), and the orientation that best maps its
+    own observations z_mk onto the directions (c_k - c_m)/2 (per-module Kabsch fit).
+    """
+
+    def __init__(self, problem: EnsembleProblem):
+        self.problem = problem
+        n, j = problem.n, problem.j
+        self.by_j = np.argsort(j, kind="stable")
+        self.starts = np.searchsorted(j[self.by_j], np.arange(n + 1))
+        self.rev = _reverse_index(problem)
+
+    def place(self, pos: np.ndarray, rot: np.ndarray, placed: np.ndarray, layer: np.ndarray) -> None:
+        """Place modules ``layer`` (each must have a placed neighbour) and mark them placed."""
+        prob = self.problem
+        n, d = prob.n, prob.dim
+        i, j, z = prob.i, prob.j, prob.z
+        starts, by_j = self.starts, self.by_j
         counts = starts[layer + 1] - starts[layer]
         offs = np.cumsum(counts) - counts
         e = by_j[np.arange(counts.sum()) - np.repeat(offs, counts) + np.repeat(starts[layer], counts)]
         e = e[placed[i[e]]]  # observations k -> new module, k already placed
         k, m = i[e], j[e]
         pred = pos[k] + 2.0 * np.einsum("eab,eb->ea", rot[k], z[e])
-        cnt = np.bincount(m, minlength=n)[layer]
+        cnt = np.maximum(np.bincount(m, minlength=n)[layer], 1)
         for a in range(d):
             pos[layer, a] = np.bincount(m, pred[:, a], n)[layer] / cnt
-        # orientation of each new module from its own observations z_mk of placed neighbours
-        back = rev[e]
+        back = self.rev[e]
         target = 0.5 * (pos[k] - pos[m])
-        M = np.zeros((n, d, d))
+        M = np.zeros((layer.size, d, d))
+        local = np.searchsorted(layer, m) if np.all(np.diff(layer) > 0) else _positions(layer, m)
         for a in range(d):
             for b in range(d):
-                M[:, a, b] = np.bincount(m, target[:, a] * z[back, b], n)
-        rot[layer] = project_to_rotation(M[layer])
+                M[:, a, b] = np.bincount(local, target[:, a] * z[back, b], layer.size)
+        rot[layer] = project_to_rotation(M)
         placed[layer] = True
-    return pos, rot, placed
+
+
+def _positions(layer: np.ndarray, m: np.ndarray) -> np.ndarray:
+    order = np.argsort(layer)
+    return order[np.searchsorted(layer[order], m)]
 
 
 def _reverse_index(problem: EnsembleProblem) -> np.ndarray:
