@@ -31,6 +31,8 @@ def top_view(
     max_distance: float = 3.0,
     node_radius: float = 0.06,
     size: int = 480,
+    nodes: list[tuple[int, np.ndarray]] | None = None,
+    fans: list[tuple[int, np.ndarray, float]] | None = None,
 ) -> np.ndarray:
     """Top view of the arena.
 
@@ -48,6 +50,11 @@ def top_view(
         ``(i, j)`` -> recent loss fraction in [0, 1]; drawn as lines from green (0) to red (1).
     max_angle, max_distance : float
         View cone of each camera [rad], [m].
+    nodes : list, optional
+        (robot index, node centres (N, 2) in W): every node of a multi-node assembly.
+    fans : list, optional
+        (robot index, camera position (2,) in W, camera yaw in W) of each view cone; default one cone
+        per robot along its heading.
     """
     img = np.full((size, size, 3), 250, np.uint8)
     scale = (size - 20) / arena
@@ -59,14 +66,21 @@ def top_view(
     for (i, j), loss in sorted((link_loss or {}).items()):
         c = (int(255 * loss), int(200 * (1 - loss)), 0)
         cv2.line(img, px(states[i, :2]), px(states[j, :2]), c, 1, cv2.LINE_AA)
+    for i, xy in nodes or ():
+        r = max(int(node_radius * scale), 2)
+        for c in xy:
+            cv2.circle(img, px(c), r, colour(i), 1, cv2.LINE_AA)
+    if fans is None:
+        fans = [(i, states[i, :2], float(states[i, 2])) for i in range(len(states))]
+    for i, (cx, cy), th in fans:
+        fan = [px((cx, cy))]
+        for a in np.linspace(th - max_angle, th + max_angle, 9):
+            fan.append(px((cx + max_distance * np.cos(a), cy + max_distance * np.sin(a))))
+        overlay = img.copy()
+        cv2.fillPoly(overlay, [np.array(fan, np.int32)], colour(i))
+        img = cv2.addWeighted(overlay, 0.08, img, 0.92, 0)
     for i, (x, y, th) in enumerate(states):
         col = colour(i)
-        fan = [px((x, y))]
-        for a in np.linspace(th - max_angle, th + max_angle, 9):
-            fan.append(px((x + max_distance * np.cos(a), y + max_distance * np.sin(a))))
-        overlay = img.copy()
-        cv2.fillPoly(overlay, [np.array(fan, np.int32)], col)
-        img = cv2.addWeighted(overlay, 0.08, img, 0.92, 0)
         r = max(int(node_radius * scale), 3)
         cv2.circle(img, px((x, y)), r, col, -1, cv2.LINE_AA)
         cv2.line(img, px((x, y)), px((x + 2.5 * node_radius * np.cos(th), y + 2.5 * node_radius * np.sin(th))),

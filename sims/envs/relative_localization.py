@@ -23,6 +23,18 @@ Spaces (``n`` robots, ``m = n - 1`` peers, rows in the order of ``possible_agent
 * infos: ``position_error`` / ``yaw_error`` per tracked peer, their means, ``own_pose_error``,
   and the agent's message counters.
 
+In the ``"assemblies"`` scenario (:mod:`sims.envs.assembly_sim`) the agents are FreeSN-like
+multi-node assemblies (shapes, cameras and start poses from a registered scenario, ``"multi"`` by
+default) whose roots follow the commands, each running :class:`agents.assembly.AssemblyAgent`
+(``admm_rounds`` rounds of consensus-ADMM per step). Its observation ``Dict`` is
+
+  - ``detections`` (``max_detections``, 5): ``valid, node id, u, v, r`` of its cameras' detections;
+  - ``odometry`` (4,): ``valid, dx, dy, dtheta``;
+  - ``inbox`` (m, 3): ``heard this step, age in rounds of the newest ADMM value (<= 100), is a
+    neighbour in the view graph``;
+  - ``estimates`` (m, 5): ``placed, x, y, z, theta`` of each peer's root in its root frame;
+  - ``converged`` (1,): the agent's consensus flag; ``own_pose`` (3,): dead-reckoned ``x, y, theta``.
+
 Episodes end by truncation after ``max_cycles`` steps (all agents then leave ``agents``).
 ``render_mode="rgb_array"`` returns an OpenCV top view (truth, each agent's estimates placed through
 its true pose -- so the drawn offset *is* the error --, radio links coloured by recent loss) next to
@@ -50,7 +62,7 @@ __all__ = ["RelativeLocalizationEnv", "parallel_env", "raw_env", "SCENARIOS", "E
 
 ENV_NAME = "relative_localization_v0"
 #: scenarios this env can run
-SCENARIOS = ("swarm",)
+SCENARIOS = ("swarm", "assemblies")
 _LINK_KEYS = {"loss": "drop", "latency": "latency", "jitter": "jitter", "duplicate": "duplicate",
               "corrupt": "corrupt", "bandwidth": "bandwidth"}
 _AGE_CAP = 100.0
@@ -62,7 +74,9 @@ class RelativeLocalizationEnv(ParallelEnv):
     Parameters
     ----------
     scenario : str
-        ``"swarm"`` (seed 004's one-node robots).
+        ``"swarm"`` (seed 004's one-node robots) or ``"assemblies"`` (FreeSN-like assemblies with
+        consensus-ADMM agents; parameters are the fields of
+        :class:`sims.envs.assembly_sim.AssemblySimConfig` plus ``max_detections``).
     max_cycles : int
         Steps per episode before truncation.
     render_mode : str or None
@@ -86,27 +100,39 @@ class RelativeLocalizationEnv(ParallelEnv):
             raise InputError(f"render_mode must be None or 'rgb_array', got {render_mode!r}", field="render_mode")
         if not (isinstance(max_cycles, int) and max_cycles >= 1):
             raise InputError("must be a positive integer", field="max_cycles")
-        own = {f.name for f in fields(SwarmConfig)}
+        self.max_detections = int(params.pop("max_detections", 32)) if scenario == "assemblies" else 0
+        ConfigClass = SwarmConfig if scenario == "swarm" else _assembly_config_class()
+        own = {f.name for f in fields(ConfigClass)}
         unknown = sorted(set(params) - own - set(_LINK_KEYS))
         if unknown:
+            extra = {"scenario", "max_cycles", "render_mode", "crashes", "partitions"}
+            if scenario == "assemblies":
+                extra.add("max_detections")
             raise InputError(
-                f"unknown parameter(s) {', '.join(unknown)}; known: "
-                f"{', '.join(sorted(own | set(_LINK_KEYS) | {'scenario', 'max_cycles', 'render_mode', 'crashes', 'partitions'}))}",
+                f"unknown parameter(s) {', '.join(unknown)} for scenario {scenario!r}; known: "
+                f"{', '.join(sorted(own | set(_LINK_KEYS) | extra))}",
                 field="params",
             )
         link_kw = {_LINK_KEYS[k]: params.pop(k) for k in list(params) if k in _LINK_KEYS}
         try:
-            config = SwarmConfig(**params)
+            config = ConfigClass(**params)
             if link_kw:
                 config = replace(config, link=replace(config.link, **link_kw))
-        except TypeError as err:
+        except (TypeError, ValueError) as err:
+            if isinstance(err, InputError):
+                raise
             raise InputError(str(err), field="params") from None
         self.scenario = scenario
         self.config = config
         self.max_cycles = max_cycles
         self.render_mode = render_mode
         self.crashes, self.partitions = tuple(crashes), tuple(partitions)
-        self.possible_agents = list(config.names)
+        if scenario == "swarm":
+            self.possible_agents = list(config.names)
+        else:
+            from sims.envs.assembly_sim import AssemblySim
+
+            self.possible_agents = list(AssemblySim(config, 0).names)
         self.agents: list[str] = []
         self._peers = {a: [b for b in self.possible_agents if b != a] for a in self.possible_agents}
         self._seeder = np.random.default_rng()
@@ -118,9 +144,18 @@ class RelativeLocalizationEnv(ParallelEnv):
     # ------------------------------------------------------------------ spaces
     @functools.lru_cache(maxsize=None)
     def observation_space(self, agent: str) -> spaces.Dict:
-        m = self.config.n_robots - 1
+        m = len(self.possible_agents) - 1
         inf = np.float32(np.inf)
-        box = lambda shape, lo=-inf, hi=inf: spaces.Box(lo, hi, shape=shape, dtype=np.float32)
+        box = lambda shape, lo=-inf, hi=inf: spaces.Box(lo, hi, shape=shape, dtype=np.float32)  # noqa: E731
+        if self.scenario == "assemblies":
+            return spaces.Dict({
+                "detections": box((self.max_detections, 5)),
+                "odometry": box((4,)),
+                "inbox": box((m, 3), 0.0, _AGE_CAP),
+                "estimates": box((m, 5)),
+                "converged": box((1,), 0.0, 1.0),
+                "own_pose": box((3,)),
+            })
         return spaces.Dict({
             "detections": box((m, 4)),
             "odometry": box((4,)),
@@ -140,7 +175,12 @@ class RelativeLocalizationEnv(ParallelEnv):
         if seed is not None:
             self._seeder = np.random.default_rng(seed)
         run_seed = int(self._seeder.integers(0, 2**31 - 1))
-        self._sim = SwarmSim(self.config, run_seed, crashes=self.crashes, partitions=self.partitions)
+        if self.scenario == "swarm":
+            self._sim = SwarmSim(self.config, run_seed, crashes=self.crashes, partitions=self.partitions)
+        else:
+            from sims.envs.assembly_sim import AssemblySim
+
+            self._sim = AssemblySim(self.config, run_seed, crashes=self.crashes, partitions=self.partitions)
         self.agents = list(self.possible_agents)
         self._cycle = 0
         self._link_history = [self._link_counts()]
@@ -154,7 +194,7 @@ class RelativeLocalizationEnv(ParallelEnv):
         if self._sim is None:
             raise InputError("call reset() before step()", field="env")
         c = self.config
-        cmd = np.zeros((c.n_robots, 2))
+        cmd = np.zeros((len(self.possible_agents), 2))
         for i, a in enumerate(self.possible_agents):
             if a in self.agents and a in actions and actions[a] is not None:
                 cmd[i] = np.clip(np.asarray(actions[a], dtype=float).reshape(2),
@@ -179,6 +219,8 @@ class RelativeLocalizationEnv(ParallelEnv):
 
     # ------------------------------------------------------------------ what an agent has
     def _observe(self, agent: str) -> dict[str, np.ndarray]:
+        if self.scenario == "assemblies":
+            return self._observe_assembly(agent)
         sim, rep = self._sim, self._last
         robot = sim.robots[agent]
         peers = self._peers[agent]
@@ -212,7 +254,49 @@ class RelativeLocalizationEnv(ParallelEnv):
         own[3:] = np.sqrt(np.maximum(np.diag(robot.pose_cov), 0.0))
         return {"detections": det, "odometry": odo, "inbox": inbox, "estimates": ests, "own_pose": own}
 
+    def _observe_assembly(self, agent: str) -> dict[str, np.ndarray]:
+        sim, rep = self._sim, self._last
+        peers = self._peers[agent]
+        det = np.zeros((self.max_detections, 5), np.float32)
+        rows = sorted((key, d.node, d.u, d.v, d.r) for key, dets in rep.step.detections.items()
+                      if key.startswith(agent + "/") for d in dets)
+        for r, (_, node, u, v, rad) in enumerate(rows[: self.max_detections]):
+            det[r] = (1.0, node, u, v, rad)
+        odo = np.zeros(4, np.float32)
+        o = rep.step.odometry.get(agent)
+        if o is not None:
+            odo[:] = (1.0, o.dp[0], o.dp[1], o.dtheta)
+        agent_obj = sim.agents[agent]
+        ages = agent_obj.ages if not callable(agent_obj.ages) else agent_obj.ages()
+        neigh = set(agent_obj.neighbours)
+        inbox = np.zeros((len(peers), 3), np.float32)
+        est = np.zeros((len(peers), 5), np.float32)
+        for r, p in enumerate(peers):
+            inbox[r] = (p in sim.last_heard[agent], min(ages.get(p, _AGE_CAP), _AGE_CAP), p in neigh)
+            pose = rep.estimates[agent].get(p)
+            if pose is not None:
+                est[r] = (1.0, *np.asarray(pose.p, float), pose.theta)
+        return {"detections": det, "odometry": odo, "inbox": inbox, "estimates": est,
+                "converged": np.array([float(rep.converged[agent])], np.float32),
+                "own_pose": sim.own_pose[agent].astype(np.float32)}
+
     def _info(self, agent: str) -> dict:
+        if self.scenario == "assemblies":
+            errs = self._last.errors[agent]
+            pos = {t: e[0] for t, e in sorted(errs.items())}
+            yaw = {t: e[1] for t, e in sorted(errs.items())}
+            sent = self._sim.network.stats().per_sender.get(agent)
+            return {
+                "position_error": pos,
+                "yaw_error": yaw,
+                "mean_position_error": float(np.mean(list(pos.values()))) if pos else None,
+                "mean_yaw_error": float(np.mean(list(yaw.values()))) if yaw else None,
+                "tracked": len(pos),
+                "converged": self._last.converged[agent],
+                "messages_sent": 0 if sent is None else sent.sent,
+                "bytes_sent": 0 if sent is None else sent.bytes_sent,
+                "step": self._last.k,
+            }
         errs = self._last.errors[agent]
         pos = {t: e.position for t, e in sorted(errs.items())}
         yaw = {t: e.yaw for t, e in sorted(errs.items()) if e.yaw is not None}
@@ -234,7 +318,8 @@ class RelativeLocalizationEnv(ParallelEnv):
         m = len(self._peers[agent])
         if not errs:
             return 0.0
-        return float(len(errs) / m - np.mean([e.position for e in errs.values()]))
+        pos = [e[0] if isinstance(e, tuple) else e.position for e in errs.values()]
+        return float(len(errs) / m - np.mean(pos))
 
     # ------------------------------------------------------------------ rendering
     def _link_counts(self) -> dict:
@@ -262,6 +347,8 @@ class RelativeLocalizationEnv(ParallelEnv):
             return None
         from sims.envs.drawing import camera_view, compose_frame, top_view
 
+        if self.scenario == "assemblies":
+            return self._render_assemblies()
         c, rep = self.config, self._last
         estimates = {}
         for i, a in enumerate(self.possible_agents):
@@ -280,6 +367,41 @@ class RelativeLocalizationEnv(ParallelEnv):
         ]
         frame = compose_frame(top, cams)
         return np.ascontiguousarray(frame)  # colours were given in RGB order
+
+
+    def _render_assemblies(self) -> np.ndarray:
+        from sims.envs.drawing import camera_view, compose_frame, top_view
+
+        sim, rep = self._sim, self._last
+        world = sim.world([rep.state], rep.t)
+        nodes = []
+        for i, a in enumerate(world.assemblies):
+            centres = a.root_pose(0, sim.node_radius).apply(a.shapes[0].centres)
+            nodes.append((i, centres[:, :2]))
+        lo = min(float(c[:, :2].min()) for _, c in nodes) - 1.0
+        hi = max(float(c[:, :2].max()) for _, c in nodes) + 1.0
+        shift = np.array([lo, lo, 0.0])
+        fans = []
+        for rig in sim.cameras:
+            i = self.possible_agents.index(rig.assembly)
+            cam = world.camera_in_world(rig, 0)
+            fans.append((i, cam.p[:2] - shift[:2], float(np.arctan2(cam.R[1, 2], cam.R[0, 2]))))  # optical axis
+        estimates = {}
+        for i, a in enumerate(self.possible_agents):
+            estimates[i] = [(self.possible_agents.index(m), compose(rep.state[i], np.array([pose.p[0], pose.p[1], pose.theta])) - shift)
+                            for m, pose in sorted(rep.estimates[a].items())]
+        top = top_view(rep.state - shift, hi - lo, estimates=estimates, link_loss=self.link_loss(),
+                       max_angle=0.6, max_distance=2.0, node_radius=sim.node_radius,
+                       nodes=[(i, xy - shift[:2]) for i, xy in nodes], fans=fans)
+        cams = [camera_view([(d.node, d.u, d.v, d.r) for d in rep.step.detections.get(rig.key, ())],
+                            rig.spec.width, rig.spec.height, label=rig.key) for rig in sim.cameras]
+        return np.ascontiguousarray(compose_frame(top, cams))
+
+
+def _assembly_config_class():
+    from sims.envs.assembly_sim import AssemblySimConfig
+
+    return AssemblySimConfig
 
 
 def raw_env(**config: Any) -> RelativeLocalizationEnv:
