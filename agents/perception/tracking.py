@@ -10,8 +10,11 @@ joins a (possibly lost) track carrying X even without overlap, within a distance
 
 Ids are votes: a track's node id is the node its tag reads named most often; a read that contradicts
 the current id adds a vote but flips the id only once it strictly outnumbers it, and a track with at
-least ``confident_votes`` reads for its id is never matched to a detection reading another tag. Two
-tracks never show the same node id in one frame: the one with more votes for it keeps it.
+least ``confident_votes`` reads for its id is never matched to a detection reading another tag. A
+track carries its id through tag drop-outs while it is followed; once it has been lost (no
+detection) for more than ``reverify_after`` frames and is found again, it shows its id only after a
+fresh read agrees, and while lost it waits where it was last seen. Two tracks never show the same node id in one frame: the one
+with more votes for it keeps it.
 
 References
 ----------
@@ -62,6 +65,9 @@ class TrackerConfig:
         Frames a track survives without a detection.
     confident_votes : int
         Reads of its node id that make a track's id confident.
+    reverify_after : int
+        A track found again after more than this many frames without a detection shows its id
+        only after a fresh tag read agrees.
     kalman : KalmanConfig
         Noise model of the circle Kalman filter.
     """
@@ -77,6 +83,7 @@ class TrackerConfig:
     confirm_hits: int = 2
     max_lost: int = 30
     confident_votes: int = 3
+    reverify_after: int = 3
     kalman: KalmanConfig = field(default_factory=KalmanConfig)
 
 
@@ -92,6 +99,7 @@ class Track:
     hits: int = 1
     lost: int = 0
     confirmed: bool = False
+    verified: bool = True
 
     @property
     def circle(self) -> np.ndarray:
@@ -205,11 +213,15 @@ class CircleTracker:
         for j, t in owner.items():
             t.mean, t.cov = self.kf.update(t.mean, t.cov, dets[j])
             t.hits += 1
+            if t.lost > cfg.reverify_after:
+                t.verified = False  # re-found after a long gap: its id needs a fresh tag read
             t.lost = 0
             if t.hits >= cfg.confirm_hits:
                 t.confirmed = True
             if nodes[j] is not None:
                 t.vote(nodes[j])
+                if nodes[j] == t.node:
+                    t.verified = True
             updated.add(id(t))
         survivors = []
         for t in self.tracks:
@@ -217,6 +229,8 @@ class CircleTracker:
                 survivors.append(t)
             elif t.confirmed and t.lost < cfg.max_lost:
                 t.lost += 1
+                t.mean = t.mean.copy()
+                t.mean[3:] = 0.0  # a lost track waits where it was last seen rather than drifting
                 survivors.append(t)
         self.tracks = survivors
         for j in range(len(dets)):
@@ -241,7 +255,7 @@ class CircleTracker:
         # a node id shows on at most one detection: the track with the most votes for it keeps it
         claim: dict[int, tuple[int, int]] = {}  # node -> (votes, detection index)
         for j, t in owner.items():
-            if t.node is not None:
+            if t.node is not None and t.verified:
                 v = t.votes.get(t.node, 0)
                 if t.node not in claim or v > claim[t.node][0]:
                     claim[t.node] = (v, j)
@@ -249,7 +263,7 @@ class CircleTracker:
         for j, (c, r) in enumerate(zip(circles, reads)):
             t = owner.get(j)
             node = None
-            if t is not None and t.node is not None and claim[t.node][1] == j:
+            if t is not None and t.node is not None and t.verified and claim[t.node][1] == j:
                 node = t.node
             elif t is None and r is not None and r.node is not None and r.node not in claim:
                 node = r.node

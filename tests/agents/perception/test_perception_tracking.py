@@ -76,14 +76,27 @@ def test_contradicting_read_does_not_flip_a_confident_id():
 
 
 def test_empty_frames_then_return():
-    """Frames without detections give no output and a node re-appearing keeps its track and id."""
+    """After two empty frames a node re-appearing keeps its track and id."""
     t = CircleTracker()
     c = Circle(200, 200, 25, 0.9)
     first = t.update([c], [_read(6)])[0]
-    for _ in range(4):
+    for _ in range(2):
         assert t.update([], []) == []
     back = t.update([c], [None])[0]
     assert back.track == first.track and back.node == 6
+
+
+def test_long_gap_needs_a_fresh_read():
+    """After a long gap the re-found track names its node only once a tag read agrees again."""
+    t = CircleTracker()
+    c = Circle(200, 200, 25, 0.9)
+    first = t.update([c], [_read(6)])[0]
+    for _ in range(6):
+        t.update([], [])
+    back = t.update([c], [None])[0]
+    assert back.track == first.track and back.node is None
+    again = t.update([c], [_read(6)])[0]
+    assert again.track == first.track and again.node == 6
 
 
 def test_tagless_frames_leave_ids_unknown():

@@ -1,0 +1,209 @@
+"""Perception front end on rendered frames: frames per second on one core, and detection/id quality.
+
+Fixed inputs: the ``table1`` and ``multi`` scenarios (seed 0), rendered at 1024 x 768 with the
+renderer's default degradations (sensor noise, blur, motion blur, exposure drift; struts and nearer
+nodes occlude). For each frame the front end runs detection + identification + tracking; two
+identifiers are timed: OpenCV's AprilTag detector restricted to the circles (no camera model), and
+the sphere-model reader (with the log's camera model, as ``decentral perceive --log-template``).
+The reference measured in the same run is OpenCV's ``HoughCircles(HOUGH_GRADIENT_ALT)`` alone on the
+same frames (FINDINGS' detector). Times are CPU seconds of the process (threads pinned to one, so
+this is one core's work; wall time, inflated when the shared machine is loaded, is kept beside it).
+
+Quality against the renderer's truth (every node with visible pixels, its silhouette circle):
+precision and recall of circles (a detection matches the nearest unmatched node within half its
+radius; nodes count if at least half visible and wholly inside the image), radius error, id
+accuracy (identified detections naming the matched node), and id switches (a node's track number
+changing between frames where it is matched).
+
+Usage: ``python benchmarks/perception.py [--steps 60]``; writes ``benchmarks/results/perception.json``
+and ``perception.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+from _common import RESULTS, machine, save  # noqa: I001  (pins threads before numpy)
+
+import cv2
+import numpy as np
+
+cv2.setNumThreads(1)
+
+
+def _render(name: str, steps: int):
+    from sims.render.frames import render_frames
+    from sims.render.renderer import RenderConfig
+    from sims.scenarios import get_scenario, simulate
+
+    sim = simulate(get_scenario(name, steps=steps), seed=0)
+    frames: dict[str, list] = {}
+    for k, key, frame in render_frames(sim, 0, RenderConfig()):
+        frames.setdefault(key, []).append((k, frame))
+    return sim, frames
+
+
+def _match(dets, nodes, w, h):
+    """Greedy nearest matching of detections to truth nodes; returns (pairs, counted nodes)."""
+    counted = [n for n in nodes if n["visible"] >= 0.5 and n["su"] - n["sr"] >= 0 and n["sv"] - n["sr"] >= 0
+               and n["su"] + n["sr"] <= w - 1 and n["sv"] + n["sr"] <= h - 1]
+    cand = []
+    for i, d in enumerate(dets):
+        for n in nodes:
+            e = np.hypot(d.circle.u - n["su"], d.circle.v - n["sv"])
+            if e < 0.5 * n["sr"]:
+                cand.append((e, i, n["id"]))
+    pairs, used_d, used_n = [], set(), set()
+    for e, i, nid in sorted(cand):
+        if i in used_d or nid in used_n:
+            continue
+        used_d.add(i)
+        used_n.add(nid)
+        pairs.append((i, nid))
+    return pairs, counted
+
+
+def _run(sim, frames, mode: str) -> dict:
+    from agents.perception import AprilTagIdentifier, HoughCircleDetector, Perception
+    from agents.perception.sphere_tags import SphereTagIdentifier
+
+    out = {"seconds": [], "cpu_seconds": [], "stage_seconds": {}, "detections": 0, "matched": 0, "counted_nodes": 0,
+           "matched_counted": 0, "radius_rel_err": [], "centre_err_px": [], "identified": 0, "id_correct": 0,
+           "id_switches": 0, "visible_per_frame": []}
+    log = sim.log
+    for key, seq in frames.items():
+        cam = log.cameras[key]
+        if mode == "sphere":
+            ident = SphereTagIdentifier(cam.K, log.node_radius)
+        else:
+            ident = AprilTagIdentifier()
+        p = Perception(HoughCircleDetector(), ident)
+        last_track: dict[int, int] = {}
+        for k, frame in seq:
+            img = frame.image
+            h, w = img.shape[:2]
+            if mode == "sphere":
+                step = log.steps[k]
+                ident.set_view(log.camera_pose(key, step).R, [n for c in step.config.values() for n in c])
+            start, cpu = time.perf_counter(), time.process_time()
+            dets, secs = p.process(img)
+            out["cpu_seconds"].append(time.process_time() - cpu)
+            out["seconds"].append(time.perf_counter() - start)
+            for s, v in secs.items():
+                out["stage_seconds"].setdefault(s, []).append(v)
+            pairs, counted = _match(dets, frame.nodes, w, h)
+            counted_ids = {n["id"] for n in counted}
+            truth = {n["id"]: n for n in frame.nodes}
+            out["visible_per_frame"].append(len(counted))
+            out["detections"] += len(dets)
+            out["matched"] += len(pairs)
+            out["counted_nodes"] += len(counted)
+            for i, nid in pairs:
+                d, n = dets[i], truth[nid]
+                out["matched_counted"] += nid in counted_ids
+                if n["visible"] > 0.9 and nid in counted_ids:
+                    out["radius_rel_err"].append(abs(d.circle.r - n["sr"]) / n["sr"])
+                    out["centre_err_px"].append(float(np.hypot(d.circle.u - n["su"], d.circle.v - n["sv"])))
+                if d.node is not None:
+                    out["identified"] += 1
+                    out["id_correct"] += d.node == nid
+                if d.track is not None:
+                    if nid in last_track and last_track[nid] != d.track:
+                        out["id_switches"] += 1
+                    last_track[nid] = d.track
+            matched = {i for i, _ in pairs}
+            for i, d in enumerate(dets):  # identified detections matching no node are wrong ids too
+                if d.node is not None and i not in matched:
+                    out["identified"] += 1
+    return out
+
+
+def _hough_alt_seconds(frames) -> list[float]:
+    out = []
+    for seq in frames.values():
+        for _, frame in seq:
+            grey = cv2.cvtColor(frame.image, cv2.COLOR_BGR2GRAY)
+            cpu = time.process_time()
+            blurred = cv2.GaussianBlur(grey, (0, 0), 2.0)
+            cv2.HoughCircles(blurred, cv2.HOUGH_GRADIENT_ALT, dp=1.5, minDist=8, param1=150, param2=0.6,
+                             minRadius=8, maxRadius=160)
+            out.append(time.process_time() - cpu)
+    return out
+
+
+def _summary(r: dict, ref_median: float) -> dict:
+    med = float(np.median(r["cpu_seconds"]))
+    return {
+        "fps_median": 1.0 / med,
+        "cpu_seconds_median": med,
+        "cpu_seconds_p90": float(np.percentile(r["cpu_seconds"], 90)),
+        "wall_seconds_median": float(np.median(r["seconds"])),
+        "stage_wall_seconds_median": {k: float(np.median(v)) for k, v in r["stage_seconds"].items()},
+        "ratio_to_reference": med / ref_median,
+        "precision": r["matched"] / max(r["detections"], 1),
+        "recall": r["matched_counted"] / max(r["counted_nodes"], 1),
+        "centre_err_px_median": float(np.median(r["centre_err_px"])) if r["centre_err_px"] else None,
+        "radius_rel_err_median": float(np.median(r["radius_rel_err"])) if r["radius_rel_err"] else None,
+        "radius_rel_err_p90": float(np.percentile(r["radius_rel_err"], 90)) if r["radius_rel_err"] else None,
+        "identified_fraction": r["identified"] / max(r["detections"], 1),
+        "id_accuracy": r["id_correct"] / max(r["identified"], 1),
+        "id_switches": r["id_switches"],
+        "frames": len(r["seconds"]),
+        "visible_nodes_per_frame": [int(np.min(r["visible_per_frame"])), int(np.max(r["visible_per_frame"]))],
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=60)
+    args = parser.parse_args()
+    result = {"benchmark": "perception", "parameters": {"scenarios": ["table1", "multi"], "seed": 0, "steps": args.steps,
+                                                         "image": [1024, 768], "threads": 1},
+              "machine": machine(), "scenarios": {}}
+    for name in ("table1", "multi"):
+        sim, frames = _render(name, args.steps)
+        ref = _hough_alt_seconds(frames)
+        ref_med = float(np.median(ref))
+        entry = {"reference_hough_alt_cpu_seconds_median": ref_med}
+        for mode in ("opencv_apriltag", "sphere_model"):
+            r = _run(sim, frames, "sphere" if mode == "sphere_model" else "opencv")
+            entry[mode] = _summary(r, ref_med)
+        result["scenarios"][name] = entry
+    save("perception", result)
+    plot(result, RESULTS / "perception.png")
+
+
+def plot(result: dict, path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(result["scenarios"])
+    modes = ("opencv_apriltag", "sphere_model")
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.3))
+    width = 0.38
+    for j, mode in enumerate(modes):
+        fps = [result["scenarios"][n][mode]["fps_median"] for n in names]
+        axes[0].bar(np.arange(len(names)) + j * width, fps, width, label=mode)
+        pr = [result["scenarios"][n][mode]["precision"] for n in names]
+        rc = [result["scenarios"][n][mode]["recall"] for n in names]
+        axes[1].bar(np.arange(len(names)) + j * width, rc, width, label=f"recall, {mode}")
+        axes[1].plot(np.arange(len(names)) + j * width, pr, "k^")
+        acc = [result["scenarios"][n][mode]["identified_fraction"] for n in names]
+        axes[2].bar(np.arange(len(names)) + j * width, acc, width, label=mode)
+    axes[0].axhline(30, color="r", linestyle=":", label="30 fps target")
+    axes[0].set_title("frames per second (1 core, CPU time)", fontsize=9)
+    axes[1].set_title("circle recall (bars), precision (triangles)", fontsize=9)
+    axes[2].set_title("identified fraction of detections", fontsize=9)
+    for ax in axes:
+        ax.set_xticks(np.arange(len(names)) + width / 2, names)
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    main()
