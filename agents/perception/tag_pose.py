@@ -1,7 +1,8 @@
 """The AprilTag-pose baseline of seed 000 §V-C 1: target pose from the tag on its root node.
 
 For each step, the tag read on a target's root node gives the tag's pose in the camera from its
-four image corners (``cv2.solvePnP`` with ``SOLVEPNP_IPPE_SQUARE``, the tag taken as a flat square:
+four image corners (``cv2.solvePnPGeneric`` with ``SOLVEPNP_IPPE_SQUARE``, and SQPnP as a check,
+the lower reprojection error winning; the tag taken as a flat square:
 precisely what a sticker bent around a sphere is not, seed 000 §III-B). The node centre lies
 ``depth`` behind the tag along its normal (``depth`` = distance from the sphere centre to the plane
 of the print's four corners), the camera's mounting maps it into the observer's root frame, and
@@ -59,12 +60,25 @@ def tag_pose(corners: np.ndarray, K: np.ndarray, side: float) -> tuple[np.ndarra
     """
     h = side / 2.0
     obj = np.array([[-h, h, 0.0], [h, h, 0.0], [h, -h, 0.0], [-h, -h, 0.0]])
-    ok, rvec, tvec = cv2.solvePnP(obj, np.asarray(corners, dtype=np.float64).reshape(4, 1, 2),
-                                  np.asarray(K, dtype=np.float64), None, flags=cv2.SOLVEPNP_IPPE_SQUARE)
-    if not ok or not np.all(np.isfinite(tvec)) or tvec[2, 0] <= 0:
+    img = np.asarray(corners, dtype=np.float64).reshape(4, 1, 2)
+    if not np.all(np.isfinite(img)):
         return None
-    R, _ = cv2.Rodrigues(rvec)
-    return R, tvec.ravel()
+    K = np.asarray(K, dtype=np.float64)
+    best = None
+    # OpenCV 5.0.0's IPPE_SQUARE returned a 0.58 px-error pose on exact synthetic corners (where
+    # SQPnP is exact): keep the lowest-error solution of both solvers
+    for flag in (cv2.SOLVEPNP_IPPE_SQUARE, cv2.SOLVEPNP_SQPNP):
+        try:
+            n, rvecs, tvecs, errs = cv2.solvePnPGeneric(obj, img, K, None, flags=flag)
+        except cv2.error:
+            continue
+        for rvec, tvec, err in zip(rvecs, tvecs, np.asarray(errs).reshape(-1)):
+            if np.all(np.isfinite(tvec)) and tvec.ravel()[2] > 0 and (best is None or err < best[0]):
+                best = (float(err), rvec, tvec)
+    if best is None:
+        return None
+    R, _ = cv2.Rodrigues(best[1])
+    return R, best[2].ravel()
 
 
 def _wrap(a: float) -> float:
