@@ -101,7 +101,7 @@ def rim_points(
     my = circles[:, 1, None, None] + rad[:, None, :] * sin[None, :, None]
     inside = ((mx >= 0) & (mx <= w - 1) & (my >= 0) & (my <= h - 1)).all(axis=2)
     prof = cv2.remap(
-        image,
+        image if image.dtype == np.float32 else image.astype(np.float32),
         mx.reshape(n * n_rays, n_samples).astype(np.float32),
         my.reshape(n * n_rays, n_samples).astype(np.float32),
         cv2.INTER_LINEAR,
