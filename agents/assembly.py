@@ -36,7 +36,7 @@ from decentral.errors import InputError
 from decentral.factors import NoiseModel, detection_weights
 from decentral.geometry import backproject, wrap_angle
 from decentral.observations import Camera, Detection, Odometry, PlanarPose, Pose
-from protocols.admm_messages import ConfigAnnounce
+from protocols.admm_messages import ConfigAnnounce, ConfigRequest
 from protocols.messages import BROADCAST, AdmmDual, AdmmPrimal, Message
 
 __all__ = ["AgentConfig", "OwnStep", "AssemblyAgent"]
@@ -68,6 +68,9 @@ class AgentConfig:
         Re-announce the configuration every this many steps (repairs lost announcements).
     stale_rounds : int
         Inputs older than this many rounds keep the agent from reporting convergence.
+    patience : int
+        Rounds an ADMM step waits for a neighbour's value of the current iteration (while resending
+        its own last value, which repairs lost copies) before going on with the newest value it has.
     """
 
     name: str
@@ -80,6 +83,7 @@ class AgentConfig:
     admm: AdmmConfig = field(default_factory=AdmmConfig)
     announce_every: int = 5
     stale_rounds: int = 2
+    patience: int = 6
 
     def __post_init__(self) -> None:
         if self.name not in self.assemblies or self.reference not in self.assemblies:
@@ -128,6 +132,7 @@ class _Inbound:
     values: dict  # step -> (R (2, 2), p (3,))
     ready: bool
     rho: tuple[float, float] = (0.0, 0.0)
+    iteration: int = 0
 
 
 class AssemblyAgent:
@@ -162,7 +167,17 @@ class AssemblyAgent:
         self._round = 0
         self._converged = False
         self._last_ages: dict[str, int] = {}
-        self.counters = {"ignored": 0, "stale_inputs": 0, "uncertified": 0, "unknown_nodes": 0}
+        self.counters = {"ignored": 0, "timeouts": 0, "retransmits": 0, "uncertified": 0, "unknown_nodes": 0}
+        self._iter = 0  # consensus iterations done
+        self._iter_before = 0
+        self._fresh_pairs = True
+        self._unknown: set[int] = set()
+        self._requested = -(10**9)
+        self._pair_iter: dict[str, int] = {}
+        self._pair_out: dict[str, tuple] = {}
+        self._waiting: dict[tuple, int] = {}
+        self._last_dual: dict[str, dict] = {}
+        self._last_primal: dict | None = None
 
     # ------------------------------------------------------------------ sensing
     @property
@@ -180,10 +195,7 @@ class AssemblyAgent:
         self._seen[own.step] = self._measure(own)
         changed = self._announced is None or not _same_config(self._announced[1], self._own_config)
         if changed or own.step - self._announced[0] >= cfg.announce_every:
-            ids = np.array(sorted(self._own_config), dtype=np.int64)
-            centres = np.array([self._own_config[i] for i in ids]).reshape(-1, 3)
-            self._outbox.append(ConfigAnnounce(sender=self.name, receiver=BROADCAST, round=self._round,
-                                               step=own.step, ids=ids, centres=centres))
+            self._outbox.append(self._announcement(BROADCAST))
             self._announced = (own.step, dict(self._own_config))
         first = max(0, own.step - cfg.window + 1)
         self._steps = list(range(first, own.step + 1))
@@ -193,6 +205,13 @@ class AssemblyAgent:
         self._consensus.slide(self._steps, self._odometry)
         self._dirty = True
         self._converged = False
+
+    def _announcement(self, receiver: str) -> ConfigAnnounce:
+        ids = np.array(sorted(self._own_config), dtype=np.int64)
+        centres = np.array([self._own_config[i] for i in ids]).reshape(-1, 3)
+        step = self._announced[0] if self._announced is not None and receiver != BROADCAST else self._step
+        return ConfigAnnounce(sender=self.name, receiver=receiver, round=self._round, step=step, ids=ids,
+                              centres=centres)
 
     def _measure(self, own: OwnStep) -> list[tuple[int, np.ndarray, float]]:
         """Own detections as (node, centre in own root frame (3,), weight), seed 000 eq. (1), (4)."""
@@ -218,11 +237,14 @@ class AssemblyAgent:
             hist = [h for h in self._configs.get(message.sender, []) if h[0] != message.step]
             self._configs[message.sender] = sorted(hist + [entry], key=lambda h: h[0])
             self._dirty = True
+        elif isinstance(message, ConfigRequest):
+            if self._step is not None and any(int(i) in self._own_config for i in message.ids):
+                self._outbox.append(self._announcement(message.sender))
         elif isinstance(message, (AdmmPrimal, AdmmDual)):
             self._merge_table(message.blocks.get("table"))
             b = message.blocks
             x, meta = b.get("x"), b.get("meta")
-            if x is None or meta is None or x.ndim != 2 or x.shape[1] != 8 or meta.shape != (3,):
+            if x is None or meta is None or x.ndim != 2 or x.shape[1] != 8 or meta.shape != (4,):
                 self.counters["ignored"] += 1
                 return
             store = self._targets_z if isinstance(message, AdmmPrimal) else self._observers
@@ -230,7 +252,8 @@ class AssemblyAgent:
             if old is not None and old.round >= message.round:
                 return  # a duplicate or an overtaken (reordered) copy
             values = {int(row[0]): (row[1:5].reshape(2, 2).copy(), row[5:8].copy()) for row in x}
-            store[message.sender] = _Inbound(message.round, values, bool(meta[0] > 0.5), (float(meta[1]), float(meta[2])))
+            store[message.sender] = _Inbound(message.round, values, bool(meta[0] > 0.5), (float(meta[1]), float(meta[2])),
+                                             int(meta[3]))
         else:
             self.counters["ignored"] += 1
 
@@ -251,18 +274,20 @@ class AssemblyAgent:
     def _rebuild(self) -> None:
         """Directed pair subproblems ``self -> target`` over the window from own detections."""
         rows: dict[str, list] = {}
-        unknown = 0
+        unknown = set()
         for k in self._steps:
             for node, t, w in self._seen.get(k, []):
                 hit = self._owner_of(node, k)
                 if hit is None:
-                    unknown += 1
+                    unknown.add(int(node))
                     continue
                 rows.setdefault(hit[0], []).append((k, hit[1], t, w))
-        self.counters["unknown_nodes"] = unknown
+        self.counters["unknown_nodes"] = len(unknown)
+        self._unknown = unknown
         self._pair_steps = {k for r in rows.values() for k, *_ in r}
         for target in [t for t in self._pairs if t not in rows]:
-            del self._pairs[target]
+            for store in (self._pairs, self._pair_out, self._last_dual, self._pair_iter):
+                store.pop(target, None)
         for target, facts in rows.items():
             keys, io, ia, q, t, w = [], [], [], [], [], []
             slot = {}
@@ -294,74 +319,118 @@ class AssemblyAgent:
         return 10**9 if inbound is None else max(0, self._round - inbound.round)
 
     def _pair_phase(self) -> None:
+        """Phase 0: each owned pair iterates once the target's consensus of its iteration has arrived."""
         if self._dirty:
             self._rebuild()
-        me, cons = self.name, self._consensus
-        self._own_contrib = []
+        me, cons, patience = self.name, self._consensus, self.config.patience
+        if self._unknown and self._round - self._requested >= 3:
+            self._outbox.append(ConfigRequest(sender=me, receiver=BROADCAST, round=self._round,
+                                              ids=np.array(sorted(self._unknown), dtype=np.int64)))
+            self._requested = self._round
+        self._fresh_pairs = True
         for target, pair in self._pairs.items():
-            z = {(me, k): v for k, v in cons.z.items()}
             inbound = self._targets_z.get(target)
-            ready = {me: cons.ready, target: False}
-            if inbound is not None:
-                z.update({(target, k): v for k, v in inbound.values.items() if k in cons.z})
-                ready[target] = inbound.ready
-            out = pair.iterate(z, ready)
-            if not pair.certified:
-                self.counters["uncertified"] += 1
-            mine = {k[1]: v for k, v in out.items() if k[0] == me}
-            if cons.ready or ready[target]:
-                self._own_contrib.append((mine, pair.rho_R, pair.rho_p))
-            theirs = sorted((k[1], v) for k, v in out.items() if k[0] == target)
-            if theirs:
-                self._outbox.append(AdmmDual(
-                    sender=me, receiver=target, round=self._round, window=self._step, rho=pair.rho_R,
-                    blocks=self._blocks(theirs, cons.ready, rho=(pair.rho_R, pair.rho_p))))
+            i = self._pair_iter.get(target, 0)
+            waited = self._waiting.get(("pair", target), 0)
+            # not heard from for `patience` rounds: gone (crashed, cut off, or no longer watching) - go on
+            # iteration i + 1 uses both ends' consensus of iteration i (Boyd §7.1's synchronous order)
+            fresh = (inbound is None or inbound.iteration >= i or self._age(inbound) > patience) and self._iter >= i
+            due = fresh or waited >= patience
+            if due:
+                if not fresh:
+                    self.counters["timeouts"] += 1  # go on with the newest (stale) values
+                    self._fresh_pairs = False
+                z = {(me, k): v for k, v in cons.z.items()}
+                ready = {me: cons.ready, target: False}
+                if inbound is not None:
+                    z.update({(target, k): v for k, v in inbound.values.items() if k in cons.z})
+                    ready[target] = inbound.ready
+                out = pair.iterate(z, ready)
+                if not pair.certified:
+                    self.counters["uncertified"] += 1
+                i = max(i, inbound.iteration if inbound is not None else 0) + 1
+                self._pair_iter[target] = i
+                self._waiting[("pair", target)] = 0
+                mine = {k[1]: v for k, v in out.items() if k[0] == me}
+                self._pair_out[target] = (mine, pair.rho_R, pair.rho_p, cons.ready or ready[target], i)
+                theirs = sorted((k[1], v) for k, v in out.items() if k[0] == target)
+                self._last_dual[target] = self._blocks(theirs, cons.ready, i, rho=(pair.rho_R, pair.rho_p))
+            else:
+                self._waiting[("pair", target)] = waited + 1
+                self.counters["retransmits"] += 1
+            if target in self._last_dual:  # a new value, or the last one again (repairs a lost copy)
+                self._outbox.append(AdmmDual(sender=me, receiver=target, round=self._round, window=self._step,
+                                             rho=float(self._last_dual[target]["meta"][1]) or 1.0,
+                                             blocks=self._last_dual[target]))
 
     def _consensus_phase(self) -> None:
-        cons = self._consensus
-        contributions = list(getattr(self, "_own_contrib", []))
-        ages = {}
-        for sender, inbound in self._observers.items():
-            age = self._age(inbound)
-            if age > self.config.window + 2 * self.config.stale_rounds + 10:
-                continue  # an observer gone for long: its copies no longer count
-            ages[sender] = age
-            if inbound.ready or cons.ready:
-                contributions.append((inbound.values, inbound.rho[0], inbound.rho[1]))
+        """Phase 1: the consensus update once every pair's copies of the next iteration are in."""
+        cons, cfg = self._consensus, self.config
+        gone = cfg.window + 2 * cfg.patience + 10
+        ages, inputs = {}, []
         for target in self._pairs:
             ages[target] = self._age(self._targets_z.get(target))
+            if target in self._pair_out:
+                mine, rR, rp, usable, it = self._pair_out[target]
+                inputs.append((it, usable, (mine, rR, rp)))
+        for sender, inbound in self._observers.items():
+            age = self._age(inbound)
+            if age > gone:
+                continue  # an observer gone for long: its copies no longer count
+            ages[sender] = age
+            if not any(k in cons.z for k in inbound.values):
+                continue  # copies of steps that left the window
+            # an observer silent for `patience` rounds is not waited for (its newest copies still count)
+            it = inbound.iteration if age <= cfg.patience else 10**12
+            inputs.append((it, inbound.ready or cons.ready, (inbound.values, *inbound.rho)))
         self._last_ages = ages
-        stale = sum(1 for a in ages.values() if a > 1)
-        self.counters["stale_inputs"] += stale
-        cons.update(contributions)
-        last = self._steps[-1]
-        if cons.ready and cons.anchored(last, self._pair_steps | self._remote_steps()):
-            R, p = cons.z[last]
-            self._table[self._index[self.name]] = np.array(
-                [self._index[self.name], last, self._round, p[0], p[1], p[2], np.arctan2(R[1, 0], R[0, 0])])
-        values = sorted(cons.z.items())
-        for observer, inbound in self._observers.items():
-            if ages.get(observer, 10**9) <= self.config.window + 2 * self.config.stale_rounds + 10:
-                self._outbox.append(AdmmPrimal(sender=self.name, receiver=observer, round=self._round,
-                                               window=self._step, blocks=self._blocks(values, cons.ready)))
-        eps = self.config.admm
-        self._converged = bool(
-            cons.ready
-            and all(p.converged() for p in self._pairs.values())
-            and cons.change <= max(eps.eps_rot, eps.eps_pos)
-            and all(a <= self.config.stale_rounds for a in ages.values())
-        )
+        waited = self._waiting.get(("cons", ""), 0)
+        lowest = min((it for it, _, _ in inputs), default=self._iter + 1)
+        self._iter_before = self._iter
+        due = lowest >= self._iter + 1 or waited >= cfg.patience or cons.pinned and not inputs
+        if due:
+            if lowest < self._iter + 1:
+                self.counters["timeouts"] += 1
+            cons.update([c for _, usable, c in inputs if usable])
+            self._iter = max([self._iter + 1] + [it for it, _, _ in inputs if it < 10**12])
+            self._waiting[("cons", "")] = 0
+            last = self._steps[-1]
+            if cons.ready and cons.anchored(last, self._pair_steps | self._remote_steps()):
+                R, p = cons.z[last]
+                self._table[self._index[self.name]] = np.array(
+                    [self._index[self.name], last, self._round, p[0], p[1], p[2], np.arctan2(R[1, 0], R[0, 0])])
+            self._last_primal = self._blocks(sorted(cons.z.items()), cons.ready, self._iter)
+        else:
+            self._waiting[("cons", "")] = waited + 1
+            self.counters["retransmits"] += 1
+        if self._last_primal is not None:
+            if self._table:  # the gossip table is always the newest
+                self._last_primal = dict(self._last_primal, table=np.array([self._table[i] for i in sorted(self._table)]))
+            for observer in self._observers:
+                if ages.get(observer, gone + 1) <= gone:
+                    self._outbox.append(AdmmPrimal(sender=self.name, receiver=observer, round=self._round,
+                                                   window=self._step, blocks=self._last_primal))
+        if due:  # the flag describes the last completed iteration (kept while waiting for the next)
+            eps = cfg.admm
+            self._converged = bool(
+                lowest >= self._iter_before + 1
+                and cons.ready
+                and all(p.converged() for p in self._pairs.values())
+                and cons.change <= max(eps.eps_rot, eps.eps_pos)
+                and self._fresh_pairs
+            )
 
     def _remote_steps(self) -> set[int]:
         """Steps at which an observer holds copies of this assembly (factors it cannot see itself)."""
         return {k for inbound in self._observers.values() for k in inbound.values}
 
-    def _blocks(self, values: list, ready: bool, rho: tuple[float, float] | None = None) -> dict:
-        """Wire blocks: ``x`` rows ``(step, R00, R01, R10, R11, px, py, pz)``, ``meta`` = (ready, rho_R, rho_p),
+    def _blocks(self, values: list, ready: bool, iteration: int, rho: tuple[float, float] | None = None) -> dict:
+        """Wire blocks: ``x`` rows ``(step, R00, R01, R10, R11, px, py, pz)``, ``meta`` = (ready, rho_R, rho_p,
+        ADMM iteration),
         ``table`` the gossip rows (few arrays: each costs a ~128-byte ``.npy`` header)."""
         x = np.array([[k, *v[0].ravel(), *v[1]] for k, v in values], float).reshape(-1, 8)
         rho = rho or (0.0, 0.0)
-        blocks = {"x": x, "meta": np.array([1.0 if ready else 0.0, rho[0], rho[1]])}
+        blocks = {"x": x, "meta": np.array([1.0 if ready else 0.0, rho[0], rho[1], float(iteration)])}
         if self._table:
             blocks["table"] = np.array([self._table[i] for i in sorted(self._table)])
         return blocks

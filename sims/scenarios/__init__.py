@@ -20,6 +20,7 @@ SCENARIOS: dict[str, str] = {
     "reconfig": "sims.scenarios.reconfig",
     "multi": "sims.scenarios.multi",
     "single_node": "sims.scenarios.single_node",
+    "ring64": "sims.scenarios.ring64",
 }
 
 
