@@ -15,9 +15,18 @@ detections (never ground truth), plus what arrives in its inbox. Per log step it
    * phase 1: the agent updates its own consensus poses from its pairs and from the ``admm.dual``
      messages of the agents that observe it, then sends them as ``admm.primal`` to those observers.
 
-Messages that do not arrive are not waited for: the newest value received from each neighbour is
-reused, and its age (in rounds) is kept and reported. Both ADMM kinds also carry a small gossip
-table (``(assembly index, step, round, x, y, z, theta)`` rows, the newest consensus pose of every
+Lost, late, duplicated or reordered messages: every value carries its ADMM iteration number. A pair
+iterates only when both ends' consensus of the current iteration is in, and a consensus update only
+when every pair's copies of the next iteration are in; meanwhile the agent resends its last value
+each round (which repairs a lost copy), so losses mostly delay the iterates rather than change them
+(they still change when a neighbour's first message or a configuration arrives late, or on a
+timeout). A neighbour silent for ``patience`` rounds (crashed, partitioned, or no longer
+watching) is not waited for: its newest value is reused with its age, counted as a timeout. Older
+rounds never overwrite newer values (reordering, duplicates), and a restarted agent jumps its
+iteration counter forward to its neighbours'. Ages in rounds are kept (:attr:`AssemblyAgent.ages`).
+An observer that detects nodes it cannot name asks their owners with ``admm.config_request``.
+
+Both ADMM kinds also carry a small gossip table (``(assembly index, step, round, x, y, z, theta)`` rows, the newest consensus pose of every
 assembly at its latest step) so every agent learns the poses of assemblies it does not talk to;
 :meth:`AssemblyAgent.estimates` turns it into poses relative to the agent (seed 000 eq. (19)).
 
