@@ -46,7 +46,8 @@ class SettleResult:
 
 
 def _pairs(x: np.ndarray, cutoff: float) -> np.ndarray:
-    return cKDTree(x).query_pairs(cutoff, output_type="ndarray")
+    p = cKDTree(x).query_pairs(cutoff, output_type="ndarray")
+    return p[np.argsort(p[:, 0], kind="stable")]  # gathers by index in memory order
 
 
 def settle(
@@ -95,7 +96,7 @@ def settle(
     # order modules along rows of 4-radius bands so that gathers by index stay cache-local
     band = np.floor((x[:, 1] - x[:, 1].min()) / (4 * radius))
     x = x[np.lexsort((x[:, 0], band))]
-    skin = 0.6 * radius
+    skin = 1.0 * radius
     cutoff = 2.0 * radius + skin
     pairs = _pairs(x, cutoff)
     anchor = x.copy()
