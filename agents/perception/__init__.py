@@ -8,6 +8,7 @@ Each stage sits behind a small protocol (:class:`CircleDetector`, :class:`Identi
 from agents.perception.apriltag import AprilTagConfig, AprilTagIdentifier
 from agents.perception.hough import HoughCircleDetector, HoughConfig
 from agents.perception.motion import FlowRegistration, odometry_homography
+from agents.perception.onnx_head import OnnxCircleDetector, OnnxHeadConfig
 from agents.perception.pipeline import FrameResult, Perception, perceive_frames
 from agents.perception.refine import RefineConfig
 from agents.perception.tracking import CircleTracker, TrackerConfig
@@ -24,6 +25,8 @@ __all__ = [
     "HoughCircleDetector",
     "HoughConfig",
     "Identifier",
+    "OnnxCircleDetector",
+    "OnnxHeadConfig",
     "Perception",
     "RefineConfig",
     "TagRead",
