@@ -204,21 +204,16 @@ class Renderer:
         if k == 0 or self.config.shutter == 0:
             return (0.0, 0.0)
         world, K = self.world, rig.spec.K
-        shifts = []
+        seen = []
         for kk in (k - 1, k):
             cam = world.camera_in_world(rig, kk)
-            _, _, centres = world.nodes_in_world(kk)
-            pc = (centres - cam.p) @ cam.R
-            shifts.append(pc)
-        ids_prev, _, _ = world.nodes_in_world(k - 1)
-        ids_now, _, _ = world.nodes_in_world(k)
-        common = np.intersect1d(ids_prev, ids_now)
-        if len(common) == 0:
+            ids, _, centres = world.nodes_in_world(kk)
+            seen.append(dict(zip(ids.tolist(), (centres - cam.p) @ cam.R)))
+        common = sorted(set(seen[0]) & set(seen[1]))
+        if not common:
             return (0.0, 0.0)
-        a = shifts[0][np.searchsorted(ids_prev, common, sorter=np.argsort(ids_prev))]
-        ia = np.argsort(ids_prev)[np.searchsorted(ids_prev, common, sorter=np.argsort(ids_prev))]
-        ib = np.argsort(ids_now)[np.searchsorted(ids_now, common, sorter=np.argsort(ids_now))]
-        a, b = shifts[0][ia], shifts[1][ib]
+        a = np.array([seen[0][i] for i in common])
+        b = np.array([seen[1][i] for i in common])
         ok = (a[:, 2] > 0.2) & (b[:, 2] > 0.2)
         if not ok.any():
             return (0.0, 0.0)
