@@ -59,7 +59,7 @@ class HierarchyConfig:
         Refinement of the whole ensemble (the top merge).
     """
 
-    leaf_size: int = 128
+    leaf_size: int = 64
     cut: str = "abstract"
     abstract_size: int = 64
     level_refine: RefineConfig = RefineConfig(max_iter=100, gtol=1e-3)
