@@ -134,12 +134,15 @@ def _lens_area(d: np.ndarray, r1: np.ndarray, r2: np.ndarray) -> np.ndarray:
     return np.where(part, lens, out)
 
 
-def covered_fraction(uvr: np.ndarray, depth: np.ndarray, candidates: np.ndarray | None = None) -> np.ndarray:
+def covered_fraction(uvr: np.ndarray, depth: np.ndarray, candidates: np.ndarray | None = None,
+                     targets: np.ndarray | None = None) -> np.ndarray:
     """Fraction of each node's image circle hidden by nearer nodes' circles.
 
     The covered area is approximated by the largest single overlap with a nearer circle (exact when
     one sphere occludes another, a lower bound when several do). ``candidates`` (N,) bool restricts
-    the occluders to nodes in front of the camera (default: ``depth > 0``).
+    the occluders to nodes in front of the camera (default: ``depth > 0``); ``targets`` (N,) bool
+    restricts which nodes get a value (the others get 0; default: the candidates). Only pairs whose
+    circles overlap are evaluated, so a large scene costs little more than its overlaps.
 
     Returns
     -------
@@ -149,15 +152,22 @@ def covered_fraction(uvr: np.ndarray, depth: np.ndarray, candidates: np.ndarray 
     n = len(depth)
     if candidates is None:
         candidates = depth > 0
+    if targets is None:
+        targets = candidates
     frac = np.zeros(n)
-    if n < 2:
+    occ = np.flatnonzero(candidates)
+    tgt = np.flatnonzero(targets & candidates)
+    if len(occ) == 0 or len(tgt) == 0:
         return frac
-    du = uvr[:, None, 0] - uvr[None, :, 0]
-    dv = uvr[:, None, 1] - uvr[None, :, 1]
-    d = np.hypot(du, dv)
-    r_self, r_other = uvr[:, None, 2], uvr[None, :, 2]
-    area = _lens_area(d, np.broadcast_to(r_self, d.shape), np.broadcast_to(r_other, d.shape))
-    nearer = (depth[None, :] < depth[:, None]) & candidates[None, :] & candidates[:, None]
-    area = np.where(nearer, area, 0.0)
-    frac = area.max(axis=1) / (np.pi * np.maximum(uvr[:, 2], 1e-12) ** 2)
+    d = np.hypot(uvr[tgt, None, 0] - uvr[None, occ, 0], uvr[tgt, None, 1] - uvr[None, occ, 1])
+    r_t = np.broadcast_to(uvr[tgt, None, 2], d.shape)
+    r_o = np.broadcast_to(uvr[None, occ, 2], d.shape)
+    pairs = (d < r_t + r_o) & (depth[None, occ] < depth[tgt, None])
+    ti, oi = np.nonzero(pairs)
+    if len(ti) == 0:
+        return frac
+    area = _lens_area(d[ti, oi], r_t[ti, oi], r_o[ti, oi])
+    best = np.zeros(len(tgt))
+    np.maximum.at(best, ti, area)
+    frac[tgt] = best / (np.pi * np.maximum(uvr[tgt, 2], 1e-12) ** 2)
     return np.clip(frac, 0.0, 1.0)

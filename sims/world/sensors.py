@@ -156,8 +156,8 @@ def detections_at(world: World, k: int, noise: SensorNoise, streams: dict[str, n
     for rig in world.cameras:
         rng = streams[rig.key]
         uvr, depth = project_nodes(rig.spec.K, world.camera_in_world(rig, k), centres, world.node_radius)
-        covered = covered_fraction(uvr, depth) if noise.occlusion else np.zeros(len(ids))
         seen = visible_mask(rig.spec, uvr, depth) & (owners != rig.assembly)
+        covered = covered_fraction(uvr, depth, targets=seen) if noise.occlusion else np.zeros(len(ids))
         if noise.occlusion:
             seen &= covered < noise.occlusion_hide
         idx = np.flatnonzero(seen)

@@ -11,7 +11,7 @@ SHORT = {"table1": 25, "reconfig": 125, "multi": 12, "single_node": 10}
 
 
 def _sim(name, seed=0, **params):
-    params.setdefault("steps", SHORT[name])
+    params.setdefault("steps", SHORT.get(name, 10))
     return simulate(get_scenario(name, **params), seed=seed)
 
 
