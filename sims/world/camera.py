@@ -14,7 +14,7 @@ import numpy as np
 
 from decentral.observations import Pose
 
-__all__ = ["default_K", "CameraSpec", "project_nodes", "silhouette_circle", "visible_mask", "covered_fraction"]
+__all__ = ["default_K", "CameraSpec", "project_nodes", "silhouette_circle", "eq1_circle_from_silhouette", "visible_mask", "covered_fraction"]
 
 
 def default_K(width: int = 1024, height: int = 768, f: float = 760.0) -> np.ndarray:
@@ -104,6 +104,42 @@ def silhouette_circle(K: np.ndarray, centre_c, radius: float) -> tuple[float, fl
     lam = np.linalg.eigvalsh(A)
     r = (f * f / abs(lam[0] * lam[1])) ** 0.25
     return float(x0[0]), float(x0[1]), float(r)
+
+
+def eq1_circle_from_silhouette(K: np.ndarray, su: float, sv: float, sr: float, radius: float,
+                               iterations: int = 8) -> tuple[float, float, float]:
+    """The eq. (1) circle (u, v, f r_0 / z_c) of the sphere whose exact silhouette is (su, sv, sr).
+
+    Inverts :func:`silhouette_circle` by Newton's method on the sphere centre, started from the
+    eq. (1) back-projection of the silhouette itself. A detector that fits a sphere's outline can
+    pass its circle through this to remove eq. (1)'s off-axis bias before estimation.
+
+    Returns
+    -------
+    (u, v, r) : the projected centre and ``f r_0 / z_c`` [px].
+    """
+    Kinv = np.linalg.inv(K)
+    f = K[0, 0]
+    target = np.array([su, sv, sr], dtype=float)
+
+    def back(uvr):
+        return Kinv @ np.array([uvr[0], uvr[1], 1.0]) * (f * radius / uvr[2])
+
+    c = back(target)
+    for _ in range(iterations):
+        got = np.array(silhouette_circle(K, c, radius))
+        err = got - target
+        if np.max(np.abs(err)) < 1e-9:
+            break
+        J = np.empty((3, 3))
+        h = 1e-6 * max(c[2], 1e-3)
+        for i in range(3):
+            dc = np.zeros(3)
+            dc[i] = h
+            J[:, i] = (np.array(silhouette_circle(K, c + dc, radius)) - got) / h
+        c = c - np.linalg.solve(J, err)
+    uvw = K @ c
+    return float(uvw[0] / c[2]), float(uvw[1] / c[2]), float(f * radius / c[2])
 
 
 def visible_mask(spec: CameraSpec, uvr: np.ndarray, depth: np.ndarray) -> np.ndarray:

@@ -72,3 +72,25 @@ def test_partial_cover_is_between_zero_and_one():
     cam = Pose(np.eye(3), np.zeros(3))
     uvr, depth = project_nodes(K, cam, np.array([[0, 0, 1.5], [0.07, 0, 2.0]]), R0)
     assert 0.0 < covered_fraction(uvr, depth)[1] < 1.0
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(-0.55, 0.55), st.floats(-0.45, 0.45), st.floats(0.4, 5.0))
+def test_silhouette_to_eq1_circle_inverts_the_silhouette(tx, ty, z):
+    """Mapping a sphere's exact silhouette circle back gives its eq. (1) circle."""
+    from sims.world.camera import eq1_circle_from_silhouette, silhouette_circle
+
+    c = np.array([tx * z, ty * z, z])
+    su, sv, sr = silhouette_circle(K, c, R0)
+    u, v, r = eq1_circle_from_silhouette(K, su, sv, sr, R0)
+    uvr, _ = project_nodes(K, Pose(np.eye(3), np.zeros(3)), c[None], R0)
+    assert np.allclose([u, v, r], uvr[0], atol=1e-6)
+
+
+def test_silhouette_is_larger_than_eq1_off_axis():
+    """Off the axis the exact silhouette is bigger than f r0 / z_c (eq. (1)'s model), on the axis not by much."""
+    from sims.world.camera import silhouette_circle
+
+    on = silhouette_circle(K, np.array([0.0, 0.0, 1.5]), R0)[2] / (K[0, 0] * R0 / 1.5)
+    off = silhouette_circle(K, np.array([1.5 * np.tan(np.radians(30)), 0.0, 1.5]), R0)[2] / (K[0, 0] * R0 / 1.5)
+    assert 1.0 < on < 1.002 and 1.07 < off < 1.08
