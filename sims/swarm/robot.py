@@ -50,6 +50,8 @@ __all__ = ["Track", "RobotStats", "SwarmRobot"]
 
 #: tracks with a larger yaw variance [rad^2] are initialized from the next mutual detection
 YAW_UNKNOWN_VAR = 0.3
+#: above this yaw variance [rad^2] a mutual detection re-initializes the yaw instead of an EKF update
+YAW_LINEAR_VAR = 0.15
 #: yaw variance of a track whose yaw nobody has measured (uniform on the circle)
 YAW_PRIOR_VAR = np.pi**2 / 3
 #: tracks are shared only while their position std is below this [m]
@@ -85,6 +87,7 @@ class RobotStats:
     fused: int = 0
     created_from_peers: int = 0
     odometry_missing: int = 0
+    deferred: int = 0
     reports_late: int = 0
 
 
@@ -264,9 +267,13 @@ class SwarmRobot:
                 continue
             uvr = np.asarray(msg.uvr[hits[0]], dtype=float)
             self._settle(tr)
-            if not tr.yaw_known:
+            if tr.cov[2, 2] > YAW_LINEAR_VAR:
+                # with a yaw this uncertain the measurement manifold curves away from its tangent:
+                # an EKF update would be confidently wrong, so (re)initialize in closed form when
+                # both views are of the same instant, and otherwise wait
                 if name not in self._direct:
-                    continue  # the closed form needs both views of the same instant
+                    self.stats.deferred += 1
+                    continue
                 b, B = self._backproject(uvr)  # where the peer's camera put us, in the peer's frame
                 t = tr.mean[:2]
                 theta = yaw_from_mutual(t, b)
@@ -274,6 +281,9 @@ class SwarmRobot:
                 Jt = np.array([-t[1], t[0]]) / max(t @ t, 1e-12)
                 Jb = -np.array([-b[1], b[0]]) / max(b @ b, 1e-12)
                 var = float(Jt @ tr.cov[:2, :2] @ Jt + Jb @ B @ Jb)
+                if var >= tr.cov[2, 2]:
+                    self.stats.deferred += 1
+                    continue  # the closed form would know less than the track already does
                 tr.mean = np.array([t[0], t[1], theta])
                 cross = tr.cov[:2, :2] @ Jt
                 cov = tr.cov.copy()
@@ -338,6 +348,11 @@ class SwarmRobot:
             if np.sqrt(max(cov[0, 0], cov[1, 1])) < SHARE_MAX_STD:
                 self.tracks[name] = incoming
                 self.stats.created_from_peers += 1
+            return
+        d = incoming.mean - tr.mean
+        d[2] = wrap_angle(d[2])
+        if float(d @ np.linalg.solve(tr.cov + incoming.cov, d)) > GATE:
+            self.stats.gated += 1  # the two disagree beyond their spreads: one of them is wrong
             return
         mean, P, _ = covariance_intersection(tr.mean, tr.cov, incoming.mean, incoming.cov)
         tr.mean, tr.cov = mean, P
