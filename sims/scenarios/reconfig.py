@@ -77,6 +77,8 @@ class ReconfigConfig(ScenarioConfig):
         super().__post_init__()
         if self.phase_steps < 1:
             raise ValueError("phase_steps must be positive")
+        if self.distance <= 0.3 or self.sweep_period <= 0:
+            raise ValueError("distance must exceed 0.3 m and sweep_period be positive")
 
 
 class Reconfig(Scenario):

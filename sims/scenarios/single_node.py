@@ -35,6 +35,11 @@ class SingleNodeConfig(ScenarioConfig):
     distance: float = 1.5
     target_yaw_deg: float = 40.0
 
+    def __post_init__(self):
+        super().__post_init__()
+        if self.distance <= 0.3:
+            raise ValueError("distance must exceed 0.3 m")
+
 
 class SingleNode(Scenario):
     """A still observer and a still one-node target."""

@@ -14,7 +14,7 @@ import numpy as np
 from sims.scenarios.base import Scenario, ScenarioConfig
 from sims.world.motion import jitter, wander_many
 from sims.world.rigs import strut_camera
-from sims.world.shapes import NODE_RADIUS, library_shape
+from sims.world.shapes import LIBRARY, NODE_RADIUS, library_shape
 from sims.world.world import AssemblyTrack, World
 
 __all__ = ["Table1Config", "Table1"]
@@ -65,6 +65,11 @@ class Table1Config(ScenarioConfig):
         n = len(self.target_shapes)
         if not (len(self.target_floors) == len(self.ranges) == len(self.bearings_deg) == n):
             raise ValueError("target_shapes, target_floors, ranges and bearings_deg must have equal lengths")
+        unknown = [name for name in self.target_shapes if name not in LIBRARY]
+        if unknown:
+            raise ValueError(f"unknown target shape(s) {unknown}; known: {', '.join(LIBRARY)}")
+        if min(self.ranges, default=1.0) <= 0 or self.speed < 0 or self.table_height < 0:
+            raise ValueError("ranges must be positive; speed and table_height non-negative")
 
 
 class Table1(Scenario):

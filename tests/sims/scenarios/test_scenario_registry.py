@@ -60,3 +60,9 @@ def test_configs_are_frozen():
     config = get_scenario("table1").config
     with pytest.raises(AttributeError):
         config.steps = 3
+
+
+def test_unknown_shape_name_is_bad_input():
+    """A table1 target shape that is not in the library is bad input, not a crash later."""
+    with pytest.raises(InputError, match="blob"):
+        get_scenario("table1", target_shapes=["L", "blob", "T"])
