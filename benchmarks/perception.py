@@ -12,8 +12,9 @@ this is one core's work; wall time, inflated when the shared machine is loaded, 
 Quality against the renderer's truth (every node with visible pixels, its silhouette circle):
 precision and recall of circles (a detection matches the nearest unmatched node within half its
 radius; nodes count if at least half visible and wholly inside the image), radius error, id
-accuracy (identified detections naming the matched node), and id switches (a node's track number
-changing between frames where it is matched).
+accuracy (identified detections naming the matched node), id switches (a node's track number
+changing between frames where it is matched to a tracked detection), node-id changes (the node id
+shown on a true node changing), and matched detections left untracked (low score, no track).
 
 Usage: ``python benchmarks/perception.py [--steps 60]``; writes ``benchmarks/results/perception.json``
 and ``perception.png``.
@@ -70,7 +71,7 @@ def _run(sim, frames, mode: str) -> dict:
 
     out = {"seconds": [], "cpu_seconds": [], "stage_seconds": {}, "detections": 0, "matched": 0, "counted_nodes": 0,
            "matched_counted": 0, "radius_rel_err": [], "centre_err_px": [], "identified": 0, "id_correct": 0,
-           "id_switches": 0, "visible_per_frame": []}
+           "id_switches": 0, "untracked": 0, "node_id_changes": 0, "visible_per_frame": []}
     log = sim.log
     for key, seq in frames.items():
         cam = log.cameras[key]
@@ -80,6 +81,7 @@ def _run(sim, frames, mode: str) -> dict:
             ident = AprilTagIdentifier()
         p = Perception(HoughCircleDetector(), ident)
         last_track: dict[int, int] = {}
+        last_node: dict[int, int] = {}
         for k, frame in seq:
             img = frame.image
             h, w = img.shape[:2]
@@ -108,10 +110,16 @@ def _run(sim, frames, mode: str) -> dict:
                 if d.node is not None:
                     out["identified"] += 1
                     out["id_correct"] += d.node == nid
-                if d.track is not None:
+                if d.track is None:
+                    out["untracked"] += 1
+                else:
                     if nid in last_track and last_track[nid] != d.track:
                         out["id_switches"] += 1
                     last_track[nid] = d.track
+                if d.node is not None:
+                    if nid in last_node and last_node[nid] != d.node:
+                        out["node_id_changes"] += 1
+                    last_node[nid] = d.node
             matched = {i for i, _ in pairs}
             for i, d in enumerate(dets):  # identified detections matching no node are wrong ids too
                 if d.node is not None and i not in matched:
@@ -149,6 +157,8 @@ def _summary(r: dict, ref_median: float) -> dict:
         "identified_fraction": r["identified"] / max(r["detections"], 1),
         "id_accuracy": r["id_correct"] / max(r["identified"], 1),
         "id_switches": r["id_switches"],
+        "node_id_changes": r["node_id_changes"],
+        "untracked_matched_detections": r["untracked"],
         "frames": len(r["seconds"]),
         "visible_nodes_per_frame": [int(np.min(r["visible_per_frame"])), int(np.max(r["visible_per_frame"]))],
     }

@@ -124,11 +124,11 @@ class HoughCircleDetector:
             return []
         image = np.asarray(image)
         # the rim search runs on the colour image when there is one (chroma edges count too),
-        # blurred as uint8 (several times faster than in float) and then converted once
-        fine_img = image if image.ndim == 3 and image.shape[2] == 3 else grey
+        # blurred in float: blurring the uint8 image is faster but its rounding to whole grey levels
+        # cost accuracy downstream (table1 experiment: 0.039 -> 0.065 m with confident placement)
+        fine_img = (image if image.ndim == 3 and image.shape[2] == 3 else grey).astype(np.float32)
         if cfg.refine_blur > 0:
             fine_img = cv2.GaussianBlur(fine_img, (0, 0), cfg.refine_blur)
-        fine_img = fine_img.astype(np.float32)
         # each proposal also stands for larger circles: a proposal that locked onto the square
         # sticker inside a node (0.35-0.5 of its radius) or onto its lit side then still finds the rim
         rough = _dedupe(rough)
