@@ -75,7 +75,11 @@ class SphereTagConfig:
         towards the camera.
     max_hamming : int
     min_margin : float
-        Acceptance thresholds (grey levels for the margin).
+        Acceptance thresholds (grey levels for the margin) when the candidates are restricted (the
+        tags of the nodes configured at the step: a wrong match needs a near code among few).
+    open_max_hamming : int
+    open_min_margin : float
+        The stricter thresholds used when matching against every code of the family.
     tag_table : mapping, optional
         Tag id -> node id (None: identity).
     """
@@ -84,8 +88,10 @@ class SphereTagConfig:
     family: str = "tag36h11"
     yaw_steps: int = 180
     min_facing: float = 0.55
-    max_hamming: int = 3
-    min_margin: float = 8.0
+    max_hamming: int = 5
+    min_margin: float = 4.0
+    open_max_hamming: int = 3
+    open_min_margin: float = 8.0
     tag_table: Mapping[int, int] | None = None
 
 
@@ -208,7 +214,8 @@ class SphereTagReader:
         inner = np.zeros_like(code)
         inner[1:-1, 1:-1] = True
         hamming = int(((cell > thr) != code)[inner].sum())
-        if hamming > cfg.max_hamming or margin < cfg.min_margin:
+        max_h, min_m = (cfg.max_hamming, cfg.min_margin) if candidates is not None else (cfg.open_max_hamming, cfg.open_min_margin)
+        if hamming > max_h or margin < min_m:
             return None
         cn = np.einsum("ij,kj->ki", Rnc[ys[hi]], self._corner_normals[ss[hi]])
         cp = (centre + node_radius * cn) @ K.T
