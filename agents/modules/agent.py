@@ -85,7 +85,9 @@ class ModuleConfig:
         Gradient tolerance (module radii) of the top-level refinement; below the top the
         hierarchy's ``level_refine.gtol`` applies.
     reliable : bool
-        Acknowledge and retransmit every message except refinement shares (for lossy networks).
+        Acknowledge and retransmit every message (for lossy networks). A refinement iteration then
+        waits until every share of that iteration has arrived, so a lossy run computes exactly what
+        a lossless one does, at the price of the retransmissions and acknowledgements.
     retry_rounds : int
         Rounds without an acknowledgement before a retransmission.
     """
@@ -547,7 +549,7 @@ class ModuleAgent:
             return
         pose = self._pose()
         for j in st.nbrs:
-            self._send(PoseShare, j, "refine", reliable=False, level=level, group=st.group, phase="refine",
+            self._send(PoseShare, j, "refine", level=level, group=st.group, phase="refine",
                        iteration=st.iteration, pose=pose)
 
     def _pose(self) -> np.ndarray:

@@ -207,8 +207,8 @@ class PoseShare(Message):
     row-major, as ``d + d^2`` floats (plain floats on the wire: cheaper than two arrays).
 
     ``phase`` is ``boundary`` (exchange across a cut before alignment) or ``refine`` (one local
-    refinement iteration, ``iteration``); refinement shares are never retransmitted: a lost one is
-    replaced by the newest older value the receiver holds.
+    refinement iteration, ``iteration``). Without ``seq`` a lost share leaves the receiver with the
+    newest older value it holds.
     """
 
     KIND: ClassVar[str] = "ens.pose"

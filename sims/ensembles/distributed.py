@@ -2,8 +2,9 @@
 
 :func:`run_distributed` builds a :class:`agents.modules.ModuleAgent` per module from its own
 observations, attaches all of them to a :class:`protocols.network.SimulatedNetwork` (lossless by
-default; ``loss`` = probability that a message copy is dropped, with acknowledged retransmission of
-every message except refinement shares), and drives the phases of the distributed Algorithm 1 level
+default; ``loss`` = probability that a message copy is dropped; then every message is acknowledged
+and retransmitted until it is, so a lossy run computes what a lossless one does, with more
+messages), and drives the phases of the distributed Algorithm 1 level
 by level: top-down (leader election and tree, graph abstraction, normalized cut, leaves), then
 bottom-up (rigid alignment, refinement). The runner is only a round clock: in each round every agent
 that has something to do hands over its outbox, the network moves the messages, and each agent's
