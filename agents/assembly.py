@@ -421,7 +421,8 @@ class AssemblyAgent:
                                                    window=self._step, blocks=self._last_primal))
         if due:  # the flag describes the last completed iteration (kept while waiting for the next)
             eps = cfg.admm
-            self._converged = bool(
+            alone = not self._pairs and not inputs  # nobody to agree with: nothing left to do
+            self._converged = alone or bool(
                 lowest >= self._iter_before + 1
                 and cons.ready
                 and all(p.converged() for p in self._pairs.values())
