@@ -75,7 +75,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from decentral.errors import InputError
-from decentral.geometry import project_so2, rot2
+from decentral.geometry import rot2
 from decentral.relaxation import solve_low_rank
 
 __all__ = [
