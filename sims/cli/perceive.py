@@ -121,6 +121,11 @@ def run(args: argparse.Namespace) -> int:
     given = [args.log_template is not None, args.camera is not None, args.log_out is not None]
     if any(given) and not all(given):
         raise InputError("--log-template, --camera and --log-out go together", field="--log-template")
+    from pathlib import Path
+
+    for out in (args.output, args.log_out):  # fail before the work, not half-way through the writes
+        if out is not None and not Path(out).resolve().parent.is_dir():
+            raise InputError("output folder does not exist", source=str(out))
     log = None
     if args.log_template is not None:
         from sims.io.log_json import read_log
