@@ -21,6 +21,8 @@ Wire format, version 1 (all integers little-endian)::
         b"n" none | b"?" bool:u8 | b"i" int:i64 | b"f" float:f64 | b"s" str: u32 length + UTF-8
         b"y" bytes: u32 length + raw | b"a" array: u32 length + .npy bytes (numeric or bool dtypes only)
         b"l" tuple: u32 count + value* | b"m" mapping: u32 count + (str key, value)*
+        b"F" tuple of floats: u32 count + f64* | b"I" tuple of ints: u32 count + i64*  (compact forms
+        the encoder uses for non-empty homogeneous tuples of Python floats / ints)
 
 A message's :attr:`Message.size_bytes` is exactly ``len(message.to_bytes())``. Two messages are equal
 when their wire bytes are equal. Any defect in a buffer (short, bad magic, unknown version or kind,
@@ -47,6 +49,7 @@ stored as read-only copies).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import io
 import math
 import struct
@@ -130,8 +133,15 @@ def as_array(
     return arr
 
 
+_SCALARS = (int, float, str, bool, bytes, type(None))
+
+
 def _freeze(value: Any, field: str) -> Any:
     """Make a field value immutable (arrays read-only copies, mappings read-only, lists tuples)."""
+    if type(value) in _SCALARS:
+        return value
+    if type(value) is tuple and all(type(v) in _SCALARS for v in value):
+        return value
     if isinstance(value, np.ndarray):
         return as_array(value, field)
     if isinstance(value, Mapping):
@@ -139,6 +149,12 @@ def _freeze(value: Any, field: str) -> Any:
     if isinstance(value, (list, tuple)):
         return tuple(_freeze(v, field) for v in value)
     return value
+
+
+@functools.lru_cache(maxsize=None)
+def _payload_names(cls: type) -> tuple[str, ...]:
+    """Kind-specific field names of a message class, in wire order (cached per class)."""
+    return tuple(f.name for f in dataclasses.fields(cls) if f.name not in ("sender", "receiver", "round"))
 
 
 @dataclass(frozen=True, slots=True, eq=False, kw_only=True)
@@ -168,14 +184,14 @@ class Message:
             value = getattr(self, name)
             if not isinstance(value, str) or not value or len(value.encode("utf-8")) > _MAX_NAME:
                 raise ProtocolError(f"field {name!r}: must be a non-empty name of at most 255 bytes")
-        if isinstance(self.round, bool) or not isinstance(self.round, (int, np.integer)):
-            raise ProtocolError(f"field 'round': must be an int, got {type(self.round).__name__}")
-        _set(self, "round", int(self.round))
+        if type(self.round) is not int:
+            if isinstance(self.round, bool) or not isinstance(self.round, (int, np.integer)):
+                raise ProtocolError(f"field 'round': must be an int, got {type(self.round).__name__}")
+            _set(self, "round", int(self.round))
         if not -(2**63) <= self.round < 2**63:
             raise ProtocolError("field 'round': out of the signed 64-bit range")
-        for f in dataclasses.fields(self):
-            if f.name not in ("sender", "receiver", "round"):
-                _set(self, f.name, _freeze(getattr(self, f.name), f.name))
+        for name in _payload_names(type(self)):
+            _set(self, name, _freeze(getattr(self, name), name))
 
     # ------------------------------------------------------------------ encoding
     @property
@@ -185,7 +201,7 @@ class Message:
 
     def payload_fields(self) -> tuple[str, ...]:
         """Names of the kind-specific fields, in wire order."""
-        return tuple(f.name for f in dataclasses.fields(self) if f.name not in ("sender", "receiver", "round"))
+        return _payload_names(type(self))
 
     def to_bytes(self) -> bytes:
         """Encode the message as one wire frame (see the module docstring)."""
@@ -284,9 +300,14 @@ def _enc_value(value: Any, field: str, out: list[bytes]) -> None:
         raw = buf.getvalue()
         out.append(b"a" + struct.pack("<I", len(raw)) + raw)
     elif isinstance(value, tuple):
-        out.append(b"l" + struct.pack("<I", len(value)))
-        for item in value:
-            _enc_value(item, field, out)
+        if value and all(type(v) is float for v in value):
+            out.append(b"F" + _U32.pack(len(value)) + struct.pack(f"<{len(value)}d", *value))
+        elif value and all(type(v) is int for v in value) and all(-(2**63) <= v < 2**63 for v in value):
+            out.append(b"I" + _U32.pack(len(value)) + struct.pack(f"<{len(value)}q", *value))
+        else:
+            out.append(b"l" + _U32.pack(len(value)))
+            for item in value:
+                _enc_value(item, field, out)
     elif isinstance(value, Mapping):
         out.append(b"m" + struct.pack("<I", len(value)))
         for key, item in value.items():
@@ -298,27 +319,38 @@ def _enc_value(value: Any, field: str, out: list[bytes]) -> None:
         raise ProtocolError(f"field {field!r}: values of type {type(value).__name__} cannot go on the wire")
 
 
+_U8, _U16, _U32, _I64, _F64 = (struct.Struct(f) for f in ("<B", "<H", "<I", "<q", "<d"))
+
+
 class _Reader:
     """Bounds-checked cursor over a body; every defect is a ProtocolError."""
 
-    __slots__ = ("data", "pos")
+    __slots__ = ("data", "pos", "end")
 
     def __init__(self, data: bytes):
         self.data = data
         self.pos = 0
+        self.end = len(data)
 
     def take(self, n: int, what: str) -> bytes:
-        if n < 0 or self.pos + n > len(self.data):
+        if n < 0 or self.pos + n > self.end:
             raise ProtocolError(f"truncated body while reading {what}")
         chunk = self.data[self.pos : self.pos + n]
         self.pos += n
         return chunk
 
+    def num(self, st: struct.Struct, what: str):
+        if self.pos + st.size > self.end:
+            raise ProtocolError(f"truncated body while reading {what}")
+        (v,) = st.unpack_from(self.data, self.pos)
+        self.pos += st.size
+        return v
+
     def unpack(self, fmt: str, what: str) -> tuple:
         return struct.unpack(fmt, self.take(struct.calcsize(fmt), what))
 
     def string(self, what: str) -> str:
-        (n,) = self.unpack("<I", what)
+        n = self.num(_U32, what)
         try:
             return self.take(n, what).decode("utf-8")
         except UnicodeDecodeError:
@@ -327,31 +359,40 @@ class _Reader:
     def value(self, field: str, depth: int = 0) -> Any:
         if depth > 16:
             raise ProtocolError(f"field {field!r}: nested too deeply")
-        tag = self.take(1, f"field {field!r}")
+        if self.pos >= self.end:
+            raise ProtocolError(f"truncated body while reading field {field!r}")
+        tag = self.data[self.pos : self.pos + 1]
+        self.pos += 1
+        if tag == b"f":
+            return self.num(_F64, field)
+        if tag == b"i":
+            return self.num(_I64, field)
+        if tag == b"F" or tag == b"I":
+            n = self.num(_U32, field)
+            raw = self.take(8 * n, field)
+            return struct.unpack(f"<{n}{'d' if tag == b'F' else 'q'}", raw)
         if tag == b"n":
             return None
         if tag == b"?":
-            (b,) = self.unpack("<B", field)
+            b = self.num(_U8, field)
             if b > 1:
                 raise ProtocolError(f"field {field!r}: bad bool byte {b}")
             return bool(b)
-        if tag == b"i":
-            return self.unpack("<q", field)[0]
-        if tag == b"f":
-            return self.unpack("<d", field)[0]
         if tag == b"s":
             return self.string(f"field {field!r}")
         if tag == b"y":
-            (n,) = self.unpack("<I", field)
-            return self.take(n, field)
+            return self.take(self.num(_U32, field), field)
         if tag == b"a":
-            (n,) = self.unpack("<I", field)
-            return _load_array(self.take(n, field), field)
+            return _load_array(self.take(self.num(_U32, field), field), field)
         if tag == b"l":
-            (n,) = self.unpack("<I", field)
+            n = self.num(_U32, field)
+            if n > self.end - self.pos:  # every value takes at least one byte
+                raise ProtocolError(f"truncated body while reading field {field!r}")
             return tuple(self.value(field, depth + 1) for _ in range(n))
         if tag == b"m":
-            (n,) = self.unpack("<I", field)
+            n = self.num(_U32, field)
+            if n > self.end - self.pos:
+                raise ProtocolError(f"truncated body while reading field {field!r}")
             out = {}
             for _ in range(n):
                 key = self.string(f"field {field!r} key")
@@ -405,9 +446,9 @@ def decode(data: bytes | bytearray | memoryview) -> Message:
     r = _Reader(body)
     sender = r.string("sender")
     receiver = r.string("receiver")
-    (rnd,) = r.unpack("<q", "round")
-    (count,) = r.unpack("<H", "field count")
-    names = [f.name for f in dataclasses.fields(cls) if f.name not in ("sender", "receiver", "round")]
+    rnd = r.num(_I64, "round")
+    count = r.num(_U16, "field count")
+    names = _payload_names(cls)
     if count != len(names):
         raise ProtocolError(f"{cls.KIND!r} frame has {count} fields, this version expects {len(names)}")
     values = {name: r.value(name) for name in names}

@@ -264,7 +264,7 @@ class SimulatedNetwork(Transport):
             item = heapq.heappop(queue)
             keys = self._keys(item.sender, agent, item.kind)
             size = len(item.frame)
-            self._bump(keys, "in_flight", -1)
+            self._bump(keys, ("in_flight", -1))
             if self.is_down(agent, item.arrival):
                 self._drop(keys, size, "receiver_down")
                 continue
@@ -273,8 +273,7 @@ class SimulatedNetwork(Transport):
             except ProtocolError:
                 self._drop(keys, size, "corrupt")
                 continue
-            self._bump(keys, "delivered", 1)
-            self._bump(keys, "bytes_delivered", size)
+            self._bump(keys, ("delivered", 1), ("bytes_delivered", size))
             out.append(Delivery(message, agent, item.sent_at, item.arrival, size, item.duplicate))
         return out
 
@@ -302,24 +301,25 @@ class SimulatedNetwork(Transport):
     def _keys(self, a: str, b: str, kind: str) -> tuple:
         return (("total", None), ("sender", a), ("receiver", b), ("link", (a, b)), ("kind", kind))
 
-    def _bump(self, keys: tuple, name: str, n: int) -> None:
-        i = _IDX[name]
+    def _bump(self, keys: tuple, *changes: tuple[str, int]) -> None:
+        """Add each ``(counter name, amount)`` of ``changes`` to the rows of every key."""
+        counters = self._counters
+        width = len(_FIELDS)
         for key in keys:
-            row = self._counters.get(key)
+            row = counters.get(key)
             if row is None:
-                row = self._counters[key] = [0] * len(_FIELDS)
-            row[i] += n
+                row = counters[key] = [0] * width
+            for name, n in changes:
+                row[_IDX[name]] += n
 
     def _drop(self, keys: tuple, size: int, reason: str) -> None:
-        self._bump(keys, "dropped", 1)
-        self._bump(keys, "bytes_dropped", size)
+        self._bump(keys, ("dropped", 1), ("bytes_dropped", size))
         self._reasons[reason] = self._reasons.get(reason, 0) + 1
 
     def _send_copy(self, a: str, b: str, kind: str, frame: bytes, now: float) -> None:
         size = len(frame)
         keys = self._keys(a, b, kind)
-        self._bump(keys, "sent", 1)
-        self._bump(keys, "bytes_sent", size)
+        self._bump(keys, ("sent", 1), ("bytes_sent", size))
         if b not in self._queues:
             self._drop(keys, size, "unknown_receiver")
             return
@@ -344,12 +344,12 @@ class SimulatedNetwork(Transport):
         arrival = start + tx + cfg.latency + u_jit * cfg.jitter
         self._enqueue(b, _InFlight(arrival, self._next_seq(), frame, now, a, kind, False), keys)
         if u_dup < cfg.duplicate:
-            self._bump(keys, "duplicated", 1)
+            self._bump(keys, ("duplicated", 1))
             arrival2 = start + tx + cfg.latency + u_jit2 * cfg.jitter
             self._enqueue(b, _InFlight(arrival2, self._next_seq(), frame, now, a, kind, True), keys)
 
     def _enqueue(self, b: str, item: _InFlight, keys: tuple) -> None:
-        self._bump(keys, "in_flight", 1)
+        self._bump(keys, ("in_flight", 1))
         heapq.heappush(self._queues[b], item)
 
     def _next_seq(self) -> int:
