@@ -34,6 +34,7 @@ def write_atomic(path: str | os.PathLike, write: Callable[[Any], None], *, binar
     try:
         with os.fdopen(fd, "wb" if binary else "w", **({} if binary else {"encoding": "utf-8"})) as fh:
             write(fh)
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the file the mode open() would
         os.replace(tmp, target)
     except BaseException:
         try:
@@ -41,6 +42,12 @@ def write_atomic(path: str | os.PathLike, write: Callable[[Any], None], *, binar
         except FileNotFoundError:
             pass
         raise
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
 
 
 def write_json_atomic(path: str | os.PathLike, payload: Any) -> None:
