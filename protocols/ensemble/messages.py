@@ -204,7 +204,8 @@ class Command(Message):
 @dataclass(frozen=True, slots=True, eq=False, kw_only=True)
 class PoseShare(Message):
     """The sender's current pose in its group's frame: centre c (d,) then orientation matrix R (d, d)
-    row-major, as ``d + d^2`` floats (plain floats on the wire: cheaper than two arrays).
+    row-major, as ``d + d^2`` little-endian float64 packed in one ``bytes`` field (the cheapest
+    encoding for the most frequent message; :attr:`position` and :attr:`rotation` unpack it).
 
     ``phase`` is ``boundary`` (exchange across a cut before alignment) or ``refine`` (one local
     refinement iteration, ``iteration``). Without ``seq`` a lost share leaves the receiver with the
@@ -216,14 +217,17 @@ class PoseShare(Message):
     group: int
     phase: str
     iteration: int
-    pose: tuple
+    pose: bytes
     seq: int = -1
 
     def __post_init__(self) -> None:
-        pose = tuple(float(v) for v in np.asarray(self.pose, dtype=np.float64).ravel())
-        if len(pose) not in (6, 12) or not all(np.isfinite(pose)):
-            raise ProtocolError("field 'pose': need 6 (2D) or 12 (3D) finite floats")
-        _set(self, "pose", pose)
+        if isinstance(self.pose, bytes):
+            values = np.frombuffer(self.pose, dtype="<f8") if len(self.pose) % 8 == 0 else np.zeros(0)
+        else:
+            values = np.asarray(self.pose, dtype="<f8").ravel()
+        if values.size not in (6, 12) or not np.all(np.isfinite(values)):
+            raise ProtocolError("field 'pose': need 6 (2D) or 12 (3D) finite float64 values")
+        _set(self, "pose", values.tobytes())
         Message.__post_init__(self)
         for name in ("level", "group", "iteration", "seq"):
             _int(self, name)
@@ -232,18 +236,18 @@ class PoseShare(Message):
     @property
     def dim(self) -> int:
         """2 or 3."""
-        return 2 if len(self.pose) == 6 else 3
+        return 2 if len(self.pose) == 48 else 3
 
     @property
     def position(self) -> np.ndarray:
         """Centre (d,)."""
-        return np.array(self.pose[: self.dim])
+        return np.frombuffer(self.pose, dtype="<f8")[: self.dim].copy()
 
     @property
     def rotation(self) -> np.ndarray:
         """Orientation matrix (d, d), module frame to the group frame."""
         d = self.dim
-        return np.array(self.pose[d:]).reshape(d, d)
+        return np.frombuffer(self.pose, dtype="<f8")[d:].reshape(d, d).copy()
 
 
 @register
