@@ -47,7 +47,8 @@ class EstimatorConfig:
         Factor weights.
     max_yaw_std : float
         Largest Laplace-approximate relative-yaw standard deviation (rad) at which an assembly is
-        still placed; only meaningful with information weights.
+        still placed. Applied with information weights only: with unit weights the cost is not a
+        negative log-likelihood, so only the exact null-space test decides.
     warm_start : bool
         Start each window's solve from the previous window's yaws.
     """
@@ -125,7 +126,8 @@ def solve_window(problem: WindowProblem, reference: tuple[str, int], config: Est
     Q = reduce_rotations(problem.M, problem.m)
     result = solve_relaxation(Q, config.solver, theta0)
     position = recover_positions(problem.M, result.theta, problem.b_z)  # seed 000 eq. (18)
-    placeable, stds = _placeable(problem, Q, result.theta, reference, config.max_yaw_std)
+    limit = config.max_yaw_std if config.noise.weighting == "information" else np.inf
+    placeable, stds = _placeable(problem, Q, result.theta, reference, limit)
     return WindowEstimate(problem, result, result.theta, position, placeable, stds)
 
 
