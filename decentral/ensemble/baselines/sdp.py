@@ -24,6 +24,8 @@ References
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from scipy import sparse
 from scipy.linalg import eigh
@@ -40,11 +42,12 @@ __all__ = ["SDP_MAX_NODES", "sdp_positions", "sdp_localize"]
 SDP_MAX_NODES = 1200
 
 
-def sdp_positions(problem: EnsembleProblem, max_nodes: int | None = None) -> tuple[np.ndarray, dict]:
+def sdp_positions(problem: EnsembleProblem, max_nodes: int | None = None,
+                  time_limit: float | None = None) -> tuple[np.ndarray, dict]:
     """Centres (n, dim) of a connected problem from the regularized SDP, and solver facts.
 
     Raises :class:`SolverError` if the problem exceeds ``max_nodes`` (default
-    :data:`SDP_MAX_NODES`) or the solver fails.
+    :data:`SDP_MAX_NODES`), the solver fails, or it exceeds ``time_limit`` seconds (wall clock).
     """
     import cvxpy as cp
 
@@ -74,7 +77,11 @@ def sdp_positions(problem: EnsembleProblem, max_nodes: int | None = None) -> tup
     prob = cp.Problem(cp.Minimize(scale**2 * cp.sum(w)), [con])
     try:
         # a baseline's starting point needs no more than 1e-5 relative accuracy (about 35 % faster)
-        prob.solve(solver="CLARABEL", verbose=False, tol_gap_abs=1e-5, tol_gap_rel=1e-5, tol_feas=1e-6)
+        limit = {} if time_limit is None else {"time_limit": float(time_limit)}
+        with warnings.catch_warnings():  # an inaccurate solve is reported through the status below
+            warnings.simplefilter("ignore", UserWarning)
+            prob.solve(solver="CLARABEL", verbose=False, tol_gap_abs=1e-5, tol_gap_rel=1e-5, tol_feas=1e-6,
+                       **limit)
     except cp.error.SolverError as err:
         raise SolverError(f"regularized SDP: solver failed ({err})") from None
     if prob.status not in ("optimal", "optimal_inaccurate") or con.dual_value is None:
