@@ -153,9 +153,18 @@ def main(argv=None) -> int:
     ap.add_argument("--budget", type=float, default=1500.0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "ensemble_messages"))
+    ap.add_argument("--merge", help="a previous result JSON of the same parameters whose rows to include")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     rows, skipped, params = run(args.sizes, args.shape, args.gtol, args.budget, args.seed)
+    if args.merge:
+        with open(args.merge, encoding="utf-8") as fh:
+            old = json.load(fh)
+        if {k: v for k, v in old["parameters"].items() if k != "seed"} != {k: v for k, v in params.items() if k != "seed"}:
+            raise SystemExit("--merge: parameters differ")
+        have = {r["requested"] for r in rows}
+        rows = sorted([r for r in old["rows"] if r["requested"] not in have] + rows, key=lambda r: r["n"])
+        skipped = [s for s in old.get("skipped", []) if s["n"] not in have] + skipped
     import scipy
 
     result = {
