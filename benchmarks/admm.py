@@ -77,25 +77,27 @@ def one_run(n: int, steps: int, loss: float, seed: int = 1, max_rounds: int = 60
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="fewer sizes and steps")
+    parser.add_argument("--quick", action="store_true", help="sizes up to 16 only")
+    parser.add_argument("--sizes", type=int, nargs="*", default=None, help="assembly counts (default 2..64)")
+    parser.add_argument("--max-rounds", type=int, default=600, help="round cap per step")
     parser.add_argument("--out", default=str(Path(__file__).resolve().parent / "results" / "admm"))
     args = parser.parse_args(argv)
-    sizes = [2, 4, 8, 16] if args.quick else [2, 4, 8, 16, 32, 64]
+    sizes = args.sizes or ([2, 4, 8, 16] if args.quick else [2, 4, 8, 16, 32, 64])
     losses = [0.0, 0.1, 0.3, 0.5]
     steps_n = 3
     load0 = os.getloadavg()
     t0 = time.perf_counter()
     by_n = []
     for n in sizes:
-        steps = steps_n if n <= 16 else 1
-        r = one_run(n, steps, 0.0)
+        steps = steps_n if n <= 8 else (2 if n <= 16 else 1)
+        r = one_run(n, steps, 0.0, max_rounds=args.max_rounds)
         by_n.append(r)
         print(f"n={n:3d} rounds/step={r['rounds_per_step']} msgs/agent/window={r['messages_per_agent_per_window']:.0f} "
               f"B/agent/s={r['bytes_per_agent_per_second_5hz']:.0f} s/round={r['seconds_per_round']:.3f} "
               f"gap={r['max_position_gap_m'] * 1e3:.3f} mm {r['max_yaw_gap_deg']:.4f} deg", flush=True)
     by_loss = []
     for loss in losses:
-        r = one_run(4, steps_n, loss, max_rounds=1500)
+        r = one_run(4, steps_n, loss, max_rounds=3 * args.max_rounds)
         by_loss.append(r)
         print(f"loss={loss:.1f} rounds/step={r['rounds_per_step']} msgs/agent/window={r['messages_per_agent_per_window']:.0f} "
               f"converged={r['converged_all_steps']} gap={r['max_position_gap_m'] * 1e3:.3f} mm", flush=True)
@@ -107,7 +109,7 @@ def main(argv=None) -> int:
                     "loadavg_start": load0, "loadavg_end": os.getloadavg(),
                     "threads": {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")}},
         "versions": {"numpy": _np.__version__, "scipy": scipy.__version__},
-        "parameters": {"window": 5, "scenario_seed": 1, "steps_per_run": steps_n, "steps_per_run_above_16": 1,
+        "parameters": {"window": 5, "scenario_seed": 1, "steps_per_run": steps_n, "steps_per_run_n16": 2, "steps_per_run_above_16": 1, "max_rounds": args.max_rounds,
                        "round_period_s": 0.01, "frame_rate_hz": 5.0, "defaults": "AdmmRunConfig()"},
         "vs_assemblies": by_n,
         "vs_loss": by_loss,
