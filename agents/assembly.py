@@ -179,6 +179,7 @@ class AssemblyAgent:
         self.counters = {"ignored": 0, "timeouts": 0, "retransmits": 0, "uncertified": 0, "unknown_nodes": 0}
         self._iter = 0  # consensus iterations done
         self._iter_before = 0
+        self._step_rounds = 0
         self._fresh_pairs = True
         self._unknown: set[int] = set()
         self._requested = -(10**9)
@@ -214,6 +215,7 @@ class AssemblyAgent:
         self._consensus.slide(self._steps, self._odometry)
         self._dirty = True
         self._converged = False
+        self._step_rounds = 0
 
     def _announcement(self, receiver: str) -> ConfigAnnounce:
         ids = np.array(sorted(self._own_config), dtype=np.int64)
@@ -375,6 +377,7 @@ class AssemblyAgent:
     def _consensus_phase(self) -> None:
         """Phase 1: the consensus update once every pair's copies of the next iteration are in."""
         cons, cfg = self._consensus, self.config
+        self._step_rounds += 1
         gone = cfg.window + 2 * cfg.patience + 10
         ages, inputs = {}, []
         for target in self._pairs:
@@ -421,7 +424,10 @@ class AssemblyAgent:
                                                    window=self._step, blocks=self._last_primal))
         if due:  # the flag describes the last completed iteration (kept while waiting for the next)
             eps = cfg.admm
-            alone = not self._pairs and not inputs  # nobody to agree with: nothing left to do
+            # nobody to agree with after `patience` rounds of this step and no unnamed detections:
+            # nothing left to do (counting it converged earlier ended lossy steps before discovery)
+            alone = (not self._pairs and not inputs and not self._unknown
+                     and self._step_rounds >= cfg.patience)
             self._converged = alone or bool(
                 lowest >= self._iter_before + 1
                 and cons.ready
