@@ -35,8 +35,12 @@ def bfs_layers(adjacency: sparse.csr_matrix, root: int) -> list[np.ndarray]:
         layers.append(nbr)
 
 
-def place_breadth_first(problem: EnsembleProblem, root: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def place_breadth_first(problem: EnsembleProblem, root: int | None = None,
+                        after_layer=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Place every module reachable from ``root`` (default: a module of highest degree).
+
+    ``after_layer(pos, rot, placed)``, if given, runs after each breadth-first layer is placed and
+    may update ``pos`` and ``rot`` in place (the incremental baseline refines there).
 
     Returns
     -------
@@ -58,6 +62,8 @@ def place_breadth_first(problem: EnsembleProblem, root: int | None = None) -> tu
     placer = LayerPlacer(problem)
     for layer in bfs_layers(A, root)[1:]:
         placer.place(pos, rot, placed, layer)
+        if after_layer is not None:
+            after_layer(pos, rot, placed)
     return pos, rot, placed
 
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from decentral.ensemble.baselines.common import FINAL_REFINE, run_per_component
 from decentral.ensemble.hierarchical import LocalizationResult
-from decentral.ensemble.placement import LayerPlacer, bfs_layers
+from decentral.ensemble.placement import place_breadth_first
 from decentral.ensemble.problem import EnsembleProblem
 from decentral.ensemble.refine import RefineConfig, refine
 
@@ -30,25 +30,15 @@ def incremental_initial(problem: EnsembleProblem, step_refine: RefineConfig = ST
     Returns centres (n, d), orientations (n, d, d) and the refinement iterations charged to each
     module (n,).
     """
-    n, d = problem.n, problem.dim
-    A = problem.adjacency()
-    if root is None:
-        root = int(np.argmax(np.diff(A.indptr))) if n else 0
-    pos = np.zeros((n, d))
-    rot = np.tile(np.eye(d), (n, 1, 1))
-    placed = np.zeros(n, dtype=bool)
-    iters = np.zeros(n)
-    if n == 0:
-        return pos, rot, iters
-    placed[root] = True
-    placer = LayerPlacer(problem)
-    for layer in bfs_layers(A, root)[1:]:
-        placer.place(pos, rot, placed, layer)
+    iters = np.zeros(problem.n)
+
+    def refine_placed(pos, rot, placed):
         nodes = np.flatnonzero(placed)
-        sub = problem.subproblem(nodes)
-        res = refine(sub, pos[nodes], rot[nodes], step_refine)
+        res = refine(problem.subproblem(nodes), pos[nodes], rot[nodes], step_refine)
         pos[nodes], rot[nodes] = res.position, res.rotation
         iters[nodes] += res.iterations
+
+    pos, rot, _ = place_breadth_first(problem, root, after_layer=refine_placed)
     return pos, rot, iters
 
 
