@@ -281,25 +281,16 @@ class RelativeLocalizationEnv(ParallelEnv):
                 "own_pose": sim.own_pose[agent].astype(np.float32)}
 
     def _info(self, agent: str) -> dict:
+        """Errors against truth (evaluation only) and the agent's traffic, for either scenario."""
+        errs = sorted(self._last.errors[agent].items())
         if self.scenario == "assemblies":
-            errs = self._last.errors[agent]
-            pos = {t: e[0] for t, e in sorted(errs.items())}
-            yaw = {t: e[1] for t, e in sorted(errs.items())}
-            sent = self._sim.network.stats().per_sender.get(agent)
-            return {
-                "position_error": pos,
-                "yaw_error": yaw,
-                "mean_position_error": float(np.mean(list(pos.values()))) if pos else None,
-                "mean_yaw_error": float(np.mean(list(yaw.values()))) if yaw else None,
-                "tracked": len(pos),
-                "converged": self._last.converged[agent],
-                "messages_sent": 0 if sent is None else sent.sent,
-                "bytes_sent": 0 if sent is None else sent.bytes_sent,
-                "step": self._last.k,
-            }
-        errs = self._last.errors[agent]
-        pos = {t: e.position for t, e in sorted(errs.items())}
-        yaw = {t: e.yaw for t, e in sorted(errs.items()) if e.yaw is not None}
+            pos = {t: e[0] for t, e in errs}
+            yaw = {t: e[1] for t, e in errs}
+            extra = {"converged": self._last.converged[agent]}
+        else:
+            pos = {t: e.position for t, e in errs}
+            yaw = {t: e.yaw for t, e in errs if e.yaw is not None}
+            extra = {"own_pose_error": self._last.own_pose_error[agent]}
         sent = self._sim.network.stats().per_sender.get(agent)
         return {
             "position_error": pos,
@@ -307,7 +298,7 @@ class RelativeLocalizationEnv(ParallelEnv):
             "mean_position_error": float(np.mean(list(pos.values()))) if pos else None,
             "mean_yaw_error": float(np.mean(list(yaw.values()))) if yaw else None,
             "tracked": len(pos),
-            "own_pose_error": self._last.own_pose_error[agent],
+            **extra,
             "messages_sent": 0 if sent is None else sent.sent,
             "bytes_sent": 0 if sent is None else sent.bytes_sent,
             "step": self._last.k,
