@@ -55,6 +55,8 @@ class StickerLayout:
         if top:
             axes = np.vstack([axes, [0.0, 0.0, 1.0]])
             up = np.vstack([up, [1.0, 0.0, 0.0]])
+        if n_equator and half_angle >= np.pi / n_equator:
+            raise ValueError("stickers around the equator would overlap: half_angle must be < pi / n_equator")
         return cls(axes, up, float(half_angle))
 
 

@@ -11,37 +11,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from agents.perception.sphere_tags import StickerLayout  # the robot model: one layout for painter and reader
+
 __all__ = ["Buffers", "StickerLayout", "DEFAULT_STICKERS", "pixel_rays", "draw_sphere", "draw_cylinder"]
 
-
-
-@dataclass(frozen=True)
-class StickerLayout:
-    """Where the AprilTag stickers sit on a node sphere (node frame).
-
-    ``axes`` (S, 3) are unit normals at the sticker centres, ``up`` (S, 3) the direction the tag's
-    rows run against, ``right`` (S, 3) = up x axis (so (right, up, axis) is right-handed and a tag
-    seen from outside is not mirrored); each sticker spans ``2 half_angle`` rad seen from the centre.
-    """
-
-    axes: np.ndarray
-    up: np.ndarray
-    right: np.ndarray
-    half_angle: float
-
-    @classmethod
-    def around(cls, n_equator: int = 8, half_angle: float = 0.33, top: bool = True) -> "StickerLayout":
-        """``n_equator`` upright stickers evenly around the equator (the first facing +x), and one on top."""
-        phi = 2 * np.pi * np.arange(n_equator) / n_equator
-        axes = np.column_stack([np.cos(phi), np.sin(phi), np.zeros(n_equator)])
-        up = np.tile([0.0, 0.0, 1.0], (n_equator, 1))
-        if top:
-            axes = np.vstack([axes, [0.0, 0.0, 1.0]])
-            up = np.vstack([up, [1.0, 0.0, 0.0]])
-        if n_equator and half_angle >= np.pi / n_equator:
-            raise ValueError("stickers around the equator would overlap: half_angle must be < pi / n_equator")
-        return cls(axes.astype(np.float32), up.astype(np.float32), np.cross(up, axes).astype(np.float32),
-                   float(half_angle))
 
 
 DEFAULT_STICKERS = StickerLayout.around()
@@ -95,11 +68,12 @@ def _sticker(n_node: np.ndarray, tag: np.ndarray, layout: StickerLayout):
     ``s2 = atan2(n . up, n . axis)``, each spanning 8 cells over ``2 half_angle``: the print bends
     with the sphere.
     """
-    dots = n_node @ layout.axes.T
+    axes, up, right = (np.asarray(a, np.float32) for a in (layout.axes, layout.up, layout.right))
+    dots = n_node @ axes.T
     best = np.argmax(dots, axis=1)
     along = dots[np.arange(len(n_node)), best]
-    s1 = np.arctan2(np.einsum("pk,pk->p", n_node, layout.right[best]), along)
-    s2 = np.arctan2(np.einsum("pk,pk->p", n_node, layout.up[best]), along)
+    s1 = np.arctan2(np.einsum("pk,pk->p", n_node, right[best]), along)
+    s2 = np.arctan2(np.einsum("pk,pk->p", n_node, up[best]), along)
     h = layout.half_angle
     inside = (np.abs(s1) < h) & (np.abs(s2) < h)
     col = np.clip(((s1 / h + 1) * 4).astype(int), 0, 7)

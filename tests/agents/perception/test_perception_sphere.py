@@ -108,9 +108,7 @@ def test_sphere_identifier_respects_candidates():
     assert ident.identify(img, [_eq1(C)]) == [None]
 
 
-def test_default_layout_matches_the_renderer():
-    """The default sticker layout is the one sims.render paints (so rendered runs are readable)."""
-    raycast = pytest.importorskip("sims.render.raycast")
-    ours, theirs = StickerLayout.around(), raycast.DEFAULT_STICKERS
-    assert np.allclose(ours.axes, theirs.axes) and np.allclose(ours.up, theirs.up)
-    assert np.isclose(ours.half_angle, theirs.half_angle)
+def test_overlapping_equator_stickers_are_refused():
+    """A layout whose equator stickers would overlap is rejected (the renderer and reader share it)."""
+    with pytest.raises(ValueError):
+        StickerLayout.around(n_equator=8, half_angle=0.5)
