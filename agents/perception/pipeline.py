@@ -26,7 +26,7 @@ MotionSource = Callable[[np.ndarray, Sequence[Circle]], "np.ndarray | None"]
 
 @dataclass(frozen=True)
 class FrameResult:
-    """What perception made of one frame: its detections and the time each stage took (s)."""
+    """What perception made of one frame: its detections and the CPU time each stage took (s)."""
 
     source: str
     detections: tuple[TrackedCircle, ...]
@@ -75,20 +75,24 @@ class Perception:
             reset()
 
     def process(self, image: np.ndarray, *, motion: np.ndarray | None = None) -> tuple[list[TrackedCircle], dict[str, float]]:
-        """Run one frame; ``motion`` (3, 3) overrides the motion source (e.g. from odometry)."""
-        t0 = time.perf_counter()
+        """Run one frame; ``motion`` (3, 3) overrides the motion source (e.g. from odometry).
+
+        Returns the tracked detections and the CPU seconds of each stage (process time: on a shared
+        machine wall time measures the other processes too).
+        """
+        t0 = time.process_time()
         circles = self.detector.detect(image)
-        t1 = time.perf_counter()
+        t1 = time.process_time()
         reads = self.identifier.identify(image, circles)
-        t2 = time.perf_counter()
+        t2 = time.process_time()
         if self.tracker is None:
             out = [TrackedCircle(c, r, r.node if r is not None else None, None) for c, r in zip(circles, reads)]
             return out, {"detect": t1 - t0, "identify": t2 - t1}
         if motion is None and self.motion is not None:
             motion = self.motion(image, circles)
-        t3 = time.perf_counter()
+        t3 = time.process_time()
         out = self.tracker.update(circles, reads, motion=motion)
-        t4 = time.perf_counter()
+        t4 = time.process_time()
         return out, {"detect": t1 - t0, "identify": t2 - t1, "motion": t3 - t2, "track": t4 - t3}
 
 

@@ -16,7 +16,14 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from agents.perception.circle_fit import circle_residuals, fit_circles_algebraic, fit_circles_geometric
+from agents.perception.circle_fit import (
+    circle_residuals,
+    ellipse_circles,
+    fit_circles_algebraic,
+    fit_circles_geometric,
+    fit_ellipses_direct,
+    sampson_distances,
+)
 
 __all__ = ["RefineConfig", "coarse_fit", "refine_circles", "rim_points"]
 
@@ -46,6 +53,14 @@ class RefineConfig:
     outer_frac : float
         On each ray the rim is the outermost local maximum of the radial step that reaches this
         fraction of the ray's strongest step.
+    max_axis_ratio : float
+        Second pass: largest major/minor axis ratio of the ellipse fit (1: circles only).
+    ellipse_gate : float
+        Second pass: rim points within this fraction of the radius (plus ``tol``) of the circle
+        seed the ellipse fit.
+    max_axis_turn_deg : float
+        Second pass: an elongated ellipse is kept only if its major axis points within this angle
+        of the image centre (a sphere's image is elongated radially from the principal point).
     """
 
     rays: int = 64
@@ -59,6 +74,9 @@ class RefineConfig:
     tol_rel: float = 0.01
     max_shift: float = 0.6
     outer_frac: float = 0.1
+    max_axis_ratio: float = 1.5
+    ellipse_gate: float = 0.12
+    max_axis_turn_deg: float = 20.0
 
 
 def rim_points(
@@ -69,6 +87,7 @@ def rim_points(
     *,
     rays: int | None = None,
     samples: int | None = None,
+    candidates: int = 1,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Rim point on each ray of each circle, between ``band[0] * r`` and ``band[1] * r``.
 
@@ -80,12 +99,15 @@ def rim_points(
         Rough circles (u, v, r).
     rays, samples : int, optional
         Override ``cfg.rays`` and ``cfg.samples``.
+    candidates : int
+        With 1, the rim is the outermost qualifying edge of each ray; with C > 1, the C outermost
+        qualifying edges are returned (outermost first) and the fit chooses among them.
 
     Returns
     -------
-    points : ndarray, shape (N, rays, 2)
+    points : ndarray, shape (N, rays, 2), or (N, rays, C, 2)
         Sub-pixel rim point on each ray (rays in increasing angle).
-    strength : ndarray, shape (N, rays)
+    strength : ndarray, shape (N, rays) or (N, rays, C)
         Edge strength (absolute radial derivative) at each rim point; 0 where not valid.
     """
     h, w = image.shape[:2]
@@ -97,19 +119,25 @@ def rim_points(
     rad = circles[:, 2, None] * frac[None, :]  # (N, S)
     step = rad[:, 1] - rad[:, 0]  # (N,)
     cos, sin = np.cos(ang), np.sin(ang)
-    mx = circles[:, 0, None, None] + rad[:, None, :] * cos[None, :, None]  # (N, R, S)
-    my = circles[:, 1, None, None] + rad[:, None, :] * sin[None, :, None]
-    inside = ((mx >= 0) & (mx <= w - 1) & (my >= 0) & (my <= h - 1)).all(axis=2)
+    # sample positions in float32 (what remap takes); a ray lies inside the image iff both its ends do
+    c32, rad32 = circles.astype(np.float32), rad.astype(np.float32)
+    cos32, sin32 = cos.astype(np.float32), sin.astype(np.float32)
+    mx = c32[:, 0, None, None] + rad32[:, None, :] * cos32[None, :, None]  # (N, R, S)
+    my = c32[:, 1, None, None] + rad32[:, None, :] * sin32[None, :, None]
+    ends_x, ends_y = mx[:, :, [0, -1]], my[:, :, [0, -1]]
+    inside = ((ends_x >= 0) & (ends_x <= w - 1) & (ends_y >= 0) & (ends_y <= h - 1)).all(axis=2)
+    img = image if image.dtype == np.float32 else image.astype(np.float32)
+    ch = 1 if img.ndim == 2 else img.shape[2]
     prof = cv2.remap(
-        image if image.dtype == np.float32 else image.astype(np.float32),
-        mx.reshape(n * n_rays, n_samples).astype(np.float32),
-        my.reshape(n * n_rays, n_samples).astype(np.float32),
-        cv2.INTER_LINEAR,
+        img, mx.reshape(n * n_rays, n_samples), my.reshape(n * n_rays, n_samples), cv2.INTER_LINEAR,
         borderMode=cv2.BORDER_REPLICATE,
-    ).reshape(n, n_rays, n_samples, -1)
+    ).reshape(n * n_rays, n_samples * ch)
     # between samples i and i+1; on a colour image the channels' steps add (a grey sphere on a
     # brown floor can have almost no step in brightness on its shaded side)
-    deriv = np.abs(np.diff(prof, axis=2)).sum(axis=3) / step[:, None, None]
+    deriv = cv2.absdiff(prof[:, ch:], prof[:, :-ch])
+    if ch > 1:
+        deriv = cv2.transform(deriv.reshape(n * n_rays, n_samples - 1, ch), np.ones((1, ch), np.float32))
+    deriv = deriv.reshape(n, n_rays, n_samples - 1) / step.astype(np.float32)[:, None, None]
     last = deriv.shape[2] - 1
     # the outermost local maximum with at least ``outer_frac`` of the ray's strongest step: a node's
     # rim is the outermost edge of the node, while its sticker's edges (often stronger) lie inside
@@ -118,18 +146,38 @@ def rim_points(
     lm[..., :-1] &= deriv[..., :-1] > deriv[..., 1:]
     strongest = deriv.max(axis=2, keepdims=True)
     cand = lm & (deriv >= np.maximum(cfg.outer_frac * strongest, cfg.min_step))
-    k = last - np.argmax(cand[..., ::-1], axis=2)
-    k = np.where(cand.any(axis=2), k, np.argmax(deriv, axis=2))
-    peak = np.take_along_axis(deriv, k[..., None], axis=2)[..., 0]
-    ym = np.take_along_axis(deriv, np.clip(k - 1, 0, last)[..., None], axis=2)[..., 0]
-    yp = np.take_along_axis(deriv, np.clip(k + 1, 0, last)[..., None], axis=2)[..., 0]
+    if candidates == 1:
+        k = (last - np.argmax(cand[..., ::-1], axis=2))[..., None]
+        k = np.where(cand.any(axis=2)[..., None], k, np.argmax(deriv, axis=2)[..., None])
+    else:
+        # the ``candidates`` outermost qualifying maxima, outermost first (-1: none)
+        count = np.cumsum(cand[..., ::-1], axis=2)[..., ::-1]  # qualifying maxima at or beyond each sample
+        ks = [np.where((m := cand & (count == j + 1)).any(axis=2), np.argmax(m, axis=2), -1) for j in range(candidates)]
+        k = np.stack(ks, axis=2)
+        k[..., 0] = np.where(k[..., 0] < 0, np.argmax(deriv, axis=2), k[..., 0])
+    kk = np.clip(k, 0, last)
+    peak = np.take_along_axis(deriv, kk, axis=2)
+    ym = np.take_along_axis(deriv, np.clip(kk - 1, 0, last), axis=2)
+    yp = np.take_along_axis(deriv, np.clip(kk + 1, 0, last), axis=2)
     denom = ym - 2.0 * peak + yp
-    interior = (k > 0) & (k < last) & (denom < 0)
+    interior = (kk > 0) & (kk < last) & (denom < 0)
     off = np.where(interior, 0.5 * (ym - yp) / np.where(interior, denom, -1.0), 0.0)
-    dist = rad[:, :1] + (k + 0.5 + np.clip(off, -0.5, 0.5)) * step[:, None]  # (N, R)
-    pts = np.stack([circles[:, 0, None] + dist * cos, circles[:, 1, None] + dist * sin], axis=2)
-    valid = inside & (peak >= cfg.min_step)
-    return pts, np.where(valid, peak, 0.0)
+    dist = rad[:, :1, None] + (kk + 0.5 + np.clip(off, -0.5, 0.5)) * step[:, None, None]  # (N, R, C)
+    pts = np.stack([circles[:, 0, None, None] + dist * cos[None, :, None],
+                    circles[:, 1, None, None] + dist * sin[None, :, None]], axis=3)
+    valid = inside[..., None] & (peak >= cfg.min_step) & (k >= 0)
+    strength = np.where(valid, peak, 0.0)
+    if candidates == 1:
+        return pts[:, :, 0], strength[:, :, 0]
+    return pts, strength
+
+
+def _nearest(pts: np.ndarray, strength: np.ndarray, circles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per ray, the candidate (of (N, R, C)) nearest to each circle (N, 3): points (N, R, 2), strength (N, R)."""
+    d = pts - circles[:, None, None, :2]
+    res = np.abs(np.hypot(d[..., 0], d[..., 1]) - circles[:, None, None, 2])
+    j = np.argmin(np.where(strength > 0, res, np.inf), axis=2)[..., None]
+    return np.take_along_axis(pts, j[..., None], axis=2)[:, :, 0], np.take_along_axis(strength, j, axis=2)[..., 0]
 
 
 def _robust_fit(pts: np.ndarray, strength: np.ndarray, start: np.ndarray, gates: list[np.ndarray]):
@@ -171,6 +219,14 @@ def refine_circles(image: np.ndarray, rough: np.ndarray, cfg: RefineConfig) -> t
     """Refine circles on ``image`` ((H, W) float32, lightly smoothed): a narrow band around each
     (already roughly right) circle, gated algebraic fits, then geometric steps on the inliers.
 
+    A sphere off the optical axis images as an ellipse (axis ratio about ``1 / cos`` of the
+    off-axis angle: 1.17 at 31 deg), whose rim strays from any circle by more than the inlier
+    tolerance once the node is large; a circle fitted with a tight gate then holds to part of the
+    rim and comes out too large or too small. So an ellipse is also fitted (direct least squares on
+    the rim points near the circle, then re-gated on Sampson distances); where it explains more
+    rays than the circle, the circle returned is the ellipse's centre and equal-area radius
+    ``sqrt(a b)`` (the convention of a silhouette circle).
+
     Parameters
     ----------
     rough : ndarray, shape (N, 3)
@@ -181,7 +237,8 @@ def refine_circles(image: np.ndarray, rough: np.ndarray, cfg: RefineConfig) -> t
     circles : ndarray, shape (N, 3)
         Refined (u, v, r).
     scores : ndarray, shape (N,)
-        Fraction of all rays whose rim point lies within the final tolerance of the circle.
+        Fraction of all rays whose rim point lies within the final tolerance of the circle (of the
+        ellipse, where that was kept).
     ok : ndarray of bool, shape (N,)
         False where no consistent rim was found (fewer than 5 inliers, a degenerate fit, or a
         centre that moved more than a quarter radius).
@@ -190,14 +247,41 @@ def refine_circles(image: np.ndarray, rough: np.ndarray, cfg: RefineConfig) -> t
     if len(rough) == 0:
         return rough.copy(), np.zeros(0), np.zeros(0, dtype=bool)
     pts, strength = rim_points(image, rough, cfg.fine_band, cfg)
-    tol = cfg.tol + cfg.tol_rel * rough[:, 2]
-    circles, ok = _robust_fit(pts, strength, rough, [0.06 * rough[:, 2] + cfg.tol, 2.0 * tol, tol, tol])
+    r0 = rough[:, 2]
+    tol = cfg.tol + cfg.tol_rel * r0
+    circles, ok = _robust_fit(pts, strength, rough, [0.06 * r0 + cfg.tol, 2.0 * tol, tol, tol])
     valid = strength > 0
     inl = valid & (np.abs(circle_residuals(pts, circles)) < tol[:, None])
     circles = fit_circles_geometric(pts, np.where(inl, strength * strength, 0.0), circles)
     inl = valid & (np.abs(circle_residuals(pts, circles)) < tol[:, None])
+    if cfg.max_axis_ratio > 1.0:
+        h, w = image.shape[:2]
+        circles, inl = _ellipse_stage(pts, strength, circles, inl, tol, cfg, ((w - 1) / 2.0, (h - 1) / 2.0))
     shift = np.hypot(circles[:, 0] - rough[:, 0], circles[:, 1] - rough[:, 1])
-    ok &= (inl.sum(axis=1) >= 5) & (shift <= 0.25 * rough[:, 2]) & (circles[:, 2] > 0)
+    ok &= (inl.sum(axis=1) >= 5) & (shift <= 0.25 * r0) & (circles[:, 2] > 0)
     ok &= np.all(np.isfinite(circles), axis=1)
     scores = np.where(ok, inl.sum(axis=1) / cfg.rays, 0.0)
     return circles, scores, ok
+
+
+def _ellipse_stage(pts, strength, circles, inl, tol, cfg: RefineConfig, image_centre):
+    """Replace circles by ellipse centres / equal-area radii where an ellipse fits more rays."""
+    valid = strength > 0
+    w2 = strength * strength
+    centre, scale = circles[:, :2].copy(), np.maximum(circles[:, 2], 1.0)
+    near = valid & (np.abs(circle_residuals(pts, circles)) < (cfg.ellipse_gate * scale + tol)[:, None])
+    conics, eok = fit_ellipses_direct(pts, np.where(near, w2, 0.0), centre, scale)
+    for gate in (2.0 * tol, tol):
+        einl = valid & (sampson_distances(pts, conics, centre, scale) < gate[:, None])
+        again, aok = fit_ellipses_direct(pts, np.where(einl, w2, 0.0), centre, scale)
+        conics, eok = np.where(aok[:, None], again, conics), eok & aok
+    ec, ratio, major, cok = ellipse_circles(conics, centre, scale)
+    einl = valid & (sampson_distances(pts, conics, centre, scale) < tol[:, None])
+    moved = np.hypot(ec[:, 0] - circles[:, 0], ec[:, 1] - circles[:, 1])
+    # a sphere's ellipse points its major axis at the principal point (taken as the image centre)
+    radial = ec[:, :2] - np.asarray(image_centre, dtype=float)[None]
+    radial /= np.maximum(np.hypot(radial[:, 0], radial[:, 1]), 1e-9)[:, None]
+    aligned = (ratio <= 1.03) | (np.abs(np.einsum("ni,ni->n", major, radial)) >= np.cos(np.radians(cfg.max_axis_turn_deg)))
+    better = (eok & cok & (ratio <= cfg.max_axis_ratio) & aligned & (einl.sum(axis=1) > inl.sum(axis=1))
+              & (moved <= 0.2 * scale) & (np.abs(ec[:, 2] / scale - 1.0) <= 0.2))
+    return np.where(better[:, None], ec, circles), np.where(better[:, None], einl, inl)

@@ -141,6 +141,21 @@ class SphereTagReader:
         self._yaws = yaw
         self._Rz = np.zeros((len(yaw), 3, 3))
         self._Rz[:, 0, 0], self._Rz[:, 0, 1], self._Rz[:, 1, 0], self._Rz[:, 1, 1], self._Rz[:, 2, 2] = cy, -sy, sy, cy, 1.0
+        # the print's cell normals, sticker axes and corner normals for every yaw, in the observer's
+        # root frame (node frames are horizontal): per read only the camera rotation is applied
+        self._cells_root = np.einsum("yij,scj->ysci", self._Rz, self._normals.reshape(len(axes), n * n, 3))
+        self._axes_root = np.einsum("yij,sj->ysi", self._Rz, axes)  # (Y, S, 3)
+        self._corners_root = np.einsum("yij,scj->ysci", self._Rz, self._corner_normals)  # (Y, S, 4, 3)
+        self._view_key: tuple | None = None
+        self._view = np.zeros((0,), np.float32)
+
+    def _view_cells(self, K: np.ndarray, R_cam: np.ndarray) -> np.ndarray:
+        """``n_root^T R_cam K^T`` for every yaw, sticker and cell, (Y, S, n*n, 3) float32 (cached per view)."""
+        key = (K.tobytes(), R_cam.tobytes())
+        if self._view_key != key:
+            self._view_key = key
+            self._view = (self._cells_root @ (R_cam @ K.T)).astype(np.float32)
+        return self._view
 
     def node_of(self, tag: int) -> int | None:
         table = self.config.tag_table
@@ -174,24 +189,25 @@ class SphereTagReader:
         """
         cfg = self.config
         K = np.asarray(K, dtype=float)
+        R_cam = np.asarray(R_cam, dtype=float)
         f = K[0, 0]
         centre = np.linalg.solve(K, [circle.u, circle.v, 1.0]) * (f * node_radius / circle.r)  # seed 000 eq. (1)
         view = -centre / np.linalg.norm(centre)
-        # node-frame -> camera rotation for each yaw: R_cam^T Rz(yaw)
-        Rnc = np.einsum("ji,yjk->yik", R_cam, self._Rz)  # (Y, 3, 3)
-        axes_c = np.einsum("yij,sj->ysi", Rnc, self.config.layout.axes)  # (Y, S, 3)
-        facing = axes_c @ view >= cfg.min_facing  # (Y, S)
+        # a sticker faces the camera when its axis (root frame) points along the view (root frame)
+        facing = self._axes_root @ (R_cam @ view) >= cfg.min_facing  # (Y, S)
         ys, ss = np.nonzero(facing)
         if len(ys) == 0:
             return None
         m, n = len(ys), self._cells
-        normals = np.matmul(self._normals[ss].reshape(m, n * n, 3), Rnc[ys].transpose(0, 2, 1))  # (M, n*n, 3)
-        pts = centre + node_radius * normals.reshape(m, n, n, 3)
-        proj = pts @ K.T
-        u = proj[..., 0] / proj[..., 2]
-        v = proj[..., 1] / proj[..., 2]
-        vals = cv2.remap(grey, u.reshape(m * n, n).astype(np.float32), v.reshape(m * n, n).astype(np.float32),
-                         cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(m, n, n)
+        # image of centre + r0 n_c with n_c = R_cam^T n_root: K centre + r0 n_root^T (R_cam K^T); the
+        # second term depends on the camera only, so it is computed once per view
+        proj = self._view_cells(K, R_cam)[ys, ss]  # (M, n*n, 3)
+        kc = (K @ centre).astype(np.float32)
+        r0 = np.float32(node_radius)
+        uv = proj[..., :2] * r0 + kc[:2]
+        uv /= (proj[..., 2] * r0 + kc[2])[..., None]
+        vals = cv2.remap(grey, uv.reshape(m * n, n, 2), None, cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_REPLICATE).reshape(m, n, n)
         data = vals[:, 1:-1, 1:-1].reshape(m, -1)
         x = data - data.mean(axis=1, keepdims=True)
         norm = np.linalg.norm(x, axis=1, keepdims=True)
@@ -219,8 +235,7 @@ class SphereTagReader:
         max_h, min_m = (cfg.max_hamming, cfg.min_margin) if candidates is not None else (cfg.open_max_hamming, cfg.open_min_margin)
         if hamming > max_h or margin < min_m:
             return None
-        cn = np.einsum("ij,kj->ki", Rnc[ys[hi]], self._corner_normals[ss[hi]])
-        cp = (centre + node_radius * cn) @ K.T
+        cp = (K @ centre) + node_radius * (self._corners_root[ys[hi], ss[hi]] @ (R_cam @ K.T))
         corners = cp[:, :2] / cp[:, 2:]
         return SphereTagRead(tag, self.node_of(tag), hamming, margin, float(self._yaws[ys[hi]]), int(ss[hi]), corners)
 
@@ -248,17 +263,18 @@ class SphereTagIdentifier:
 
     def identify(self, image: np.ndarray, circles) -> list:
         """One :class:`~agents.perception.types.TagRead` (or None) per circle."""
-        from agents.perception.hough import to_grey
-        from agents.perception.sphere import eq1_circle
+        from agents.perception.hough import _blur_float, to_grey
+        from agents.perception.sphere import eq1_circles
         from agents.perception.types import TagRead
 
         if self.R_cam is None:
             raise ValueError("set_view() must be called before identify()")
-        grey = to_grey(np.asarray(image)).astype(np.float32)
-        if self.blur > 0:
-            grey = cv2.GaussianBlur(grey, (0, 0), self.blur)
+        if len(circles) == 0:
+            return []
+        grey = _blur_float(to_grey(np.asarray(image)), self.blur)
+        eq1, _ = eq1_circles(np.array([[c.u, c.v, c.r] for c in circles], dtype=float), self.K)
         out = []
-        for c in circles:
-            r = self.reader.read(grey, eq1_circle(c, self.K), self.K, self.R_cam, self.node_radius, self.candidates)
+        for c, e in zip(circles, eq1):
+            r = self.reader.read(grey, Circle(*map(float, e), c.score), self.K, self.R_cam, self.node_radius, self.candidates)
             out.append(None if r is None else TagRead(r.tag, r.node, r.corners, r.hamming, r.margin, 1.0))
         return out

@@ -31,9 +31,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--tag-table", metavar="TABLE.json", help='JSON object tag id -> node id (default: node id = tag id)')
     parser.add_argument("--min-radius", type=float, default=8.0, help="smallest node radius in pixels (default 8)")
     parser.add_argument("--max-radius", type=float, default=160.0, help="largest node radius in pixels (default 160)")
-    parser.add_argument("--motion", choices=("flow", "odometry", "none"), default="flow",
-                        help="camera-motion compensation for tracking: image registration (default), the "
-                             "observer's odometry from --log-template, or none")
+    parser.add_argument("--motion", choices=("auto", "flow", "odometry", "none"), default="auto",
+                        help="camera-motion compensation for tracking: auto (default: the observer's "
+                             "odometry when --log-template has it, else image registration), flow (image "
+                             "registration), odometry (from --log-template), or none")
     parser.add_argument("--log-template", metavar="LOG.json", help="a decentral.log/1 whose detections to fill")
     parser.add_argument("--camera", metavar="ASSEMBLY/CAMERA", help="the camera of the frames in --log-template")
     parser.add_argument("--log-out", metavar="LOG_OUT.json", help="where to write the filled decentral.log/1")
@@ -84,7 +85,7 @@ def perceive_paths(
     tag_table: dict[int, int] | None = None,
     min_radius: float = 8.0,
     max_radius: float = 160.0,
-    motion: str = "flow",
+    motion: str = "auto",
     log=None,
     camera: str | None = None,
 ):
@@ -107,7 +108,7 @@ def perceive_paths(
     if log is None:
         if motion == "odometry":
             raise InputError("--motion odometry needs --log-template and --camera", field="--motion")
-        perception = Perception(detector, identifier, track=track, motion="flow" if motion == "flow" else None)
+        perception = Perception(detector, identifier, track=track, motion="flow" if motion in ("flow", "auto") else None)
         return to_records(perceive_frames(iter_frames(list(paths)), perception))
     from sims.experiments.perception_run import perceive_with_log
 

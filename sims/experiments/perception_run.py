@@ -36,16 +36,17 @@ def perceive_with_log(
     family: str = "tag36h11",
     tag_table: dict[int, int] | None = None,
     track: bool = True,
-    motion: str = "flow",
+    motion: str = "auto",
     min_radius: float = 8.0,
     max_radius: float = 160.0,
     layout=None,
 ) -> PerceivedCamera:
     """Run perception over ``(name, image)`` pairs, frame k being step k of ``log`` seen by ``camera``.
 
-    ``motion`` is ``"flow"`` (image registration), ``"odometry"`` (the observer's yaw odometry) or
-    ``"none"``; ``layout`` the :class:`~agents.perception.sphere_tags.StickerLayout` (default: the
-    renderer's).
+    ``motion`` is ``"flow"`` (image registration), ``"odometry"`` (the observer's yaw odometry),
+    ``"auto"`` (odometry when the log has any for the camera's assembly, else flow: odometry is
+    free, registration costs about 2 ms per frame) or ``"none"``; ``layout`` the
+    :class:`~agents.perception.sphere_tags.StickerLayout` (default: the renderer's).
     """
     from agents.perception import HoughCircleDetector, HoughConfig, Perception
     from agents.perception.motion import odometry_homography
@@ -55,6 +56,8 @@ def perceive_with_log(
     if camera not in log.cameras:
         raise InputError(f"camera {camera!r} is not declared in the log", field="--camera")
     cam = log.cameras[camera]
+    if motion == "auto":
+        motion = "odometry" if any(cam.assembly in step.odometry for step in log.steps[1:]) else "flow"
     detector = HoughCircleDetector(HoughConfig(min_radius=int(np.floor(min_radius)), max_radius=int(np.ceil(max_radius))))
     cfg = SphereTagConfig(layout=layout or StickerLayout.around(), family=family, tag_table=tag_table)
     identifier = SphereTagIdentifier(cam.K, log.node_radius, cfg)
