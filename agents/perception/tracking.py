@@ -12,7 +12,8 @@ Ids are votes: a track's node id is the node its tag reads named most often; a r
 the current id adds a vote but flips the id only once it strictly outnumbers it, and a track with at
 least ``confident_votes`` reads for its id is never matched to a detection reading another tag. A
 track carries its id through tag drop-outs while it is followed; once it has been lost (no
-detection) for more than ``reverify_after`` frames and is found again, it shows its id only after a
+detection) for more than ``reverify_after`` frames and is found again, or is matched to a detection
+that barely overlaps its prediction, it shows its id only after a
 fresh read agrees, and while lost it waits where it was last seen. Two tracks never show the same node id in one frame: the one
 with more votes for it keeps it.
 
@@ -68,6 +69,9 @@ class TrackerConfig:
     reverify_after : int
         A track found again after more than this many frames without a detection shows its id
         only after a fresh tag read agrees.
+    verify_iou : float
+        The same holds for a track whose detection overlaps its predicted circle by less than this
+        IoU (plain circles): it may have jumped to a neighbouring node of the same size.
     kalman : KalmanConfig
         Noise model of the circle Kalman filter.
     """
@@ -84,6 +88,7 @@ class TrackerConfig:
     max_lost: int = 30
     confident_votes: int = 3
     reverify_after: int = 3
+    verify_iou: float = 0.4
     kalman: KalmanConfig = field(default_factory=KalmanConfig)
 
 
@@ -211,10 +216,13 @@ class CircleTracker:
 
         updated = set()
         for j, t in owner.items():
+            # overlap of the plain (not enlarged) circles: a track that only reached its detection
+            # through the buffer may have jumped to a neighbouring node
+            close = float(circle_iou(t.circle[None], dets[j][None])[0, 0]) >= cfg.verify_iou
             t.mean, t.cov = self.kf.update(t.mean, t.cov, dets[j])
             t.hits += 1
-            if t.lost > cfg.reverify_after:
-                t.verified = False  # re-found after a long gap: its id needs a fresh tag read
+            if t.lost > cfg.reverify_after or not close:
+                t.verified = False  # re-found after a long gap or a jump: its id needs a fresh tag read
             t.lost = 0
             if t.hits >= cfg.confirm_hits:
                 t.confirmed = True
@@ -234,7 +242,7 @@ class CircleTracker:
                 survivors.append(t)
         self.tracks = survivors
         for j in range(len(dets)):
-            if j in owner or scores[j] < cfg.new_track_score:
+            if j in owner or scores[j] < cfg.new_track_score or self._inside_known(dets[j], owner, j):
                 continue
             mean, cov = self.kf.initiate(dets[j])
             t = Track(self._next_id, mean, cov, confirmed=first_frame)
@@ -245,6 +253,23 @@ class CircleTracker:
             owner[j] = t
         self._retire_duplicates(owner)
         return self._outputs(circles, reads, owner)
+
+    def _inside_known(self, det: np.ndarray, owner: dict[int, Track], j: int) -> bool:
+        """Whether an unmatched detection sits inside a node already known (it must not start a track).
+
+        A circle whose centre lies within a confirmed track's circle (or within a circle matched in
+        this frame) while being clearly smaller is the outline of a sticker or another edge inside
+        that node: nodes share one physical size, and a farther node's centre cannot show through a
+        nearer one. Such one-frame detections used to start short-lived tracks (most of the
+        track-number switches on rendered table1 frames).
+        """
+        cfg = self.config
+        known = [t.circle for t in self.tracks if t.confirmed and id(t) not in {id(o) for o in owner.values()}]
+        known += [t.circle for i, t in owner.items() if i != j]
+        for c in known:
+            if np.hypot(det[0] - c[0], det[1] - c[1]) < c[2] and det[2] < cfg.radius_ratio * c[2]:
+                return True
+        return False
 
     def _retire_duplicates(self, owner: dict[int, Track]) -> None:
         """Drop lost tracks whose confident node id now belongs to a track seen in this frame."""
@@ -268,5 +293,6 @@ class CircleTracker:
             elif t is None and r is not None and r.node is not None and r.node not in claim:
                 node = r.node
                 claim[node] = (0, j)
-            out.append(TrackedCircle(c, r, node, t.track_id if t is not None else None))
+            # as in BoT-SORT, a track's number is shown once it is confirmed (a one-frame detection never shows one)
+            out.append(TrackedCircle(c, r, node, t.track_id if t is not None and t.confirmed else None))
         return out
