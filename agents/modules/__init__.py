@@ -1,5 +1,6 @@
 """agents.modules: one agent per module of an ensemble (seed 003 §V distributed localization)."""
 
 from agents.modules.agent import LevelState, ModuleAgent, ModuleConfig
+from agents.modules.batched import BatchedRefinement
 
-__all__ = ["LevelState", "ModuleAgent", "ModuleConfig"]
+__all__ = ["BatchedRefinement", "LevelState", "ModuleAgent", "ModuleConfig"]

@@ -166,6 +166,7 @@ class ModuleAgent:
         self.round = 0
         self.outbox: list[Message] = []
         self.sent = Counter()  # messages sent per phase
+        self.share_rounds = 0  # refinement iterations in which this module sent its pose (a local broadcast each)
         self._seq = 0
         self._pending: dict[tuple[int, int], list] = {}
         self._seen: set[tuple[int, int]] = set()
@@ -548,6 +549,8 @@ class ModuleAgent:
         if st is None or not st.active:
             return
         pose = self._pose()
+        if st.nbrs:
+            self.share_rounds += 1
         for j in st.nbrs:
             self._send(PoseShare, j, "refine", level=level, group=st.group, phase="refine",
                        iteration=st.iteration, pose=pose)

@@ -11,6 +11,12 @@ that has something to do hands over its outbox, the network moves the messages, 
 handlers see its own deliveries. A phase ends when no message is in flight and no agent waits for an
 acknowledgement (the simulator's termination detection). Every message is counted by phase and by
 sending module; the counts are checked against the network's own counters.
+
+On a lossless network the refinement (about 90 % of the messages) runs by default through
+:class:`agents.modules.BatchedRefinement`: the same handlers in lockstep over arrays, the same
+messages handed to the network in one batched call per round and kind (exact counts, sizes and
+rounds; tested against the per-message path). ``batched=False``, or any loss, keeps every message
+on the per-message path.
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from agents.modules.agent import ModuleAgent, ModuleConfig
+from agents.modules.batched import BatchedRefinement
 from decentral.ensemble import EnsembleEstimate, EnsembleProblem, HierarchyConfig
 from decentral.ensemble.hierarchical import layout_components
 from decentral.ensemble.model import residuals_from_matrices
@@ -55,6 +62,9 @@ class DistributedConfig:
         iterations converge linearly, so the default is looser than the centralized final 1e-6.
     max_rounds : int
         Safety cap on the rounds of one phase (a protocol that does not settle raises).
+    batched : bool
+        Run the refinement through :class:`agents.modules.BatchedRefinement` when the network is
+        lossless (same messages, counts and answer; about two orders of magnitude faster).
     """
 
     hierarchy: HierarchyConfig = HierarchyConfig()
@@ -66,6 +76,7 @@ class DistributedConfig:
     momentum: float = 0.9
     top_gtol: float = 1e-4
     max_rounds: int = 100_000
+    batched: bool = True
 
 
 @dataclass(frozen=True)
@@ -182,12 +193,18 @@ def run_distributed(problem: EnsembleProblem, rng: np.random.Generator,
         level += 1
     depth = level
     iterations = {}
+    t_refine = 0.0
     for lv in range(depth - 1, -1, -1):
         members = [k for k, a in enumerate(agents) if lv + 1 in a.levels and not a.levels[lv].leaf]
         if not members:
             continue
         drv.phase(lambda a: a.begin_boundary(lv), members)
         drv.phase(lambda a: a.begin_align(lv), members)
+        if config.batched and config.loss == 0:
+            t1 = time.perf_counter()
+            iterations[lv], drv.round = BatchedRefinement(agents, members, lv, net, config.check_every).run(drv.round)
+            t_refine += time.perf_counter() - t1
+            continue
         for k in members:
             agents[k].begin_refine(lv)
         it = 0
@@ -234,6 +251,9 @@ def run_distributed(problem: EnsembleProblem, rng: np.random.Generator,
         rounds=drv.round,
         levels=depth,
         network={"total": stats.total.as_dict(), "drop_reasons": dict(stats.drop_reasons)},
-        info={"seconds": time.perf_counter() - t0, "refine_iterations": iterations,
+        info={"seconds": time.perf_counter() - t0, "seconds_batched_refinement": t_refine,
+              "refine_iterations": iterations,
+              "refine_share_rounds": int(sum(a.share_rounds for a in agents)),
+              "batched": bool(config.batched and config.loss == 0),
               "notes": [e for a in agents for e in a.events]},
     )

@@ -84,3 +84,30 @@ def test_same_seed_same_messages(problem, exact_run):
     again = run_distributed(problem, np.random.default_rng(0), DistributedConfig(hierarchy=EXACT, top_gtol=1e-6))
     assert np.array_equal(again.messages, exact_run.messages)
     assert np.array_equal(again.estimate.position, exact_run.estimate.position)
+
+
+def test_batched_refinement_counts_what_the_per_message_path_counts(problem, exact_run):
+    """The batched refinement sends, per module and phase, exactly the per-message path's messages,
+    in the same rounds, with the same bytes, and reaches the same estimate."""
+    assert exact_run.info["batched"]
+    slow = run_distributed(problem, np.random.default_rng(0),
+                           DistributedConfig(hierarchy=EXACT, top_gtol=1e-6, batched=False))
+    assert not slow.info["batched"]
+    assert np.array_equal(slow.messages, exact_run.messages)
+    assert np.array_equal(slow.phase_messages, exact_run.phase_messages)
+    assert slow.network == exact_run.network
+    assert slow.rounds == exact_run.rounds
+    assert slow.info["refine_iterations"] == exact_run.info["refine_iterations"]
+    assert slow.info["refine_share_rounds"] == exact_run.info["refine_share_rounds"]
+    assert np.allclose(slow.estimate.position, exact_run.estimate.position, rtol=0, atol=1e-12)
+
+
+def test_batched_refinement_matches_on_abstracted_groups(problem):
+    """With graph abstraction and the benchmark's loose tolerances the two paths still agree exactly."""
+    cfg = dict(hierarchy=ABSTRACT, top_gtol=1e-2, check_every=5)
+    fast = run_distributed(problem, np.random.default_rng(3), DistributedConfig(**cfg))
+    slow = run_distributed(problem, np.random.default_rng(3), DistributedConfig(**cfg, batched=False))
+    assert np.array_equal(slow.messages, fast.messages)
+    assert slow.network == fast.network and slow.rounds == fast.rounds
+    assert np.allclose(slow.estimate.position, fast.estimate.position, rtol=0, atol=1e-12)
+
