@@ -8,13 +8,21 @@ Each level's refinement stops at the same gradient tolerance (seed 003 §VI-B: "
 a fixed level of accuracy, as measured by the norm of the gradient"), ``--gtol`` module radii on
 the largest entry. The centralized Algorithm 1 on the same input is timed as the reference.
 
+The refinement (about 90 % of the messages) runs through the batched path
+(:class:`agents.modules.BatchedRefinement`: the same messages, bytes and rounds as the per-message
+path, tested equal); every other phase sends message objects one by one. Besides the 2D sweep, the
+seed's Fig. 12 table is reproduced on 3D cubic lattices of 5 x 5 x 5 and 10 x 10 x 10 modules.
+
 Usage::
 
     OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python benchmarks/ensemble_messages.py \\
-        [--sizes 125 250 500 1000 2000] [--gtol 0.01] [--shape triple] [--budget 1500]
+        [--sizes 250 500 1000 2000 4000 8000 20000] [--gtol 0.01] [--shape triple] [--budget 5400]
+        [--cubes 5 10] [--merge PREVIOUS.json]
 
-``--budget`` (seconds) stops the sweep before a size whose predicted run time (from the previous
-size's time per message) would exceed what is left; skipped sizes are listed in the JSON.
+Each size's ensemble is generated from ``default_rng([seed, N])``, so a size gives the same
+ensemble whatever else is in the sweep, and ``--merge`` can add sizes to an earlier result. The JSON
+is rewritten after every size. ``--budget`` (seconds) stops the sweep before a size whose predicted
+run time (the previous size's time scaled by N) would exceed what is left; skipped sizes are listed.
 """
 
 from __future__ import annotations
@@ -52,57 +60,118 @@ def fit_log(n: np.ndarray, y: np.ndarray) -> dict:
     return {"a": float(a), "b": float(b), "r2": 1.0 - ss_res / ss_tot if ss_tot > 0 else 1.0, "log": "natural"}
 
 
-def run(sizes, shape, gtol, budget, seed):
+def _distributed_row(prob, cfg, seed, central=None) -> dict:
+    load0 = os.getloadavg()
+    t0, c0 = time.perf_counter(), time.process_time()
+    res = run_distributed(prob, np.random.default_rng(seed), cfg)
+    t_dist, c_dist = time.perf_counter() - t0, time.process_time() - c0
+    total = int(res.messages.sum())
+    phases = dict(zip(res.phase_names, (int(v) for v in res.phase_messages)))
+    row = {
+        "n": prob.n,
+        "dim": prob.dim,
+        "edges": int(prob.num_observations),
+        "mean_degree": prob.num_observations / prob.n,
+        "levels": res.levels,
+        "messages_total": total,
+        "messages_per_module": total / prob.n,
+        "messages_per_module_median": float(np.median(res.messages)),
+        "messages_per_module_max": int(res.messages.max()),
+        "phase_messages": phases,
+        "phase_share": {k: v / total for k, v in phases.items()},
+        # a refinement iteration counted as one local broadcast per module instead of one message per neighbour
+        "refine_share_rounds_per_module": res.info["refine_share_rounds"] / prob.n,
+        "refine_iterations_per_level": {str(k2): v for k2, v in res.info["refine_iterations"].items()},
+        "rounds": res.rounds,
+        "bytes_sent": res.network["total"]["bytes_sent"],
+        "batched_refinement": res.info["batched"],
+        "seconds_distributed": t_dist,
+        "cpu_seconds_distributed": c_dist,
+        "seconds_batched_refinement": res.info["seconds_batched_refinement"],
+        "cost_distributed": res.cost,
+        "loadavg_before": load0,
+        "loadavg_after": os.getloadavg(),
+    }
+    if central is not None:
+        row.update(central)
+        row["ratio_distributed_to_centralized_time"] = t_dist / max(central["seconds_centralized"], 1e-9)
+    return row
+
+
+def _config(gtol: float) -> DistributedConfig:
     hier = HierarchyConfig(level_refine=RefineConfig(max_iter=100, gtol=gtol))
-    cfg = DistributedConfig(hierarchy=hier, top_gtol=gtol, check_every=5)
+    return DistributedConfig(hierarchy=hier, top_gtol=gtol, check_every=5)
+
+
+def run(sizes, shape, gtol, budget, seed, save=None):
+    cfg = _config(gtol)
+    hier = cfg.hierarchy
     rows, skipped = [], []
     t_start = time.perf_counter()
-    per_msg = None
-    for k, n in enumerate(sizes):
-        ens = generate(EnsembleSpec(shape=shape, n=n), np.random.default_rng(seed + k))
-        prob = EnsembleProblem.create(ens.dim, ens.n, ens.radius, ens.i, ens.j, ens.z)
+    for n in sizes:
         left = budget - (time.perf_counter() - t_start)
-        if per_msg is not None and rows:
-            guess = per_msg * rows[-1]["messages_per_module"] * 1.3 * prob.n
+        if rows:
+            guess = rows[-1]["seconds_distributed"] * n / rows[-1]["n"] * 1.25
             if guess > left:
                 skipped.append({"n": n, "predicted_seconds": guess, "seconds_left": left})
                 print(f"skip N={n}: predicted {guess:.0f} s > {left:.0f} s left", flush=True)
                 continue
-        t0 = time.perf_counter()
+        ens = generate(EnsembleSpec(shape=shape, n=n), np.random.default_rng([seed, n]))
+        prob = EnsembleProblem.create(ens.dim, ens.n, ens.radius, ens.i, ens.j, ens.z)
+        t0, c0 = time.perf_counter(), time.process_time()
         central = normcut_localize(prob, np.random.default_rng(seed))
-        t_central = time.perf_counter() - t0
-        load0 = os.getloadavg()
-        t0 = time.perf_counter()
-        res = run_distributed(prob, np.random.default_rng(seed), cfg)
-        t_dist = time.perf_counter() - t0
-        total = int(res.messages.sum())
-        per_msg = t_dist / max(total, 1)
-        row = {
-            "n": prob.n,
-            "requested": n,
-            "edges": int(prob.num_observations),
-            "levels": res.levels,
-            "messages_total": total,
-            "messages_per_module": total / prob.n,
-            "messages_per_module_median": float(np.median(res.messages)),
-            "messages_per_module_max": int(res.messages.max()),
-            "phase_messages": dict(zip(res.phase_names, (int(v) for v in res.phase_messages))),
-            "refine_iterations_per_level": {str(k2): v for k2, v in res.info["refine_iterations"].items()},
-            "rounds": res.rounds,
-            "seconds_distributed": t_dist,
-            "seconds_centralized": t_central,
-            "ratio_distributed_to_centralized_time": t_dist / max(t_central, 1e-9),
-            "cost_distributed": res.cost,
-            "cost_centralized": central.cost,
-            "loadavg_before": load0,
-            "loadavg_after": os.getloadavg(),
-        }
+        ref = {"seconds_centralized": time.perf_counter() - t0, "cpu_seconds_centralized": time.process_time() - c0,
+               "cost_centralized": central.cost}
+        row = _distributed_row(prob, cfg, seed, ref)
+        row["requested"] = n
         rows.append(row)
-        print(f"N={prob.n:6d} levels {res.levels} msgs/module {row['messages_per_module']:8.1f} "
-              f"({t_dist:.1f} s, centralized {t_central:.2f} s) load {load0[0]:.1f}", flush=True)
+        print(f"N={prob.n:6d} levels {row['levels']:2d} msgs/module {row['messages_per_module']:8.1f} "
+              f"({row['seconds_distributed']:.1f} s wall, {row['cpu_seconds_distributed']:.1f} s CPU; "
+              f"centralized {ref['seconds_centralized']:.2f} s) load {row['loadavg_before'][0]:.1f}", flush=True)
+        if save is not None:
+            save(rows, skipped)
     return rows, skipped, {"gtol": gtol, "check_every": cfg.check_every, "leaf_size": hier.leaf_size,
                            "abstract_size": hier.abstract_size, "step": cfg.step, "momentum": cfg.momentum,
-                           "shape": shape, "seed": seed, "loss": cfg.loss}
+                           "shape": shape, "seed": seed, "loss": cfg.loss, "ensemble_rng": "default_rng([seed, N])"}
+
+
+def run_cubes(sides, gtol, seed) -> list[dict]:
+    """Seed 003 Fig. 12's test cases: cubic lattices of side^3 modules (a box on the cubic lattice)."""
+    out = []
+    for side in sides:
+        n = side ** 3
+        ens = generate(EnsembleSpec(shape="box", n=n, lattice="cubic"), np.random.default_rng([seed, n]))
+        prob = EnsembleProblem.create(ens.dim, ens.n, ens.radius, ens.i, ens.j, ens.z)
+        row = _distributed_row(prob, _config(gtol), seed)
+        row["case"] = f"{side}x{side}x{side}"
+        out.append(row)
+        print(f"cube {row['case']}: msgs/module {row['messages_per_module']:.1f}, refinement "
+              f"{100 * row['phase_share']['refinement']:.1f} % ({row['seconds_distributed']:.1f} s)", flush=True)
+    return out
+
+
+def fit_power(n: np.ndarray, y: np.ndarray) -> dict:
+    """Least-squares ln y = ln c + p ln n (the alternative to a + b ln n), with R^2 on y."""
+    A = np.column_stack([np.ones(n.size), np.log(n)])
+    (lc, p), *_ = np.linalg.lstsq(A, np.log(y), rcond=None)
+    pred = np.exp(lc + p * np.log(n))
+    ss_res = float(np.sum((y - pred) ** 2))
+    ss_tot = float(np.sum((y - y.mean()) ** 2))
+    return {"c": float(np.exp(lc)), "p": float(p), "r2": 1.0 - ss_res / ss_tot if ss_tot > 0 else 1.0}
+
+
+def _split_bars(ax, picks, labels, title) -> None:
+    phases = list(picks[0]["phase_messages"])
+    bottom = np.zeros(len(picks))
+    for ph in phases:
+        share = np.array([100.0 * r["phase_messages"][ph] / r["messages_total"] for r in picks])
+        ax.bar(labels, share, bottom=bottom, label=ph)
+        for x, (b, v) in enumerate(zip(bottom, share)):
+            if v >= 3:
+                ax.text(x, b + v / 2, f"{v:.1f}%", ha="center", va="center", fontsize=7)
+        bottom += share
+    ax.set_ylabel("% of messages")
+    ax.set_title(title, fontsize=10)
 
 
 def plot(result: dict, path: Path) -> None:
@@ -112,30 +181,34 @@ def plot(result: dict, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     rows = result["rows"]
+    cubes = result.get("cubes", [])
     n = np.array([r["n"] for r in rows], float)
     y = np.array([r["messages_per_module"] for r in rows])
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
+    ncol = 3 if cubes else 2
+    fig, axes = plt.subplots(1, ncol, figsize=(5.2 * ncol, 4.4), gridspec_kw={"width_ratios": [1.6] + [1] * (ncol - 1)})
+    ax1 = axes[0]
     ax1.plot(n, y, "o-", label="measured (mean per module)")
+    xs = np.geomspace(n.min(), n.max(), 50)
     if "fit" in result:
         f = result["fit"]
-        xs = np.geomspace(n.min(), n.max(), 50)
         ax1.plot(xs, f["a"] + f["b"] * np.log(xs), "--",
                  label=f"{f['a']:.0f} + {f['b']:.0f} ln N  (R$^2$ = {f['r2']:.3f})")
+    if "fit_power" in result:
+        f = result["fit_power"]
+        ax1.plot(xs, f["c"] * xs ** f["p"], ":", label=f"{f['c']:.0f} N^{f['p']:.3f}  (R$^2$ = {f['r2']:.3f})")
+    for r in rows:
+        ax1.annotate(f"{r['levels']} lv", (r["n"], r["messages_per_module"]), textcoords="offset points",
+                     xytext=(4, -10), fontsize=7)
     ax1.set_xscale("log")
-    ax1.set_xlabel("modules N")
+    ax1.set_xlabel("modules N (2D triple)")
     ax1.set_ylabel("messages sent per module")
-    ax1.set_title("seed 003 Fig. 11: messages per module")
+    ax1.set_title("seed 003 Fig. 11: messages per module", fontsize=10)
     ax1.legend(fontsize=8)
-    phases = list(rows[0]["phase_messages"])
     picks = [rows[0], rows[-1]] if len(rows) > 1 else rows
-    bottom = np.zeros(len(picks))
-    for ph in phases:
-        share = np.array([100.0 * r["phase_messages"][ph] / r["messages_total"] for r in picks])
-        ax2.bar([f"N={r['n']}" for r in picks], share, bottom=bottom, label=ph)
-        bottom += share
-    ax2.set_ylabel("% of messages")
-    ax2.set_title("seed 003 Fig. 12: split by phase")
-    ax2.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.0, 0.5))
+    _split_bars(axes[1], picks, [f"N={r['n']}" for r in picks], "Fig. 12: split by phase (2D)")
+    if cubes:
+        _split_bars(axes[2], cubes, [r["case"] for r in cubes], "Fig. 12: split by phase (3D cubic)")
+    axes[-1].legend(fontsize=7, loc="center left", bbox_to_anchor=(1.0, 0.5))
     fig.tight_layout()
     import io
 
@@ -147,47 +220,67 @@ def plot(result: dict, path: Path) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sizes", type=int, nargs="+", default=[125, 250, 500, 1000, 2000, 5000, 10000, 20000])
+    ap.add_argument("--sizes", type=int, nargs="*", default=[250, 500, 1000, 2000, 4000, 8000, 20000])
     ap.add_argument("--shape", default="triple")
     ap.add_argument("--gtol", type=float, default=0.01)
-    ap.add_argument("--budget", type=float, default=1500.0)
+    ap.add_argument("--budget", type=float, default=5400.0)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--cubes", type=int, nargs="*", default=[5, 10], help="sides of the 3D cubic test cases")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "ensemble_messages"))
     ap.add_argument("--merge", help="a previous result JSON of the same parameters whose rows to include")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
-    rows, skipped, params = run(args.sizes, args.shape, args.gtol, args.budget, args.seed)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    old = None
     if args.merge:
         with open(args.merge, encoding="utf-8") as fh:
             old = json.load(fh)
-        if {k: v for k, v in old["parameters"].items() if k != "seed"} != {k: v for k, v in params.items() if k != "seed"}:
-            raise SystemExit("--merge: parameters differ")
-        have = {r["requested"] for r in rows}
-        rows = sorted([r for r in old["rows"] if r["requested"] not in have] + rows, key=lambda r: r["n"])
-        skipped = [s for s in old.get("skipped", []) if s["n"] not in have] + skipped
     import scipy
 
-    result = {
-        "benchmark": "ensemble_messages",
-        "parameters": params,
-        "machine": {"platform": platform.platform(), "python": platform.python_version(),
-                    "cpus": os.cpu_count(), "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS")},
-        "versions": {"numpy": np.__version__, "scipy": scipy.__version__},
-        "rows": rows,
-        "skipped": skipped,
-        "seconds_total": time.perf_counter() - t0,
-    }
-    if len(rows) >= 2:
-        n = np.array([r["n"] for r in rows], float)
-        result["fit"] = fit_log(n, np.array([r["messages_per_module"] for r in rows]))
-        result["fit_without_refinement"] = fit_log(n, np.array(
-            [(r["messages_total"] - r["phase_messages"]["refinement"]) / r["n"] for r in rows]))
+    def save(rows, skipped, params=None, cubes=None) -> dict:
+        if old is not None:
+            have = {r["requested"] for r in rows}
+            rows = sorted([r for r in old["rows"] if r["requested"] not in have] + rows, key=lambda r: r["n"])
+            skipped = [s for s in old.get("skipped", []) if s["n"] not in have] + skipped
+            if cubes is None:
+                cubes = old.get("cubes", [])
+        result = {
+            "benchmark": "ensemble_messages",
+            "parameters": params or (old or {}).get("parameters", {}),
+            "machine": {"platform": platform.platform(), "python": platform.python_version(),
+                        "cpus": os.cpu_count(), "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS")},
+            "versions": {"numpy": np.__version__, "scipy": scipy.__version__},
+            "rows": rows,
+            "skipped": skipped,
+            "cubes": cubes or [],
+            "seconds_total": time.perf_counter() - t0,
+        }
+        if len(rows) >= 2:
+            n = np.array([r["n"] for r in rows], float)
+            y = np.array([r["messages_per_module"] for r in rows])
+            result["fit"] = fit_log(n, y)
+            result["fit_power"] = fit_power(n, y)
+            result["fit_without_refinement"] = fit_log(n, np.array(
+                [(r["messages_total"] - r["phase_messages"]["refinement"]) / r["n"] for r in rows]))
+            result["fit_refinement_broadcasts"] = fit_log(n, np.array(
+                [r["refine_share_rounds_per_module"] for r in rows]))
+            result["fit_levels"] = fit_log(n, np.array([r["levels"] for r in rows], float))
+        write_json_atomic(out.with_suffix(".json"), result)
+        if rows:
+            plot(result, out.with_suffix(".png"))
+        return result
+
+    rows, skipped, params = run(args.sizes, args.shape, args.gtol, args.budget, args.seed,
+                                save=lambda r, s: save(r, s))
+    if old is not None and {k: v for k, v in old["parameters"].items() if k != "seed"} != \
+            {k: v for k, v in params.items() if k != "seed"}:
+        raise SystemExit("--merge: parameters differ")
+    cubes = run_cubes(args.cubes, args.gtol, args.seed) if args.cubes else None
+    result = save(rows, skipped, params, cubes)
+    if "fit" in result:
         print("fit messages/module = a + b ln N:", result["fit"])
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(out.with_suffix(".json"), result)
-    if rows:
-        plot(result, out.with_suffix(".png"))
+        print("power fit:", result["fit_power"])
     print(f"wrote {out.with_suffix('.json')} and .png")
     return 0
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from decentral.ensemble import EnsembleProblem, HierarchyConfig, align_points, normcut_localize
+from decentral.ensemble import EnsembleProblem, HierarchyConfig, RefineConfig, align_points, normcut_localize
 from sims.ensembles import EnsembleSpec, generate
 from sims.ensembles.distributed import DistributedConfig, run_distributed
 
@@ -86,28 +86,39 @@ def test_same_seed_same_messages(problem, exact_run):
     assert np.array_equal(again.estimate.position, exact_run.estimate.position)
 
 
-def test_batched_refinement_counts_what_the_per_message_path_counts(problem, exact_run):
+
+def _both_paths(problem, hierarchy, seed):
+    """The same run through the batched refinement and through the per-message path (the benchmark's
+    loose tolerances, so that the per-message run stays cheap)."""
+    h = HierarchyConfig(leaf_size=hierarchy.leaf_size, cut=hierarchy.cut, abstract_size=hierarchy.abstract_size,
+                        level_refine=RefineConfig(max_iter=100, gtol=0.01))
+    cfg = dict(hierarchy=h, top_gtol=1e-2, check_every=5)
+    fast = run_distributed(problem, np.random.default_rng(seed), DistributedConfig(**cfg))
+    slow = run_distributed(problem, np.random.default_rng(seed), DistributedConfig(**cfg, batched=False))
+    return fast, slow
+
+
+@pytest.mark.parametrize("hierarchy", [EXACT, ABSTRACT], ids=["exact", "abstract"])
+def test_batched_refinement_counts_what_the_per_message_path_counts(problem, hierarchy):
     """The batched refinement sends, per module and phase, exactly the per-message path's messages,
-    in the same rounds, with the same bytes, and reaches the same estimate."""
-    assert exact_run.info["batched"]
-    slow = run_distributed(problem, np.random.default_rng(0),
-                           DistributedConfig(hierarchy=EXACT, top_gtol=1e-6, batched=False))
-    assert not slow.info["batched"]
-    assert np.array_equal(slow.messages, exact_run.messages)
-    assert np.array_equal(slow.phase_messages, exact_run.phase_messages)
-    assert slow.network == exact_run.network
-    assert slow.rounds == exact_run.rounds
-    assert slow.info["refine_iterations"] == exact_run.info["refine_iterations"]
-    assert slow.info["refine_share_rounds"] == exact_run.info["refine_share_rounds"]
-    assert np.allclose(slow.estimate.position, exact_run.estimate.position, rtol=0, atol=1e-12)
+    in the same rounds and iterations, with the same bytes, and reaches the same estimate."""
+    fast, slow = _both_paths(problem, hierarchy, 3)
+    assert fast.info["batched"] and not slow.info["batched"]
+    assert fast.levels >= 2 and sum(fast.info["refine_iterations"].values()) > 0
+    assert np.array_equal(slow.messages, fast.messages)
+    assert np.array_equal(slow.phase_messages, fast.phase_messages)
+    assert slow.network == fast.network
+    assert slow.rounds == fast.rounds
+    assert slow.info["refine_iterations"] == fast.info["refine_iterations"]
+    assert slow.info["refine_share_rounds"] == fast.info["refine_share_rounds"]
+    assert np.allclose(slow.estimate.position, fast.estimate.position, rtol=0, atol=1e-12)
 
 
-def test_batched_refinement_matches_on_abstracted_groups(problem):
-    """With graph abstraction and the benchmark's loose tolerances the two paths still agree exactly."""
-    cfg = dict(hierarchy=ABSTRACT, top_gtol=1e-2, check_every=5)
-    fast = run_distributed(problem, np.random.default_rng(3), DistributedConfig(**cfg))
-    slow = run_distributed(problem, np.random.default_rng(3), DistributedConfig(**cfg, batched=False))
+def test_batched_refinement_matches_in_3d():
+    """On a 3D cubic lattice the two paths also count exactly the same messages."""
+    ens = generate(EnsembleSpec(shape="box", n=20, lattice="cubic"), np.random.default_rng(2))
+    prob = EnsembleProblem.create(ens.dim, ens.n, ens.radius, ens.i, ens.j, ens.z)
+    fast, slow = _both_paths(prob, EXACT, 0)
     assert np.array_equal(slow.messages, fast.messages)
     assert slow.network == fast.network and slow.rounds == fast.rounds
     assert np.allclose(slow.estimate.position, fast.estimate.position, rtol=0, atol=1e-12)
-
