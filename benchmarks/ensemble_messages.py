@@ -81,6 +81,10 @@ def _distributed_row(prob, cfg, seed, central=None) -> dict:
         "phase_share": {k: v / total for k, v in phases.items()},
         # a refinement iteration counted as one local broadcast per module instead of one message per neighbour
         "refine_share_rounds_per_module": res.info["refine_share_rounds"] / prob.n,
+        "refine_pose_shares_per_module": res.info["refine_pose_shares"] / prob.n,
+        # the same run with each refinement iteration counted as one local broadcast per module
+        "messages_per_module_broadcast_count": (total - res.info["refine_pose_shares"]
+                                                + res.info["refine_share_rounds"]) / prob.n,
         "refine_iterations_per_level": {str(k2): v for k2, v in res.info["refine_iterations"].items()},
         "rounds": res.rounds,
         "bytes_sent": res.network["total"]["bytes_sent"],
@@ -196,6 +200,13 @@ def plot(result: dict, path: Path) -> None:
     if "fit_power" in result:
         f = result["fit_power"]
         ax1.plot(xs, f["c"] * xs ** f["p"], ":", label=f"{f['c']:.0f} N^{f['p']:.3f}  (R$^2$ = {f['r2']:.3f})")
+    if all("messages_per_module_broadcast_count" in r for r in rows):
+        yb = np.array([r["messages_per_module_broadcast_count"] for r in rows])
+        lab = "refinement as one local broadcast per iteration"
+        if "fit_broadcast_count" in result:
+            f = result["fit_broadcast_count"]
+            lab += f": {f['a']:.0f} + {f['b']:.0f} ln N (R$^2$ = {f['r2']:.3f})"
+        ax1.plot(n, yb, "s-", ms=4, label=lab)
     for r in rows:
         ax1.annotate(f"{r['levels']} lv", (r["n"], r["messages_per_module"]), textcoords="offset points",
                      xytext=(4, -10), fontsize=7)
@@ -266,6 +277,9 @@ def main(argv=None) -> int:
             result["fit_refinement_broadcasts"] = fit_log(n, np.array(
                 [r["refine_share_rounds_per_module"] for r in rows]))
             result["fit_levels"] = fit_log(n, np.array([r["levels"] for r in rows], float))
+            if all("messages_per_module_broadcast_count" in r for r in rows):
+                result["fit_broadcast_count"] = fit_log(n, np.array(
+                    [r["messages_per_module_broadcast_count"] for r in rows]))
         write_json_atomic(out.with_suffix(".json"), result)
         if rows:
             plot(result, out.with_suffix(".png"))

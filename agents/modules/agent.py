@@ -167,6 +167,7 @@ class ModuleAgent:
         self.outbox: list[Message] = []
         self.sent = Counter()  # messages sent per phase
         self.share_rounds = 0  # refinement iterations in which this module sent its pose (a local broadcast each)
+        self.shares_sent = 0  # refinement pose shares sent (one per neighbour per iteration)
         self._seq = 0
         self._pending: dict[tuple[int, int], list] = {}
         self._seen: set[tuple[int, int]] = set()
@@ -551,6 +552,7 @@ class ModuleAgent:
         pose = self._pose()
         if st.nbrs:
             self.share_rounds += 1
+            self.shares_sent += len(st.nbrs)
         for j in st.nbrs:
             self._send(PoseShare, j, "refine", level=level, group=st.group, phase="refine",
                        iteration=st.iteration, pose=pose)

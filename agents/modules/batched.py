@@ -150,6 +150,7 @@ class BatchedRefinement:
                                                payload={"stop": np.array([False]), "g": np.array([0.0])}))
         self.sent = np.zeros(m, dtype=np.int64)
         self.share_rounds = np.zeros(m, dtype=np.int64)
+        self.shares_sent = np.zeros(m, dtype=np.int64)
 
     # ------------------------------------------------------------------ public
     def run(self, round_: int) -> tuple[int, int]:
@@ -190,6 +191,7 @@ class BatchedRefinement:
             return
         rows = self.send_row[sel]
         self.share_rounds[np.unique(rows)] += 1
+        self.shares_sent += np.bincount(rows, minlength=self.ids.size)
         pos_now, rot_now = self.pos.copy(), self.rot.copy()
         self._send(PoseShare.KIND, rows, self.send_to[sel], self.size_pose)
         got = self._deliver(sel.size)
@@ -304,6 +306,7 @@ class BatchedRefinement:
             a.round = self.round
             a.sent["refinement"] += int(self.sent[r])
             a.share_rounds += int(self.share_rounds[r])
+            a.shares_sent += int(self.shares_sent[r])
             st.iteration = int(self.iteration[r])
             st.last_grad = float(self.last_grad[r])
             st.active = bool(self.active[r])

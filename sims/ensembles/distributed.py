@@ -254,6 +254,7 @@ def run_distributed(problem: EnsembleProblem, rng: np.random.Generator,
         info={"seconds": time.perf_counter() - t0, "seconds_batched_refinement": t_refine,
               "refine_iterations": iterations,
               "refine_share_rounds": int(sum(a.share_rounds for a in agents)),
+              "refine_pose_shares": int(sum(a.shares_sent for a in agents)),
               "batched": bool(config.batched and config.loss == 0),
               "notes": [e for a in agents for e in a.events]},
     )

@@ -111,6 +111,7 @@ def test_batched_refinement_counts_what_the_per_message_path_counts(problem, hie
     assert slow.rounds == fast.rounds
     assert slow.info["refine_iterations"] == fast.info["refine_iterations"]
     assert slow.info["refine_share_rounds"] == fast.info["refine_share_rounds"]
+    assert slow.info["refine_pose_shares"] == fast.info["refine_pose_shares"]
     assert np.allclose(slow.estimate.position, fast.estimate.position, rtol=0, atol=1e-12)
 
 
