@@ -184,7 +184,7 @@ class ModuleAgent:
         self.outbox.append(msg)
         self.sent[SUBPHASE_OF.get(step, step)] += 1
         if seq >= 0:
-            self._pending[(receiver, seq)] = [msg, step, self.round]
+            self._pending[(receiver, seq)] = [msg, step, None]  # None: not yet handed to the network
 
     def flush(self, round_: int) -> list[Message]:
         """Run the decisions due at the end of a round, retransmit what is overdue, and hand over the outbox."""
@@ -197,7 +197,9 @@ class ModuleAgent:
         if self._pending:
             for key, item in self._pending.items():
                 msg, step, sent_at = item
-                if round_ - sent_at >= self.config.retry_rounds:
+                if sent_at is None:  # its first copy leaves in this outbox: the retry clock starts now
+                    item[2] = round_
+                elif round_ - sent_at >= self.config.retry_rounds:
                     self.outbox.append(msg)
                     self.sent[SUBPHASE_OF.get(step, step)] += 1
                     item[2] = round_

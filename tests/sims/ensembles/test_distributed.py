@@ -123,3 +123,34 @@ def test_batched_refinement_matches_in_3d():
     assert np.array_equal(slow.messages, fast.messages)
     assert slow.network == fast.network and slow.rounds == fast.rounds
     assert np.allclose(slow.estimate.position, fast.estimate.position, rtol=0, atol=1e-12)
+
+
+def test_batched_refinement_matches_with_two_components():
+    """Two disconnected components refine side by side (different trees, stopping at different
+    iterations) and the batched path still counts exactly what the per-message path counts."""
+    ens = generate(EnsembleSpec(shape="triple", n=16), np.random.default_rng(4))
+    problem = EnsembleProblem.create(ens.dim, ens.n, ens.radius, ens.i, ens.j, ens.z)
+    n = problem.n
+    keep = problem.i < problem.j  # a second copy with every observation reversed: a different component
+    two = EnsembleProblem.create(problem.dim, 2 * n, problem.radius,
+                                 np.concatenate([problem.i, problem.j[keep] + n, problem.i[keep] + n]),
+                                 np.concatenate([problem.j, problem.i[keep] + n, problem.j[keep] + n]),
+                                 np.concatenate([problem.z, problem.z[keep][:, ::-1], problem.z[keep]]))
+    fast, slow = _both_paths(two, EXACT, 5)
+    assert len(np.unique(fast.estimate.component)) == 2 and sum(fast.info["refine_iterations"].values()) > 0
+    assert np.array_equal(slow.messages, fast.messages)
+    assert slow.network == fast.network and slow.rounds == fast.rounds
+    assert slow.info["refine_iterations"] == fast.info["refine_iterations"]
+    assert np.allclose(slow.estimate.position, fast.estimate.position, rtol=0, atol=1e-12)
+
+
+def test_reliable_delivery_without_loss_sends_each_message_once_plus_its_ack(problem):
+    """With acknowledgements on and no copy lost, nothing is retransmitted: exactly twice the
+    lossless messages (each message once, plus one acknowledgement), in every phase."""
+    h = HierarchyConfig(leaf_size=6, cut="exact", level_refine=RefineConfig(max_iter=100, gtol=0.01))
+    cfg = dict(hierarchy=h, top_gtol=1e-2, check_every=5)
+    plain = run_distributed(problem, np.random.default_rng(0), DistributedConfig(**cfg))
+    acked = run_distributed(problem, np.random.default_rng(0), DistributedConfig(**cfg, loss=1e-12))
+    assert acked.network["total"]["dropped"] == 0
+    assert np.array_equal(acked.phase_messages, 2 * plain.phase_messages)
+    assert np.allclose(acked.estimate.position, plain.estimate.position, rtol=0, atol=1e-12)
