@@ -14,12 +14,12 @@ def _perturb(x, R, rng, dim, s=0.2):
 
 
 @pytest.mark.parametrize("dim,shape", [(2, (8, 7)), (3, (4, 4, 3))])
-@pytest.mark.parametrize("method", ["alternating", "lm"])
+@pytest.mark.parametrize("method", ["alternating", "lm", "pcg"])
 def test_noiseless_refinement_reaches_zero_cost(lattice, dim, shape, method):
     """From a perturbed truth on a noiseless lattice, refinement drives the likelihood cost to ~0."""
     prob, x, R = lattice(dim, shape)
     x0, R0 = _perturb(x, R, np.random.default_rng(0), dim)
-    res = refine(prob, x0, R0, RefineConfig(method=method, gtol=1e-10))
+    res = refine(prob, x0, R0, RefineConfig(method=method, gtol=1e-10, max_iter=3000))
     assert res.status == "converged"
     assert res.cost < 1e-16
 
@@ -48,3 +48,33 @@ def test_reported_cost_matches_model(lattice):
     prob, x, R = lattice(2, (6, 6), noise=0.1)
     res = refine(prob, x, R)
     assert np.isclose(res.cost, negative_log_likelihood(prob, res.position, matrix_to_angle(res.rotation)))
+
+
+@pytest.mark.parametrize("dim,shape", [(2, (9, 9)), (3, (4, 4, 3))])
+def test_pcg_reaches_the_alternating_optimum(lattice, dim, shape):
+    """The seed's refiner (preconditioned nonlinear CG) reaches the same noisy maximum likelihood."""
+    prob, x, R = lattice(dim, shape, noise=0.2, seed=3)
+    a = refine(prob, x, R, RefineConfig(method="alternating", gtol=1e-9, max_iter=2000))
+    b = refine(prob, x, R, RefineConfig(method="pcg", gtol=1e-9, max_iter=5000))
+    assert np.isclose(a.cost, b.cost, rtol=1e-7)
+
+
+def test_pcg_never_increases_cost_and_counts_iterations(lattice):
+    """Each PCG iteration is accepted only if it lowers the cost; the budget caps the count."""
+    prob, x, R = lattice(3, (4, 3, 3), noise=0.3, seed=5)
+    x0, R0 = _perturb(x, R, np.random.default_rng(1), 3, s=0.5)
+    start = negative_log_likelihood(prob, x0, matrix_to_quat(R0))
+    costs = [refine(prob, x0, R0, RefineConfig(method="pcg", max_iter=k, gtol=0.0, ftol=0.0)) for k in (1, 3, 10)]
+    assert [c.iterations for c in costs] == [1, 3, 10]
+    assert costs[0].cost < start and costs[1].cost <= costs[0].cost and costs[2].cost <= costs[1].cost
+    assert np.isclose(costs[2].cost, negative_log_likelihood(prob, costs[2].position, matrix_to_quat(costs[2].rotation)))
+
+
+def test_l2_gradient_norm_is_at_least_the_largest_entry(lattice):
+    """With gnorm="l2" the reported gradient norm bounds the largest entry (same stopping point or later)."""
+    prob, x, R = lattice(2, (6, 6), noise=0.2, seed=2)
+    x0, R0 = _perturb(x, R, np.random.default_rng(0), 2)
+    a = refine(prob, x0, R0, RefineConfig(method="pcg", max_iter=5, gtol=0.0, ftol=0.0))
+    b = refine(prob, x0, R0, RefineConfig(method="pcg", max_iter=5, gtol=0.0, ftol=0.0, gnorm="l2"))
+    assert np.allclose(a.position, b.position)
+    assert b.gradient_norm >= a.gradient_norm
