@@ -7,7 +7,8 @@ signed distance (positive inside, metres) and its gradient can be sampled at mod
 
 The seed's scenarios (seed 003 §VI-A, Fig. 5) are mimicked by ``triple`` (three dense chambers joined
 by low bridges), ``sparse`` (the same chambers joined by bridges about one module wide: weak regions)
-and ``open`` (a long U-shaped channel, an open loop); ``funnel``, ``ring`` and ``blobs`` add variety.
+and ``open`` (a long U-shaped channel, an open loop); ``twin`` is Fig. 3's two clusters joined by a
+pair of thin bridges (a loop through two weak regions); ``funnel``, ``ring`` and ``blobs`` add variety.
 """
 
 from __future__ import annotations
@@ -101,6 +102,20 @@ def _chambers(bridge: float, bridge_modules: float) -> Callable:
     return inside
 
 
+def _twin(x, y, rng, m):
+    # seed 003 Fig. 3: two dense square clusters side by side whose only links are two thin
+    # bridges, one at the floor and one at mid-height, each about one module high and a few
+    # modules long: the weak regions come in a pair, so the relative rotation of the clusters is
+    # well determined once both are used, but not through either bridge alone
+    gap = max(0.06, 5.0 * m)
+    h = 2.6 * m
+    left = _rect(x, y, 0.0, 1.0, 0.0, 1.0)
+    right = _rect(x, y, 1.0 + gap, 2.0 + gap, 0.0, 1.0)
+    low = _rect(x, y, 0.9, 1.1 + gap, 0.0, h)
+    mid = _rect(x, y, 0.9, 1.1 + gap, 0.5, 0.5 + h)
+    return left | right | low | mid
+
+
 def _open(x, y, rng, m):
     # a U-shaped channel 0.4 wide: an open loop, long and thin (seed 003 Fig. 5 "open")
     outer = _rect(x, y, 0.0, 3.0, 0.0, 2.0)
@@ -144,6 +159,7 @@ SHAPES_2D: dict[str, tuple[Callable, tuple[float, float, float, float], float]] 
     "triple": (_chambers(0.22, 6.0), (0.0, 3.6, 0.0, 1.0), 0.92),
     "sparse": (_chambers(0.0, 4.4), (0.0, 3.6, 0.0, 1.0), 0.92),
     "open": (_open, (0.0, 3.0, 0.0, 2.0), 0.90),
+    "twin": (_twin, (0.0, 2.2, 0.0, 1.0), 0.92),
     "funnel": (_funnel, (0.0, 1.4, 0.0, 1.6), 0.85),
     "ring": (_ring, (0.0, 2.0, 0.0, 2.0), 1.0),
     "blobs": (_blobs, (0.0, 8.0, -3.0, 5.0), 0.92),

@@ -8,7 +8,7 @@ from sims.ensembles.lattices import lattice_sites
 from sims.ensembles.sensors import observe_contacts, rotation_matrices, sensor_layout
 from decentral.errors import InputError
 
-SHAPES_2D = ["triple", "sparse", "open", "funnel", "ring", "blobs"]
+SHAPES_2D = ["triple", "sparse", "open", "twin", "funnel", "ring", "blobs"]
 SHAPES_3D = ["sphere", "box", "torus", "dumbbell", "triple3d"]
 
 
@@ -149,3 +149,14 @@ def test_bad_spec_is_refused():
         EnsembleSpec(n=1)
     with pytest.raises(InputError, match="radius"):
         EnsembleSpec(radius=0.0)
+
+
+def test_twin_clusters_are_joined_only_by_a_few_observations():
+    """seed 003 Fig. 3: the exact normalized cut of ``twin`` splits two halves linked by <= 6 pairs."""
+    from decentral.ensemble import EnsembleProblem, normalized_cut
+
+    ens = generate(EnsembleSpec(shape="twin", n=600), np.random.default_rng(0))
+    prob = EnsembleProblem.create(2, ens.n, ens.radius, ens.i, ens.j, ens.z)
+    a = normalized_cut(prob.adjacency()).in_a
+    assert 1 <= np.count_nonzero(a[prob.i] & ~a[prob.j]) <= 6
+    assert min(a.sum(), (~a).sum()) > 0.4 * ens.n
