@@ -15,11 +15,14 @@ one row per module, SIMD style:
   :meth:`~protocols.network.SimulatedNetwork.poll_many` returns are received;
 - rounds are counted as the round clock of :mod:`sims.ensembles.distributed` counts them.
 
-It needs a lossless network: the per-message path acknowledges and retransmits on a lossy one
-(``ModuleConfig.reliable``), which this path does not replicate, and it raises
-:class:`decentral.errors.ProtocolError` if a copy does not arrive in its round. At the end the
-state is written back into the agents (pose, per-level state, messages sent per phase), so the later
-phases see what the per-module path would have left.
+On a lossy network (``ModuleConfig.reliable``) the pose shares are acknowledged and retransmitted
+every ``retry_rounds`` rounds until acknowledged, exactly as the per-message path does it (same
+copies per link and round, in the same per-link order: acknowledgements, then shares), so the link
+streams draw the same losses; the gradient check then runs on the caller's per-message driver. On a
+lossless network a copy that does not arrive in its round raises
+:class:`decentral.errors.ProtocolError`. At the end the state is written back into the agents (pose,
+per-level state, sequence numbers, messages sent per phase), so the later phases see what the
+per-module path would have left.
 """
 
 from __future__ import annotations
@@ -31,7 +34,7 @@ import numpy as np
 from agents.modules.agent import ModuleAgent
 from decentral.ensemble.rotation import project_to_rotation
 from decentral.errors import ProtocolError
-from protocols.ensemble.messages import Command, PoseShare, Report
+from protocols.ensemble.messages import Ack, Command, PoseShare, Report
 from protocols.network import SimulatedNetwork
 
 __all__ = ["BatchedRefinement"]
@@ -70,16 +73,23 @@ class BatchedRefinement:
         The network the agents are attached to (lossless).
     check_every : int
         Iterations between two gradient checks (the runner's schedule).
+    driver : object, optional
+        Needed on a lossy network: the per-message round clock (``round`` attribute and
+        ``phase(start, members)``) that runs the gradient checks.
     """
 
     def __init__(self, agents: Sequence[ModuleAgent], members: Sequence[int], level: int,
-                 net: SimulatedNetwork, check_every: int):
+                 net: SimulatedNetwork, check_every: int, driver=None):
         self.agents, self.level, self.net, self.check_every = agents, level, net, int(check_every)
+        self.driver = driver
         self.ids = np.asarray(sorted(int(k) for k in members), dtype=np.int64)
         ids, m = self.ids, self.ids.size
         first = agents[int(ids[0])].config
         d = self.d = first.dim
         self.radius = first.radius
+        self.reliable, self.retry = bool(first.reliable), int(first.retry_rounds)
+        if self.reliable and driver is None:
+            raise ProtocolError("batched refinement on a lossy network needs the per-message driver")
         row_of = np.full(len(agents), -1, dtype=np.int64)
         row_of[ids] = np.arange(m)
         states = [agents[int(k)].levels[level] for k in ids]
@@ -148,7 +158,9 @@ class BatchedRefinement:
                                              phase="grad", payload={"g": np.array([0.0])}))
         self.size_command = _size_base(Command(sender="0", receiver="0", round=0, level=level, group=0, phase="grad",
                                                payload={"stop": np.array([False]), "g": np.array([0.0])}))
-        self.sent = np.zeros(m, dtype=np.int64)
+        self.size_ack = _size_base(Ack(sender="0", receiver="0", round=0, seq=0, phase="refine"))
+        self.sent = np.zeros(len(agents), dtype=np.int64)  # by module id (acknowledgers need not be members)
+        self.seq = np.array([agents[int(k)]._seq for k in ids], dtype=np.int64)
         self.share_rounds = np.zeros(m, dtype=np.int64)
         self.shares_sent = np.zeros(m, dtype=np.int64)
 
@@ -159,22 +171,31 @@ class BatchedRefinement:
         it = 0
         while self.active.any():
             live = self.active.copy()
-            self._share(live)
+            if self.reliable:
+                self._share_reliable(live)
+            else:
+                self._share(live)
             self._update(live)
             it += 1
             if it % self.check_every == 0:
-                self._check(live)
+                if self.reliable:
+                    self._check_per_message(live)
+                else:
+                    self._check(live)
         self._write_back()
         return it, self.round
 
     # ------------------------------------------------------------------ one iteration
     def _send(self, kind: str, rows: np.ndarray, to_ids: np.ndarray, base: int) -> int:
-        """Send one copy per (rows[k] -> module to_ids[k]) this round; return how many arrived."""
-        ids = self.ids[rows]
-        t = float(self.round)
-        self.net.send_many(kind, ids, to_ids, base + self.digits[ids] + self.digits[to_ids], t)
-        np.add.at(self.sent, rows, 1)
+        """Send one copy per (rows[k] -> module to_ids[k]) this round; return how many were sent."""
+        self._send_ids(kind, self.ids[rows], to_ids, base)
         return rows.size
+
+    def _send_ids(self, kind: str, ids: np.ndarray, to_ids: np.ndarray, base: int) -> int:
+        """Send one copy per (module ids[k] -> module to_ids[k]) this round; return the batch id."""
+        batch = self.net.send_many(kind, ids, to_ids, base + self.digits[ids] + self.digits[to_ids], float(self.round))
+        np.add.at(self.sent, ids, 1)
+        return batch
 
     def _deliver(self, expected: int):
         got = self.net.poll_many(float(self.round))
@@ -195,13 +216,72 @@ class BatchedRefinement:
         pos_now, rot_now = self.pos.copy(), self.rot.copy()
         self._send(PoseShare.KIND, rows, self.send_to[sel], self.size_pose)
         got = self._deliver(sel.size)
-        slot = self.send_slot[sel[got.index]]
-        src = self.send_row[sel[got.index]]
+        self._store(sel, got.index, pos_now, rot_now)
+        self.round += 1  # the receivers' round, in which nothing more is sent
+
+    def _store(self, sel: np.ndarray, index: np.ndarray, pos_now: np.ndarray, rot_now: np.ndarray) -> None:
+        """Receive half of the delivered shares ``sel[index]``: keep the pose where the receiver uses it."""
+        slot = self.send_slot[sel[index]]
+        src = self.send_row[sel[index]]
         ok = slot >= 0
         self.nb_pos[slot[ok]] = pos_now[src[ok]]
         self.nb_rot[slot[ok]] = rot_now[src[ok]]
         self.have[slot[ok]] = True
-        self.round += 1  # the receivers' round, in which nothing more is sent
+
+    def _share_reliable(self, live: np.ndarray) -> None:
+        """refine_send with acknowledgements (lossy network), round by round as the per-message path:
+        every delivered share is acknowledged the next round, and a share not acknowledged
+        ``retry_rounds`` rounds after its last copy is sent again, until none is outstanding."""
+        sel = np.flatnonzero(live[self.send_row])
+        if sel.size == 0:
+            self.round += 1
+            return
+        rows = self.send_row[sel]
+        self.share_rounds[np.unique(rows)] += 1
+        self.shares_sent += np.bincount(rows, minlength=self.ids.size)
+        self.seq += np.bincount(rows, minlength=self.ids.size)  # one sequence number per share
+        pos_now, rot_now = self.pos.copy(), self.rot.copy()
+        src_ids, dst_ids = self.ids[rows], self.send_to[sel]
+        pending = np.ones(sel.size, dtype=bool)
+        last_sent = np.zeros(sel.size, dtype=np.int64)
+        ack_for = np.zeros(0, dtype=np.int64)  # share copy each acknowledgement due this round answers
+        first = True
+        for _ in range(self.driver.max_rounds):
+            self.round += 1
+            # per link, the outbox order of the per-message path: acknowledgements, then (re)transmissions
+            ack_batch = self._send_ids(Ack.KIND, dst_ids[ack_for], src_ids[ack_for], self.size_ack) \
+                if ack_for.size else -1
+            due = pending if first else pending & (self.round - last_sent >= self.retry)
+            first = False
+            share_rows = np.flatnonzero(due)
+            share_batch = self._send_ids(PoseShare.KIND, src_ids[share_rows], dst_ids[share_rows], self.size_pose) \
+                if share_rows.size else -1
+            last_sent[share_rows] = self.round
+            got = self.net.poll_many(float(self.round))
+            acked = ack_for[got.index[got.batch == ack_batch]]
+            pending[acked] = False
+            delivered = share_rows[got.index[got.batch == share_batch]]
+            self._store(sel, delivered, pos_now, rot_now)
+            ack_for = delivered
+            if len(got) == 0 and not pending.any():
+                return
+        raise ProtocolError(f"a refinement share exchange did not settle within {self.driver.max_rounds} rounds")
+
+    def _check_per_message(self, live: np.ndarray) -> None:
+        """The gradient check on the per-message path (lossy network): hand the agents the state it
+        reads, run it on the driver's round clock, and read back who stops."""
+        rows = np.flatnonzero(live)
+        for r in rows.tolist():
+            st = self.states[r]
+            st.last_grad, st.iteration = float(self.last_grad[r]), int(self.iteration[r])
+            self.agents[int(self.ids[r])]._seq = int(self.seq[r])
+        self.driver.round = self.round
+        level = self.level
+        self.driver.phase(lambda a: a.begin_grad(level), self.ids[rows].tolist())
+        self.round = self.driver.round
+        for r in rows.tolist():
+            self.active[r] = self.states[r].active
+            self.seq[r] = self.agents[int(self.ids[r])]._seq
 
     def _update(self, live: np.ndarray) -> None:
         """refine_update on every live module (seed 003 eq. 1-2 restricted to its star)."""
@@ -303,8 +383,7 @@ class BatchedRefinement:
             a = agents[k]
             a.position = self.pos[r].copy()
             a.rotation = self.rot[r].copy()
-            a.round = self.round
-            a.sent["refinement"] += int(self.sent[r])
+            a._seq = int(self.seq[r])
             a.share_rounds += int(self.share_rounds[r])
             a.shares_sent += int(self.shares_sent[r])
             st.iteration = int(self.iteration[r])
@@ -312,6 +391,8 @@ class BatchedRefinement:
             st.active = bool(self.active[r])
             if self.moved[r]:
                 st.previous = self.prev[r].copy()
+        for k in np.flatnonzero(self.sent).tolist():
+            agents[k].sent["refinement"] += int(self.sent[k])
         for s in np.flatnonzero(self.have).tolist():
             st = self.states[int(self.slot_row[s])]
             st.nbr_pose[int(self.ids[self.slot_nb[s]])] = (self.nb_pos[s].copy(), self.nb_rot[s].reshape(d, d).copy())

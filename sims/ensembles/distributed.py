@@ -12,11 +12,11 @@ handlers see its own deliveries. A phase ends when no message is in flight and n
 acknowledgement (the simulator's termination detection). Every message is counted by phase and by
 sending module; the counts are checked against the network's own counters.
 
-On a lossless network the refinement (about 90 % of the messages) runs by default through
+The refinement (about 90 % of the messages) runs by default through
 :class:`agents.modules.BatchedRefinement`: the same handlers in lockstep over arrays, the same
-messages handed to the network in one batched call per round and kind (exact counts, sizes and
-rounds; tested against the per-message path). ``batched=False``, or any loss, keeps every message
-on the per-message path.
+messages handed to the network in one batched call per round and kind (exact counts, sizes, losses
+and rounds; tested against the per-message path, lossless and lossy). ``batched=False`` keeps every
+message on the per-message path.
 """
 
 from __future__ import annotations
@@ -63,8 +63,9 @@ class DistributedConfig:
     max_rounds : int
         Safety cap on the rounds of one phase (a protocol that does not settle raises).
     batched : bool
-        Run the refinement through :class:`agents.modules.BatchedRefinement` when the network is
-        lossless (same messages, counts and answer; about two orders of magnitude faster).
+        Run the refinement through :class:`agents.modules.BatchedRefinement` (same messages,
+        counts, losses, rounds and answer as the per-message path; on a lossless network about
+        two orders of magnitude faster for that phase).
     """
 
     hierarchy: HierarchyConfig = HierarchyConfig()
@@ -200,9 +201,10 @@ def run_distributed(problem: EnsembleProblem, rng: np.random.Generator,
             continue
         drv.phase(lambda a: a.begin_boundary(lv), members)
         drv.phase(lambda a: a.begin_align(lv), members)
-        if config.batched and config.loss == 0:
+        if config.batched:
             t1 = time.perf_counter()
-            iterations[lv], drv.round = BatchedRefinement(agents, members, lv, net, config.check_every).run(drv.round)
+            iterations[lv], drv.round = BatchedRefinement(agents, members, lv, net, config.check_every,
+                                                          drv).run(drv.round)
             t_refine += time.perf_counter() - t1
             continue
         for k in members:
@@ -255,6 +257,6 @@ def run_distributed(problem: EnsembleProblem, rng: np.random.Generator,
               "refine_iterations": iterations,
               "refine_share_rounds": int(sum(a.share_rounds for a in agents)),
               "refine_pose_shares": int(sum(a.shares_sent for a in agents)),
-              "batched": bool(config.batched and config.loss == 0),
+              "batched": bool(config.batched),
               "notes": [e for a in agents for e in a.events]},
     )

@@ -19,6 +19,12 @@ def problem():
 
 
 @pytest.fixture(scope="module")
+def small():
+    ens = generate(EnsembleSpec(shape="triple", n=16), np.random.default_rng(4))
+    return EnsembleProblem.create(ens.dim, ens.n, ens.radius, ens.i, ens.j, ens.z)
+
+
+@pytest.fixture(scope="module")
 def exact_run(problem):
     return run_distributed(problem, np.random.default_rng(0), DistributedConfig(hierarchy=EXACT, top_gtol=1e-6))
 
@@ -87,12 +93,12 @@ def test_same_seed_same_messages(problem, exact_run):
 
 
 
-def _both_paths(problem, hierarchy, seed):
+def _both_paths(problem, hierarchy, seed, loss=0.0):
     """The same run through the batched refinement and through the per-message path (the benchmark's
     loose tolerances, so that the per-message run stays cheap)."""
     h = HierarchyConfig(leaf_size=hierarchy.leaf_size, cut=hierarchy.cut, abstract_size=hierarchy.abstract_size,
                         level_refine=RefineConfig(max_iter=100, gtol=0.01))
-    cfg = dict(hierarchy=h, top_gtol=1e-2, check_every=5)
+    cfg = dict(hierarchy=h, top_gtol=1e-2, check_every=5, loss=loss)
     fast = run_distributed(problem, np.random.default_rng(seed), DistributedConfig(**cfg))
     slow = run_distributed(problem, np.random.default_rng(seed), DistributedConfig(**cfg, batched=False))
     return fast, slow
@@ -115,6 +121,17 @@ def test_batched_refinement_counts_what_the_per_message_path_counts(problem, hie
     assert np.allclose(slow.estimate.position, fast.estimate.position, rtol=0, atol=1e-12)
 
 
+def test_batched_refinement_matches_on_a_lossy_network(small):
+    """At 30 % loss the batched path acknowledges and retransmits as the per-message path does: the
+    same copies are lost (same per-link draws), and messages, drops, bytes, rounds and the estimate agree."""
+    fast, slow = _both_paths(small, EXACT, 1, loss=0.3)
+    assert fast.network["drop_reasons"]["loss"] > 0 and fast.levels >= 2
+    assert np.array_equal(slow.messages, fast.messages)
+    assert np.array_equal(slow.phase_messages, fast.phase_messages)
+    assert slow.network == fast.network and slow.rounds == fast.rounds
+    assert np.allclose(slow.estimate.position, fast.estimate.position, rtol=0, atol=1e-12)
+
+
 def test_batched_refinement_matches_in_3d():
     """On a 3D cubic lattice the two paths also count exactly the same messages."""
     ens = generate(EnsembleSpec(shape="box", n=20, lattice="cubic"), np.random.default_rng(2))
@@ -125,11 +142,10 @@ def test_batched_refinement_matches_in_3d():
     assert np.allclose(slow.estimate.position, fast.estimate.position, rtol=0, atol=1e-12)
 
 
-def test_batched_refinement_matches_with_two_components():
+def test_batched_refinement_matches_with_two_components(small):
     """Two disconnected components refine side by side (different trees, stopping at different
     iterations) and the batched path still counts exactly what the per-message path counts."""
-    ens = generate(EnsembleSpec(shape="triple", n=16), np.random.default_rng(4))
-    problem = EnsembleProblem.create(ens.dim, ens.n, ens.radius, ens.i, ens.j, ens.z)
+    problem = small
     n = problem.n
     keep = problem.i < problem.j  # a second copy with every observation reversed: a different component
     two = EnsembleProblem.create(problem.dim, 2 * n, problem.radius,
