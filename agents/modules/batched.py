@@ -70,7 +70,7 @@ class BatchedRefinement:
     level : int
         Hierarchy level.
     net : SimulatedNetwork
-        The network the agents are attached to (lossless).
+        The network the agents are attached to.
     check_every : int
         Iterations between two gradient checks (the runner's schedule).
     driver : object, optional
