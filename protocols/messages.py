@@ -3,13 +3,13 @@
 Every message is a frozen, slotted, keyword-only dataclass deriving from :class:`Message`. It carries
 ``sender``, ``receiver`` (an agent name or :data:`BROADCAST`) and ``round``, plus the fields of its
 kind. Encoding never uses pickle: numbers go through :mod:`struct`, arrays through
-``np.save(..., allow_pickle=False)``, and the frame is checked with a CRC32.
+a fixed dtype code, the shape and the raw little-endian bytes, and the frame is checked with a CRC32.
 
-Wire format, version 1 (all integers little-endian)::
+Wire format, version 2 (all integers little-endian)::
 
     offset size  field
     0      4     magic  b"DCNT"
-    4      1     version (1)
+    4      1     version (2; version 1 frames are still read)
     5      1     flags (0, reserved)
     6      2     kind id: crc32(KIND) & 0xFFFF, unique in the registry
     8      4     body length B in bytes
@@ -19,7 +19,12 @@ Wire format, version 1 (all integers little-endian)::
     body := str(sender) str(receiver) i64(round) u16(field count) value*   (fields in declaration order)
     value := tag:u8 payload
         b"n" none | b"?" bool:u8 | b"i" int:i64 | b"f" float:f64 | b"s" str: u32 length + UTF-8
-        b"y" bytes: u32 length + raw | b"a" array: u32 length + .npy bytes (numeric or bool dtypes only)
+        b"y" bytes: u32 length + raw
+        b"A" array (version 2): u8 dtype code + u8 ndim + u32 shape[ndim] + raw C-order little-endian data,
+             codes 1..12 = bool, int8, int16, int32, int64, uint8, uint16, uint32, uint64, float16,
+             float32, float64 (numeric or bool dtypes only)
+        b"a" array (version 1 only): u32 length + .npy bytes (``np.save(..., allow_pickle=False)``);
+             version 2 drops the ~128-byte .npy header per array
         b"l" tuple: u32 count + value* | b"m" mapping: u32 count + (str key, value)*
         b"F" tuple of floats: u32 count + f64* | b"I" tuple of ints: u32 count + i64*  (compact forms
         the encoder uses for non-empty homogeneous tuples of Python floats / ints)
@@ -85,7 +90,14 @@ __all__ = [
 #: receiver marker of a message addressed to every other agent on the transport
 BROADCAST = "*"
 MAGIC = b"DCNT"
-WIRE_VERSION = 1
+WIRE_VERSION = 2
+_READABLE_VERSIONS = (1, 2)
+#: dtype code on the wire (version 2) -> little-endian dtype
+_DTYPES = {1: np.dtype("?"), 2: np.dtype("<i1"), 3: np.dtype("<i2"), 4: np.dtype("<i4"), 5: np.dtype("<i8"),
+           6: np.dtype("<u1"), 7: np.dtype("<u2"), 8: np.dtype("<u4"), 9: np.dtype("<u8"), 10: np.dtype("<f2"),
+           11: np.dtype("<f4"), 12: np.dtype("<f8")}
+_DTYPE_CODES = {dt: code for code, dt in _DTYPES.items()}
+_MAX_NDIM = 32
 _HEADER = struct.Struct("<4sBBHII")
 HEADER_SIZE = _HEADER.size  # 16
 _MAX_NAME = 255
@@ -205,6 +217,10 @@ class Message:
 
     def to_bytes(self) -> bytes:
         """Encode the message as one wire frame (see the module docstring)."""
+        return self._encode(WIRE_VERSION)
+
+    def _encode(self, version: int) -> bytes:
+        """Encode as a frame of wire ``version`` (1 only for compatibility tests)."""
         cls = type(self)
         if _REGISTRY.get(kind_id(cls.KIND)) is not cls:
             raise ProtocolError(f"message class {cls.__name__} is not registered")
@@ -212,9 +228,9 @@ class Message:
         names = self.payload_fields()
         out.append(struct.pack("<H", len(names)))
         for name in names:
-            _enc_value(getattr(self, name), name, out)
+            _enc_value(getattr(self, name), name, out, version)
         body = b"".join(out)
-        head = struct.pack("<4sBBHI", MAGIC, WIRE_VERSION, 0, kind_id(cls.KIND), len(body))
+        head = struct.pack("<4sBBHI", MAGIC, version, 0, kind_id(cls.KIND), len(body))
         crc = zlib.crc32(body, zlib.crc32(head))
         return head + struct.pack("<I", crc) + body
 
@@ -277,7 +293,7 @@ def _enc_str(s: str) -> bytes:
     return struct.pack("<I", len(raw)) + raw
 
 
-def _enc_value(value: Any, field: str, out: list[bytes]) -> None:
+def _enc_value(value: Any, field: str, out: list[bytes], version: int = WIRE_VERSION) -> None:
     if value is None:
         out.append(b"n")
     elif isinstance(value, (bool, np.bool_)):
@@ -295,6 +311,13 @@ def _enc_value(value: Any, field: str, out: list[bytes]) -> None:
     elif isinstance(value, np.ndarray):
         if value.dtype.kind not in "biuf":
             raise ProtocolError(f"field {field!r}: dtype {value.dtype} cannot go on the wire")
+        if version >= 2:
+            code = _DTYPE_CODES.get(value.dtype.newbyteorder("<"))
+            if code is None or value.ndim > _MAX_NDIM:
+                raise ProtocolError(f"field {field!r}: dtype {value.dtype} / ndim {value.ndim} cannot go on the wire")
+            data = np.ascontiguousarray(value, dtype=_DTYPES[code]).tobytes()
+            out.append(b"A" + struct.pack(f"<BB{value.ndim}I", code, value.ndim, *value.shape) + data)
+            return
         buf = io.BytesIO()
         np.save(buf, value, allow_pickle=False)
         raw = buf.getvalue()
@@ -307,14 +330,14 @@ def _enc_value(value: Any, field: str, out: list[bytes]) -> None:
         else:
             out.append(b"l" + _U32.pack(len(value)))
             for item in value:
-                _enc_value(item, field, out)
+                _enc_value(item, field, out, version)
     elif isinstance(value, Mapping):
         out.append(b"m" + struct.pack("<I", len(value)))
         for key, item in value.items():
             if not isinstance(key, str):
                 raise ProtocolError(f"field {field!r}: mapping keys must be str")
             out.append(_enc_str(key))
-            _enc_value(item, field, out)
+            _enc_value(item, field, out, version)
     else:
         raise ProtocolError(f"field {field!r}: values of type {type(value).__name__} cannot go on the wire")
 
@@ -325,12 +348,13 @@ _U8, _U16, _U32, _I64, _F64 = (struct.Struct(f) for f in ("<B", "<H", "<I", "<q"
 class _Reader:
     """Bounds-checked cursor over a body; every defect is a ProtocolError."""
 
-    __slots__ = ("data", "pos", "end")
+    __slots__ = ("data", "pos", "end", "version")
 
-    def __init__(self, data: bytes):
+    def __init__(self, data: bytes, version: int = WIRE_VERSION):
         self.data = data
         self.pos = 0
         self.end = len(data)
+        self.version = version
 
     def take(self, n: int, what: str) -> bytes:
         if n < 0 or self.pos + n > self.end:
@@ -382,7 +406,9 @@ class _Reader:
             return self.string(f"field {field!r}")
         if tag == b"y":
             return self.take(self.num(_U32, field), field)
-        if tag == b"a":
+        if tag == b"A" and self.version >= 2:
+            return self.raw_array(field)
+        if tag == b"a" and self.version == 1:
             return _load_array(self.take(self.num(_U32, field), field), field)
         if tag == b"l":
             n = self.num(_U32, field)
@@ -399,6 +425,23 @@ class _Reader:
                 out[key] = self.value(field, depth + 1)
             return out
         raise ProtocolError(f"field {field!r}: unknown value tag {tag!r}")
+
+
+    def raw_array(self, field: str) -> np.ndarray:
+        code = self.num(_U8, field)
+        dt = _DTYPES.get(code)
+        if dt is None:
+            raise ProtocolError(f"field {field!r}: bad array dtype code {code}")
+        ndim = self.num(_U8, field)
+        if ndim > _MAX_NDIM:
+            raise ProtocolError(f"field {field!r}: bad array ndim {ndim}")
+        shape = struct.unpack(f"<{ndim}I", self.take(4 * ndim, field))
+        count = math.prod(shape)
+        raw = self.take(count * dt.itemsize, field)
+        arr = np.frombuffer(raw, dtype=dt).reshape(shape)
+        if dt.kind == "b" and count and raw.strip(b"\x00\x01"):
+            raise ProtocolError(f"field {field!r}: bad bool bytes in array")
+        return arr.astype(dt.newbyteorder("="), copy=True)
 
 
 def _load_array(raw: bytes, field: str) -> np.ndarray:
@@ -433,8 +476,8 @@ def decode(data: bytes | bytearray | memoryview) -> Message:
     magic, version, _flags, kid, length, crc = _HEADER.unpack_from(data)
     if magic != MAGIC:
         raise ProtocolError(f"bad magic {magic!r}, expected {MAGIC!r}")
-    if version != WIRE_VERSION:
-        raise ProtocolError(f"unsupported wire version {version}, this side speaks {WIRE_VERSION}")
+    if version not in _READABLE_VERSIONS:
+        raise ProtocolError(f"unsupported wire version {version}, this side reads {_READABLE_VERSIONS}")
     if len(data) != HEADER_SIZE + length:
         raise ProtocolError(f"frame length mismatch: header says {length} body bytes, got {len(data) - HEADER_SIZE}")
     body = data[HEADER_SIZE:]
@@ -443,7 +486,7 @@ def decode(data: bytes | bytearray | memoryview) -> Message:
     cls = _REGISTRY.get(kid)
     if cls is None:
         raise ProtocolError(f"unknown message kind id {kid}")
-    r = _Reader(body)
+    r = _Reader(body, version)
     sender = r.string("sender")
     receiver = r.string("receiver")
     rnd = r.num(_I64, "round")

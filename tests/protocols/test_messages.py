@@ -162,9 +162,9 @@ def test_corruption_messages_are_clear(mutate, words):
 
 
 def test_bad_array_payload_is_rejected():
-    """A frame whose .npy payload is malformed (with a valid CRC) raises ProtocolError."""
+    """A version-1 frame whose .npy payload is malformed (with a valid CRC) raises ProtocolError."""
     msg = AdmmPrimal(sender="a", receiver="b", round=1, window=0, blocks={"x": np.arange(3.0)})
-    frame = msg.to_bytes()
+    frame = msg._encode(1)
     body = bytearray(frame[HEADER_SIZE:])
     at = bytes(body).index(b"\x93NUMPY")
     body[at + 1 : at + 6] = b"NOPE!"
@@ -180,11 +180,11 @@ def test_object_arrays_cannot_be_sent():
 
 def test_kind_validation_runs_on_decode():
     """A frame carrying values its kind rejects (non-finite pose) raises ProtocolError on decode."""
-    ok = PoseEstimates(sender="a", receiver="*", round=0, t=0.0, subjects=("b",), poses=np.zeros((1, 3)),
+    ok = PoseEstimates(sender="a", receiver="*", round=0, t=0.0, subjects=("b",), poses=[[1.25, 0.0, 0.0]],
                        covariances=np.zeros((1, 3, 3)))
     frame = ok.to_bytes()
     body = frame[HEADER_SIZE:]
-    raw = np.zeros((1, 3)).tobytes()
+    raw = np.array([[1.25, 0.0, 0.0]]).tobytes()
     bad = body.replace(raw, np.array([[np.nan, 0, 0]]).tobytes(), 1)
     assert bad != body
     with pytest.raises(ProtocolError, match="finite"):
@@ -297,3 +297,42 @@ def test_homogeneous_tuples_round_trip_compactly(values):
     assert back.values == tuple(values) and [type(v) for v in back.values] == [type(v) for v in values]
     empty = Packed(sender="a", receiver="b", round=0, values=())
     assert msg.size_bytes - empty.size_bytes == 8 * len(values)
+
+
+def test_version_one_frames_still_decode():
+    """A frame in wire version 1 (arrays as .npy) decodes to the same message as version 2."""
+    msg = AdmmDual(sender="a", receiver="b", round=3, window=2, rho=0.5,
+                   blocks={"x": np.arange(16.0).reshape(2, 8), "meta": np.ones(4)})
+    old = msg._encode(1)
+    assert old[4] == 1 and msg.to_bytes()[4] == 2
+    assert decode(old) == msg
+
+
+def test_version_two_arrays_carry_no_npy_header():
+    """A version-2 array costs its dtype code, ndim, shape and raw data: 2 + 4 ndim + itemsize * size bytes."""
+    small = AdmmPrimal(sender="a", receiver="b", round=1, window=0, blocks={"x": np.zeros((0,))})
+    big = AdmmPrimal(sender="a", receiver="b", round=1, window=0, blocks={"x": np.zeros((5, 8))})
+    assert big.size_bytes - small.size_bytes == 4 + 8 * 40
+
+
+@pytest.mark.parametrize("patch, words", [
+    (lambda raw: bytes([99]) + raw[1:], "dtype code"),
+    (lambda raw: raw[:1] + bytes([200]) + raw[2:], "ndim"),
+    (lambda raw: raw[:2] + struct.pack("<I", 1000) + raw[6:], "truncated"),
+])
+def test_malformed_raw_arrays_are_rejected(patch, words):
+    """A version-2 array with an unknown dtype code, absurd ndim or a shape larger than its data is rejected."""
+    msg = AdmmPrimal(sender="a", receiver="b", round=1, window=0, blocks={"x": np.arange(3.0)})
+    frame = msg.to_bytes()
+    body = frame[HEADER_SIZE:]
+    at = body.index(b"A" + bytes([12, 1]))
+    raw = body[at + 1:]
+    with pytest.raises(ProtocolError, match=words):
+        decode(_reframe(frame, body=body[:at + 1] + patch(raw)))
+
+
+def test_raw_bool_arrays_reject_bytes_other_than_zero_and_one():
+    """A version-2 bool array whose bytes are not 0/1 is rejected (never reinterpreted)."""
+    from protocols.messages import _Reader
+    with pytest.raises(ProtocolError, match="bool"):
+        _Reader(b"A" + bytes([1, 1]) + struct.pack("<I", 2) + b"\x01\x07").value("x")
