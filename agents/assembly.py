@@ -40,12 +40,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from decentral.admm import AdmmConfig, ConsensusState, PairState, quadratic_form
+from decentral.admm import AdmmConfig, ConsensusState, LocalProblem, PairState, quadratic_form, scalar_metric, solve_joint
 from decentral.errors import InputError
 from decentral.factors import NoiseModel, detection_weights
-from decentral.geometry import backproject, wrap_angle
+from decentral.geometry import backproject, rot2, wrap_angle
 from decentral.observations import Camera, Detection, Odometry, PlanarPose, Pose
-from protocols.admm_messages import ConfigAnnounce, ConfigRequest
+from protocols.admm_messages import ConfigAnnounce, ConfigRequest, FactorShare, pack_forms
 from protocols.messages import BROADCAST, AdmmDual, AdmmPrimal, Message
 
 __all__ = ["AgentConfig", "OwnStep", "AssemblyAgent"]
@@ -80,6 +80,13 @@ class AgentConfig:
     patience : int
         Rounds an ADMM step waits for a neighbour's value of the current iteration (while resending
         its own last value, which repairs lost copies) before going on with the newest value it has.
+    share_forms : {"first", "every", "never"}
+        When agents share their cost forms (``admm.factors``) and start the ADMM at the joint solution
+        they all compute from them: at the run's first step (step 0, the cold start; default), at every
+        step, or never (the gauge flood alone). See the module docstring.
+    share_timeout : int
+        Rounds after which an agent goes on with the forms it has (agents that never answered start
+        from the gauge flood instead).
     """
 
     name: str
@@ -93,6 +100,8 @@ class AgentConfig:
     announce_every: int = 5
     stale_rounds: int = 2
     patience: int = 6
+    share_forms: str = "first"
+    share_timeout: int = 24
 
     def __post_init__(self) -> None:
         if self.name not in self.assemblies or self.reference not in self.assemblies:
@@ -103,6 +112,8 @@ class AgentConfig:
             raise InputError(f"window must be an integer >= 1, got {self.window!r}", field="window")
         if not (isinstance(self.announce_every, int) and self.announce_every >= 1):
             raise InputError("announce_every must be an integer >= 1", field="announce_every")
+        if self.share_forms not in ("first", "every", "never"):
+            raise InputError("share_forms must be 'first', 'every' or 'never'", field="share_forms")
 
 
 @dataclass(frozen=True)
@@ -142,6 +153,8 @@ class _Inbound:
     ready: bool
     rho: tuple[float, float] = (0.0, 0.0)
     iteration: int = 0
+    metrics: dict = field(default_factory=dict)  # step -> (P (3, 3), w_z): penalty metric of a dual copy
+    window: int = 0  # the sender's step when it sent the values
 
 
 class AssemblyAgent:
@@ -188,6 +201,11 @@ class AssemblyAgent:
         self._waiting: dict[tuple, int] = {}
         self._last_dual: dict[str, dict] = {}
         self._last_primal: dict | None = None
+        self._seeds: dict[tuple[str, int], tuple] = {}  # (assembly, step) -> Pose2 of a known joint solution
+        self._boot: dict | None = None  # cold-start state while sharing the first step's pair forms
+        self._own_forms: tuple | None = None  # (step, keys, forms, pin) last shared (answers late askers)
+        self._table_changed = 0  # last round the gossip table changed by more than the tolerances
+        self._booted = -1  # round whose pair phase finished the sharing of forms
 
     # ------------------------------------------------------------------ sensing
     @property
@@ -197,6 +215,12 @@ class AssemblyAgent:
     def on_step(self, own: OwnStep) -> None:
         """Take the assembly's own observations of a new step and slide the window."""
         cfg = self.config
+        first = self._step is None and own.step == 0
+        self._seeds = {}
+        if cfg.share_forms == "every" or (cfg.share_forms == "first" and first):
+            self._boot = {"records": {}, "start": None, "sent": -(10**9), "waited": 0, "step": own.step,
+                          "pin": None}
+            self._own_forms = None
         self._step, self._t = own.step, own.t
         self._own_config = {int(k): np.asarray(v, float) for k, v in own.config.items()}
         if own.odometry is not None:
@@ -216,6 +240,18 @@ class AssemblyAgent:
         self._dirty = True
         self._converged = False
         self._step_rounds = 0
+
+    def seed(self, poses: dict) -> None:
+        """Start the current window from a known joint solution ``(assembly, step) -> (R (2, 2), p (3,))``.
+
+        Own consensus poses take their values; pairs built afterwards start at the solution with the
+        duals that make it an ADMM fixed point (:meth:`decentral.admm.PairState.seed`).
+        """
+        self._seeds = dict(poses)
+        self._consensus.seed({k: v for (a, k), v in poses.items() if a == self.name})
+        for pair in self._pairs.values():
+            pair.seed(self._seeds)
+        self._dirty = True
 
     def _announcement(self, receiver: str) -> ConfigAnnounce:
         ids = np.array(sorted(self._own_config), dtype=np.int64)
@@ -248,6 +284,8 @@ class AssemblyAgent:
             hist = [h for h in self._configs.get(message.sender, []) if h[0] != message.step]
             self._configs[message.sender] = sorted(hist + [entry], key=lambda h: h[0])
             self._dirty = True
+        elif isinstance(message, FactorShare):
+            self._on_factors(message)
         elif isinstance(message, ConfigRequest):
             if self._step is not None and any(int(i) in self._own_config for i in message.ids):
                 self._outbox.append(self._announcement(message.sender))
@@ -263,8 +301,18 @@ class AssemblyAgent:
             if old is not None and old.round >= message.round:
                 return  # a duplicate or an overtaken (reordered) copy
             values = {int(row[0]): (row[1:5].reshape(2, 2).copy(), row[5:8].copy()) for row in x}
+            metrics = {}
+            if isinstance(message, AdmmDual):
+                w = b.get("w")
+                if w is not None and w.shape == (x.shape[0], 7):
+                    for row, wr in zip(x, w):
+                        P = np.array([[wr[0], wr[1], wr[2]], [wr[1], wr[3], wr[4]], [wr[2], wr[4], wr[5]]])
+                        metrics[int(row[0])] = (P, float(wr[6]))
+                else:  # scalar penalties only (meta: rho_R, rho_p)
+                    P, w_z = scalar_metric([float(meta[1])], [float(meta[2])])
+                    metrics = {k: (P[0], float(w_z[0])) for k in values}
             store[message.sender] = _Inbound(message.round, values, bool(meta[0] > 0.5), (float(meta[1]), float(meta[2])),
-                                             int(meta[3]))
+                                             int(meta[3]), metrics, int(message.window))
         else:
             self.counters["ignored"] += 1
 
@@ -312,6 +360,8 @@ class AssemblyAgent:
             problem = quadratic_form(keys, visual=(np.array(io), np.array(ia), np.array(q), np.array(t), np.array(w)))
             pair = self._pairs.get(target) or PairState(self.name, target, self.config.admm)
             pair.set_problem(problem)
+            if pair.iterations == 0 and not pair.y and self._seeds:
+                pair.seed(self._seeds)
             self._pairs[target] = pair
         self._dirty = False
 
@@ -320,6 +370,13 @@ class AssemblyAgent:
         if self._step is None:
             return
         self._round = round_index
+        if self._boot is not None or self._phase == 1 and self._booted == round_index:
+            if self._phase == 0:
+                self._bootstrap_phase()
+                if self._boot is None:
+                    self._booted = round_index  # the ADMM starts with the next round's pair phase
+            self._phase = 1 - self._phase
+            return
         if self._phase == 0:
             self._pair_phase()
         else:
@@ -329,15 +386,103 @@ class AssemblyAgent:
     def _age(self, inbound: _Inbound | None) -> int:
         return 10**9 if inbound is None else max(0, self._round - inbound.round)
 
+    # ------------------------------------------------------------------ cold start
+    def _request_unknown(self) -> None:
+        if self._unknown and self._round - self._requested >= 3:
+            self._outbox.append(ConfigRequest(sender=self.name, receiver=BROADCAST, round=self._round,
+                                              ids=np.array(sorted(self._unknown), dtype=np.int64)))
+            self._requested = self._round
+
+    def _bootstrap_phase(self) -> None:
+        """Share the window's cost forms; once every agent's are in (or on timeout) solve and seed."""
+        boot, cfg = self._boot, self.config
+        if boot["start"] is None:
+            boot["start"] = self._round
+        if self._dirty:
+            self._rebuild()
+        self._request_unknown()
+        me = self._index[self.name]
+        if self._own_forms is None and (not self._unknown or boot["waited"] >= cfg.patience):
+            forms = [tuple((self._index[a], k) for a, k in pair.problem.keys) + (pair.problem,)
+                     for _, pair in sorted(self._pairs.items()) if pair.problem is not None and pair.problem.n]
+            odo = self._consensus.odometry_problem()
+            if odo is not None:
+                forms.append(tuple((me, k[1]) for k in odo.keys) + (odo,))
+            keys, flat = pack_forms([(f[:-1], f[-1].M, f[-1].b_z, f[-1].c_z) for f in forms])
+            pin = np.zeros(0)
+            cons = self._consensus
+            if cons.pinned and cons.pin is not None:
+                pin = np.array([cons.pin[0], *cons.pin[2], cons.pin[1]])
+            self._own_forms = (boot["step"], keys, flat, pin)
+            # own forms go through the same packing as everyone else's, so all agents sum identical numbers
+            self._on_factors(self._factor_share(self.name))
+        boot["waited"] += 1
+        if self._own_forms is not None and self._round - boot["sent"] >= 3:
+            self._outbox.append(self._factor_share(BROADCAST))
+            boot["sent"] = self._round
+        if len(boot["records"]) == len(cfg.assemblies) or self._round - boot["start"] >= cfg.share_timeout:
+            self._finish_bootstrap()
+
+    def _factor_share(self, receiver: str) -> FactorShare:
+        step, keys, flat, pin = self._own_forms
+        have = [self._index[self.name]]
+        if self._boot is not None and self._boot["step"] == step:
+            have = sorted(self._boot["records"])
+        return FactorShare(sender=self.name, receiver=receiver, round=self._round, step=step,
+                           have=np.array(have, dtype=np.int64), keys=keys, forms=flat, pin=pin)
+
+    def _on_factors(self, message: FactorShare) -> None:
+        sender = self._index.get(message.sender)
+        n = len(self.config.assemblies)
+        if sender is None or (len(message.keys) and message.keys[:, 1].max() >= n):
+            self.counters["ignored"] += 1
+            return
+        boot = self._boot
+        if boot is not None and message.step == boot["step"] and sender not in boot["records"]:
+            names = self.config.assemblies
+            boot["records"][sender] = [
+                (keys, LocalProblem(tuple((names[a], s) for a, s in keys), M, b_z, c_z))
+                for keys, M, b_z, c_z in message.unpack()]
+            if len(message.pin):
+                boot["pin"] = np.array(message.pin)
+        mine = self._own_forms
+        if (mine is not None and mine[0] == message.step and message.sender != self.name
+                and self._index[self.name] not in set(message.have.tolist())):
+            self._outbox.append(self._factor_share(message.sender))  # it lacks ours: answer directly
+
+    def _finish_bootstrap(self) -> None:
+        """Solve the joint problem of the shared forms (:func:`decentral.admm.solve_joint`) and seed the ADMM."""
+        boot = self._boot
+        self._boot = None
+        problems = [prob for idx in sorted(boot["records"]) for _, prob in boot["records"][idx]]
+        if not problems:
+            return
+        first = self._steps[0]
+        ref = self.config.reference
+        value = None
+        pin = boot["pin"]
+        if pin is not None and int(pin[0]) == first:
+            value = (rot2(float(pin[4])), np.array(pin[1:4]))
+        elif first != 0:
+            return  # the gauge's value at this window is unknown here: the ADMM goes on from its own state
+        seeds = solve_joint(problems, (ref, first), value)
+        if self.config.share_forms == "every":
+            # a fresh ADMM start at the new window's fixed point: earlier values belong to the old window
+            self._targets_z = {a: v for a, v in self._targets_z.items() if v.window >= self._step}
+            self._observers = {a: v for a, v in self._observers.items() if v.window >= self._step}
+            self._iter = 0
+            self._pair_iter, self._waiting, self._pair_out, self._last_dual = {}, {}, {}, {}
+            self._last_primal = None
+            for pair in self._pairs.values():
+                pair.y, pair.y_hat = {}, {}
+        self.seed(seeds)
+
     def _pair_phase(self) -> None:
         """Phase 0: each owned pair iterates once the target's consensus of its iteration has arrived."""
         if self._dirty:
             self._rebuild()
         me, cons, patience = self.name, self._consensus, self.config.patience
-        if self._unknown and self._round - self._requested >= 3:
-            self._outbox.append(ConfigRequest(sender=me, receiver=BROADCAST, round=self._round,
-                                              ids=np.array(sorted(self._unknown), dtype=np.int64)))
-            self._requested = self._round
+        self._request_unknown()
         self._fresh_pairs = True
         for target, pair in self._pairs.items():
             inbound = self._targets_z.get(target)
@@ -356,16 +501,21 @@ class AssemblyAgent:
                 if inbound is not None:
                     z.update({(target, k): v for k, v in inbound.values.items() if k in cons.z})
                     ready[target] = inbound.ready
-                out = pair.iterate(z, ready)
+                elif any(key[0] == target for key in self._seeds):  # nothing heard yet: the seeded solution
+                    z.update({key: v for key, v in self._seeds.items() if key[0] == target and key[1] in cons.z})
+                    ready[target] = True
+                out, metrics = pair.iterate(z, ready)
                 if not pair.certified:
                     self.counters["uncertified"] += 1
                 i = max(i, inbound.iteration if inbound is not None else 0) + 1
                 self._pair_iter[target] = i
                 self._waiting[("pair", target)] = 0
                 mine = {k[1]: v for k, v in out.items() if k[0] == me}
-                self._pair_out[target] = (mine, pair.rho_R, pair.rho_p, cons.ready or ready[target], i)
+                mine_m = {k[1]: v for k, v in metrics.items() if k[0] == me}
+                self._pair_out[target] = (mine, mine_m, cons.ready or ready[target], i)
                 theirs = sorted((k[1], v) for k, v in out.items() if k[0] == target)
-                self._last_dual[target] = self._blocks(theirs, cons.ready, i, rho=(pair.rho_R, pair.rho_p))
+                w = np.array([_packed(metrics[(target, k)]) for k, _ in theirs], float).reshape(-1, 7)
+                self._last_dual[target] = self._blocks(theirs, cons.ready, i, rho=(pair.rho_R, pair.rho_p), w=w)
             else:
                 self._waiting[("pair", target)] = waited + 1
                 self.counters["retransmits"] += 1
@@ -383,8 +533,8 @@ class AssemblyAgent:
         for target in self._pairs:
             ages[target] = self._age(self._targets_z.get(target))
             if target in self._pair_out:
-                mine, rR, rp, usable, it = self._pair_out[target]
-                inputs.append((it, usable, (mine, rR, rp)))
+                mine, mine_m, usable, it = self._pair_out[target]
+                inputs.append((it, usable, (mine, mine_m)))
         for sender, inbound in self._observers.items():
             age = self._age(inbound)
             if age > gone:
@@ -394,7 +544,7 @@ class AssemblyAgent:
                 continue  # copies of steps that left the window
             # an observer silent for `patience` rounds is not waited for (its newest copies still count)
             it = inbound.iteration if age <= cfg.patience else 10**12
-            inputs.append((it, inbound.ready or cons.ready, (inbound.values, *inbound.rho)))
+            inputs.append((it, inbound.ready or cons.ready, (inbound.values, inbound.metrics)))
         self._last_ages = ages
         waited = self._waiting.get(("cons", ""), 0)
         lowest = min((it for it, _, _ in inputs), default=self._iter + 1)
@@ -430,6 +580,7 @@ class AssemblyAgent:
                      and self._step_rounds >= cfg.patience)
             self._converged = alone or bool(
                 lowest >= self._iter_before + 1
+                and self._round - self._table_changed >= 2  # the gossip of the others' poses has settled
                 and cons.ready
                 and all(p.converged() for p in self._pairs.values())
                 and cons.change <= max(eps.eps_rot, eps.eps_pos)
@@ -440,16 +591,22 @@ class AssemblyAgent:
         """Steps at which an observer holds copies of this assembly (factors it cannot see itself)."""
         return {k for inbound in self._observers.values() for k in inbound.values}
 
-    def _blocks(self, values: list, ready: bool, iteration: int, rho: tuple[float, float] | None = None) -> dict:
+    def _blocks(self, values: list, ready: bool, iteration: int, rho: tuple[float, float] | None = None,
+                w: np.ndarray | None = None) -> dict:
         """Wire blocks: ``x`` rows ``(step, R00, R01, R10, R11, px, py, pz)``, ``meta`` = (ready, rho_R, rho_p,
         ADMM iteration),
         ``table`` the gossip rows (few arrays: each costs a ~128-byte ``.npy`` header)."""
         x = np.array([[k, *v[0].ravel(), *v[1]] for k, v in values], float).reshape(-1, 8)
         rho = rho or (0.0, 0.0)
         blocks = {"x": x, "meta": np.array([1.0 if ready else 0.0, rho[0], rho[1], float(iteration)])}
+        if w is not None:
+            blocks["w"] = w
         if self._table:
             blocks["table"] = np.array([self._table[i] for i in sorted(self._table)])
         return blocks
+
+    def _table_eps(self) -> float:
+        return min(self.config.admm.eps_rot, self.config.admm.eps_pos)
 
     def _merge_table(self, table) -> None:
         if table is None:
@@ -461,6 +618,9 @@ class AssemblyAgent:
             old = self._table.get(i)
             if old is None or (row[1], row[2]) > (old[1], old[2]):
                 self._table[i] = np.array(row)
+                moved = max(np.abs(row[3:6] - old[3:6]).max(), abs(wrap_angle(row[6] - old[6]))) if old is not None else 0
+                if old is None or row[1] != old[1] or moved > self._table_eps():
+                    self._table_changed = self._round
 
     # ------------------------------------------------------------------ results
     @property
@@ -499,6 +659,12 @@ class AssemblyAgent:
             p = np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1], d[2]])  # seed 000 eq. (19)
             out[self.config.assemblies[i]] = PlanarPose(p, float(wrap_angle(row[6] - me[6])))
         return out
+
+
+def _packed(metric: tuple[np.ndarray, float]) -> list[float]:
+    """``(P, w_z)`` as the wire row ``(P00, P01, P02, P11, P12, P22, w_z)``."""
+    P, w_z = metric
+    return [P[0, 0], P[0, 1], P[0, 2], P[1, 1], P[1, 2], P[2, 2], w_z]
 
 
 def _same_config(a: dict, b: dict) -> bool:

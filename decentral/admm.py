@@ -84,6 +84,11 @@ __all__ = [
     "ProxSolution",
     "quadratic_form",
     "solve_prox",
+    "solve_prox_metric",
+    "scalar_metric",
+    "pose_columns",
+    "pair_metric",
+    "solve_joint",
     "balance_penalty",
     "PairState",
     "ConsensusState",
@@ -128,6 +133,9 @@ class AdmmConfig:
     eps_pos: float = 3e-5
     balance_every: int = 1
     alpha: float = 1.5
+    metric: str = "information"
+    metric_floor: float = 0.05
+    carry_duals: bool = True
 
     def __post_init__(self) -> None:
         if not (self.rho0 > 0 and self.mu > 1 and self.tau > 1 and self.rho_span >= 1):
@@ -138,6 +146,10 @@ class AdmmConfig:
             raise InputError("balance_every must be an integer >= 1", field="admm")
         if not 0 < self.alpha < 2:
             raise InputError("alpha must be in (0, 2)", field="admm")
+        if self.metric not in ("information", "scalar"):
+            raise InputError("metric must be 'information' or 'scalar'", field="admm")
+        if not self.metric_floor > 0:
+            raise InputError("metric_floor must be positive", field="admm")
 
 
 @dataclass(frozen=True)
@@ -270,9 +282,54 @@ def _hermitian(Q: np.ndarray) -> np.ndarray:
     return (B[:, 0, :, 0] + B[:, 1, :, 1]) + 1j * (B[:, 0, :, 1] - B[:, 1, :, 0])
 
 
+def scalar_metric(rho_R, rho_p) -> tuple[np.ndarray, np.ndarray]:
+    """Penalty metric of scalar penalties: ``P_i = diag(rho_p_i, rho_R_i, rho_R_i)``, ``w_z = rho_p``.
+
+    Returns ``P`` (n, 3, 3) over the columns ``[p_xy | R]`` of a pose and ``w_z`` (n,) for its height.
+    """
+    rho_R = np.atleast_1d(np.asarray(rho_R, float))
+    rho_p = np.atleast_1d(np.asarray(rho_p, float))
+    P = np.zeros((len(rho_R), 3, 3))
+    P[:, 0, 0] = rho_p
+    P[:, 1, 1] = P[:, 2, 2] = rho_R
+    return P, rho_p.copy()
+
+
+def pose_columns(R: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """A pose as its ``2 x 3`` column block ``[p_xy | R]`` (the convention of ``X`` in the window form)."""
+    return np.concatenate([np.asarray(p, float)[..., :2, None], np.asarray(R, float)], axis=-1)
+
+
+def pair_metric(problem: LocalProblem, floor: float) -> tuple[np.ndarray, np.ndarray]:
+    r"""Information-weighted penalty metric of a local problem: its diagonal Hessian blocks.
+
+    For each variable ``i`` the ``3 x 3`` block of ``M`` over the columns ``[p_i | r_{i,1} | r_{i,2}]``
+    (``sum_d w_d [1, q_d]^T [1, q_d]`` for a target, with the lever arms ``t_d`` for an observer),
+    plus ``floor`` times its mean diagonal times the identity so that it is positive definite; the
+    height weight is the block's ``p p`` entry. See the module docstring (matrix-weighted penalties).
+
+    Returns
+    -------
+    P : ndarray, shape (n, 3, 3)
+    w_z : ndarray, shape (n,)
+    """
+    n = problem.n
+    P = np.empty((n, 3, 3))
+    for i in range(n):
+        c = [i, n + 2 * i, n + 2 * i + 1]
+        P[i] = problem.M[np.ix_(c, c)]
+    P = 0.5 * (P + P.transpose(0, 2, 1))
+    scale = np.trace(P, axis1=1, axis2=2) / 3.0
+    scale = np.where(scale > 0, scale, max(float(scale.max()), 1e-12))
+    P += floor * scale[:, None, None] * np.eye(3)
+    return P, P[:, 0, 0].copy()
+
+
 def solve_prox(problem: LocalProblem, R_bar: np.ndarray, p_bar: np.ndarray, rho_R: np.ndarray,
                rho_p: np.ndarray, fixed: dict | None = None, theta0: np.ndarray | None = None) -> ProxSolution:
     r"""Minimize ``cost(x) + sum_i rho_R_i/2 ||R_i - R_bar_i||^2 + rho_p_i/2 ||p_i - p_bar_i||^2``.
+
+    Scalar penalties; :func:`solve_prox_metric` with ``P_i = diag(rho_p_i, rho_R_i, rho_R_i)``.
 
     Parameters
     ----------
@@ -294,18 +351,56 @@ def solve_prox(problem: LocalProblem, R_bar: np.ndarray, p_bar: np.ndarray, rho_
     ProxSolution
         Yaws and positions of all ``n`` variables (fixed ones at their values).
     """
+    P, w_z = scalar_metric(rho_R, rho_p)
+    B = pose_columns(np.asarray(R_bar, float), np.asarray(p_bar, float))
+    return solve_prox_metric(problem, P, B @ P, w_z, w_z * np.asarray(p_bar, float)[:, 2], fixed, theta0)
+
+
+def solve_prox_metric(problem: LocalProblem, P: np.ndarray, G: np.ndarray, w_z: np.ndarray, g_z: np.ndarray,
+                      fixed: dict | None = None, theta0: np.ndarray | None = None) -> ProxSolution:
+    r"""Minimize ``cost(x) + sum_i [1/2 tr(X_i P_i X_i^T) - tr(G_i^T X_i) + w_z_i/2 p_zi^2 - g_z_i p_zi]``.
+
+    ``X_i = [p_xy,i | R_i]`` (2 x 3). A prox term ``1/2 ||X_i - B_i||^2_{P_i}`` is ``G_i = B_i P_i``;
+    a sum of prox terms is the sum of their ``P`` and ``G``. Any symmetric ``P_i`` keeps the problem
+    one over rotations only: ``r_{i,1} . r_{i,2} = 0`` and ``|r_{i,c}| = 1`` make the rotation-rotation
+    part of ``P_i`` a constant, and its position-rotation part becomes, after the positions are
+    eliminated, a form in ``cos, sin`` of yaw differences (a Hermitian form, as in
+    :mod:`decentral.relaxation`).
+
+    Parameters
+    ----------
+    problem : LocalProblem
+        The factor cost over ``n`` variables.
+    P : ndarray, shape (n, 3, 3)
+        Symmetric positive semi-definite prox metrics over the columns ``[p_xy | R]``.
+    G : ndarray, shape (n, 2, 3)
+        Linear terms.
+    w_z, g_z : ndarray, shape (n,)
+        Height prox weight and linear term. Every variable needs ``P_i[0, 0] > 0`` and ``w_z_i > 0``
+        or a factor path to a fixed one.
+    fixed : dict, optional
+        Variable index -> ``(theta, p)`` held fixed (the gauge pin).
+    theta0 : ndarray, shape (n,), optional
+        Warm start of the yaws.
+
+    Returns
+    -------
+    ProxSolution
+        Yaws and positions of all ``n`` variables (fixed ones at their values).
+    """
     n = problem.n
     fixed = fixed or {}
-    rho_R = np.asarray(rho_R, float)
-    rho_p = np.asarray(rho_p, float)
+    P = np.asarray(P, float)
+    G = np.asarray(G, float)
     Mp = problem.M.copy()
-    Mp[np.arange(n), np.arange(n)] += 0.5 * rho_p
-    # cost_xy = tr(X Mp X^T) + 2 sum(L * X); the prox is linear in R since ||R||_F^2 = 2 on SO(2)
+    cix = np.stack([np.arange(n), n + 2 * np.arange(n), n + 2 * np.arange(n) + 1], 1)  # (n, 3) columns of x_i
+    for i in range(n):
+        Mp[np.ix_(cix[i], cix[i])] += 0.5 * P[i]
+    # cost_xy = tr(X Mp X^T) + 2 sum(L * X)
     L = np.zeros((2, 3 * n))
-    L[:, :n] = -0.5 * rho_p * p_bar[:, :2].T
-    L[:, n:] = -0.5 * np.repeat(rho_R, 2) * np.asarray(R_bar).transpose(1, 0, 2).reshape(2, 2 * n)
-    Az = problem.M[:n, :n] + np.diag(0.5 * rho_p)
-    bz = problem.b_z + 0.5 * rho_p * p_bar[:, 2]
+    L[:, cix.ravel()] = -0.5 * G.transpose(1, 0, 2).reshape(2, 3 * n)
+    Az = problem.M[:n, :n] + np.diag(0.5 * np.asarray(w_z, float))
+    bz = problem.b_z + 0.5 * np.asarray(g_z, float)
     free = np.array([i for i in range(n) if i not in fixed], dtype=int)
     fix = np.array(sorted(fixed), dtype=int)
     cols = lambda idx: np.concatenate([idx, np.stack([n + 2 * idx, n + 2 * idx + 1], 1).ravel()])  # noqa: E731
@@ -335,8 +430,8 @@ def solve_prox(problem: LocalProblem, R_bar: np.ndarray, p_bar: np.ndarray, rho_
     AiB = np.linalg.solve(A, B)
     Q = C - B.T @ AiB  # positions eliminated (Schur complement, cf. seed 000 after eq. (14))
     Q = 0.5 * (Q + Q.T)
-    G = LR - Lp @ AiB  # linear term in the rotations: 2 sum_i tr(R_i^T G_i)
-    gamma = (G[0, 0::2] + G[1, 1::2]) + 1j * (G[1, 0::2] - G[0, 1::2])
+    Gr = LR - Lp @ AiB  # linear term in the rotations: 2 sum_i tr(R_i^T G_i)
+    gamma = (Gr[0, 0::2] + Gr[1, 1::2]) + 1j * (Gr[1, 0::2] - Gr[0, 1::2])
     W = np.zeros((nf + 1, nf + 1), complex)
     W[1:, 1:] = _hermitian(Q)
     W[1:, 0] = gamma  # homogenizing rotation z_0: 2 Re(gamma^H z) = z~^H [[0, gamma^H], [gamma, W]] z~
@@ -346,10 +441,10 @@ def solve_prox(problem: LocalProblem, R_bar: np.ndarray, p_bar: np.ndarray, rho_
     th = res.theta[1:] - res.theta[0]  # divide out the homogenizing rotation
     th = np.arctan2(np.sin(th), np.cos(th))
     Y = rot2(th).transpose(1, 0, 2).reshape(2, 2 * nf)
-    P = -np.linalg.solve(A, B @ Y.T + Lp.T)  # seed 000 eq. (18) with the prox terms, (nf, 2)
+    Pxy = -np.linalg.solve(A, B @ Y.T + Lp.T)  # seed 000 eq. (18) with the prox terms, (nf, 2)
     pz = np.linalg.solve(Az_f, bz_f)
     theta[free] = th
-    position[free, :2] = P
+    position[free, :2] = Pxy
     position[free, 2] = pz
     return ProxSolution(theta, position, bool(res.certified), float(res.min_eig), res.status)
 
@@ -367,13 +462,24 @@ def _yaw(R: np.ndarray) -> float:
     return float(np.arctan2(R[1, 0], R[0, 0]))
 
 
+def _cols(R: np.ndarray, p: np.ndarray) -> np.ndarray:
+    return np.concatenate([p[:2, None], R], axis=1)
+
+
+def _metric_norm2(d: np.ndarray, dz: float, P: np.ndarray, w_z: float) -> float:
+    """``||Delta||^2`` in the metric ``(P, w_z)`` of a pose difference given as columns ``d`` (2, 3) and height ``dz``."""
+    return float(np.sum((d @ P) * d) + w_z * dz * dz)
+
+
 class PairState:
     """ADMM state of one directed observing pair ``observer -> target``, kept by the observer's agent.
 
     The pair's local copies ``y`` cover the window steps at which it has visual factors. Call
     :meth:`set_problem` whenever the window or the factors change (copies and duals of the keys that
     remain are kept: the warm start), then :meth:`iterate` once per ADMM round with the newest
-    consensus values.
+    consensus values. Its penalty on key ``i`` is ``rho * P_i`` (and ``rho * w_z_i`` on the height):
+    the information metric of :func:`pair_metric` (``AdmmConfig.metric = "information"``) or the
+    scalar one, ``P_i = diag(c_p, c_R, c_R)`` with the pair's mean curvatures (``"scalar"``).
     """
 
     def __init__(self, observer: str, target: str, config: AdmmConfig):
@@ -382,43 +488,116 @@ class PairState:
         self.y: dict = {}  # key -> Pose2 (local copy)
         self.u: dict = {}  # key -> Pose2-shaped scaled dual (2x2, 3)
         self.z_used: dict = {}  # key -> Pose2 consensus used in the last dual update
-        self.rho_R = self.rho_p = 0.0
-        self.rho_scale = 1.0
-        self.r_R = self.r_p = self.s_R = self.s_p = np.inf
+        self.base: dict = {}  # key -> (P (3, 3), w_z): the metric before the scale rho
+        self.rho = config.rho0
+        self.r_R = self.r_p = self.c_R = self.c_p = np.inf
         self.iterations = 0
         self.certified = True
         self.live_prev: set = set()
         self.y_hat: dict = {}
 
     def set_problem(self, problem: LocalProblem) -> None:
-        """Install the pair's factor cost for the current window, keeping state of surviving keys."""
+        """Install the pair's factor cost for the current window, keeping state of surviving keys.
+
+        A new key ``(assembly, step)`` whose predecessor ``(assembly, step - 1)`` had a dual starts
+        with the predecessor's multiplier ``lambda = u P`` (``AdmmConfig.carry_duals``): consecutive
+        frames see nearly the same scene, so the pair's "force" on the assembly is nearly the same, and
+        the new step starts close to the ADMM fixed point instead of at ``u = 0``.
+        """
         keep = set(problem.keys)
+        carried = {}
+        if self.config.carry_duals:
+            for k in problem.keys:
+                prev = (k[0], k[1] - 1)
+                if k not in self.u and prev in self.u and prev in self.base:
+                    carried[k] = (self.u[prev], self.base[prev])
         self.y = {k: v for k, v in self.y.items() if k in keep}
         self.u = {k: v for k, v in self.u.items() if k in keep}
         self.z_used = {k: v for k, v in self.z_used.items() if k in keep}
         self.problem = problem
         n = problem.n
-        scale_p = float(np.trace(problem.M[:n, :n])) / max(n, 1)
-        scale_R = float(np.trace(problem.M[n:, n:])) / max(2 * n, 1)
-        if self.rho_R == 0.0 and scale_R > 0:
-            self.rho_R = self.config.rho0 * scale_R
-            self.rho_p = self.config.rho0 * scale_p
-            span = self.config.rho_span
-            self.rho_scale = 1.0
-            self.s_R = self.s_p = np.inf
+        if n == 0:
+            self.base = {}
+            return
+        if self.config.metric == "information":
+            P, w_z = pair_metric(problem, self.config.metric_floor)
+        else:
+            c_p = float(np.trace(problem.M[:n, :n])) / n
+            c_R = float(np.trace(problem.M[n:, n:])) / (2 * n)
+            P, w_z = scalar_metric(np.full(n, c_R), np.full(n, c_p))
+        base = {k: (P[i], float(w_z[i])) for i, k in enumerate(problem.keys)}
+        for k, (u_prev, metric_prev) in carried.items():
+            self.u[k] = u_prev
+            self.base[k] = metric_prev  # converted to the new metric below
+        for k, (uR, up) in list(self.u.items()):
+            old = self.base.get(k)
+            if old is not None and not (np.array_equal(old[0], base[k][0]) and old[1] == base[k][1]):
+                # keep the unscaled multiplier lambda = U P fixed when the metric changes
+                U = _cols(uR, up) @ old[0] @ np.linalg.inv(base[k][0])
+                self.u[k] = (U[:, 1:], np.array([U[0, 0], U[1, 0], up[2] * old[1] / base[k][1]]))
+        self.base = base
+
+    def seed(self, values: dict) -> bool:
+        """Start from a known joint solution: copies at ``values`` and the duals that make it a fixed point.
+
+        At a minimizer ``x*`` of the joint cost the copy update returns ``y = x*`` exactly when
+        ``grad f_e(x*) + rho u P = 0`` (stationarity of the prox problem at ``y = z = x*``), i.e.
+        ``u = -grad f_e(x*) P^{-1} / rho`` per key; the consensus update then sees
+        ``sum_e grad f_e + grad g_a = grad F(x*)``, which has no component along SO(2) x R^3, so ``x*``
+        is a fixed point of the whole iteration [1]_ §3.3 (optimality conditions). Returns whether
+        every key of the pair had a value.
+        """
+        prob = self.problem
+        if prob is None or prob.n == 0 or not all(k in values for k in prob.keys):
+            return False
+        keys = prob.keys
+        n = prob.n
+        theta = np.array([_yaw(values[k][0]) for k in keys])
+        position = np.array([values[k][1] for k in keys], float)
+        X = np.hstack([position[:, :2].T, rot2(theta).transpose(1, 0, 2).reshape(2, 2 * n)])
+        grad = 2.0 * X @ prob.M  # d/dX tr(X M X^T)
+        grad_z = 2.0 * (prob.M[:n, :n] @ position[:, 2] - prob.b_z)
+        for i, k in enumerate(keys):
+            P, w_z = self.base[k]
+            G = grad[:, [i, n + 2 * i, n + 2 * i + 1]]
+            U = -np.linalg.solve(P, G.T).T / self.rho
+            self.u[k] = (U[:, 1:], np.array([U[0, 0], U[1, 0], -grad_z[i] / (self.rho * w_z)]))
+            self.y[k] = (rot2(theta[i]), position[i].copy())
+        self.y_hat = dict(self.y)
+        self.z_used = dict(self.y)
+        self.live_prev = set(keys)
+        return True
+
+    @property
+    def rho_R(self) -> float:
+        """Mean penalty on the rotation columns (for reports)."""
+        if not self.base:
+            return 0.0
+        return self.rho * float(np.mean([0.5 * (P[1, 1] + P[2, 2]) for P, _ in self.base.values()]))
+
+    @property
+    def rho_p(self) -> float:
+        """Mean penalty on the positions (for reports)."""
+        if not self.base:
+            return 0.0
+        return self.rho * float(np.mean([P[0, 0] for P, _ in self.base.values()]))
+
+    def metric(self, key) -> tuple[np.ndarray, float]:
+        """The penalty ``(rho P, rho w_z)`` of one key."""
+        P, w_z = self.base[key]
+        return self.rho * P, self.rho * w_z
 
     @property
     def residuals(self) -> tuple[float, float, float, float]:
-        """``(r_R, r_p, s_R, s_p)`` of the last iteration."""
-        return self.r_R, self.r_p, self.s_R, self.s_p
+        """``(r_R, r_p, c_R, c_p)`` of the last iteration: primal residual and consensus change."""
+        return self.r_R, self.r_p, self.c_R, self.c_p
 
     def converged(self) -> bool:
-        """Primal residual and consensus change (dual residual / rho) below the tolerances."""
+        """Primal residual and consensus change below the tolerances."""
         c = self.config
-        return (max(self.r_R, self.s_R / max(self.rho_R, 1e-300)) <= c.eps_rot
-                and max(self.r_p, self.s_p / max(self.rho_p, 1e-300)) <= c.eps_pos)
+        return max(self.r_R, self.c_R) <= c.eps_rot and max(self.r_p, self.c_p) <= c.eps_pos
 
-    def iterate(self, z: dict, ready: dict) -> dict:
+    def iterate(self, z: dict, ready: dict) -> tuple[dict, dict]:
         """One ADMM iteration: dual update with ``z``, penalty balancing, then the copy update.
 
         Parameters
@@ -430,12 +609,14 @@ class PairState:
 
         Returns
         -------
-        dict
-            key -> ``(y + u)`` as ``Pose2``: what the owning assembly averages.
+        values : dict
+            key -> ``(y_hat + u)`` as ``Pose2``: what the owning assembly averages.
+        metrics : dict
+            key -> ``(P (3, 3), w_z)``: the weight of that value in the owner's consensus update.
         """
         prob = self.problem
         if prob is None or prob.n == 0:
-            return {}
+            return {}, {}
         keys = prob.keys
         live = [k for k in keys if ready.get(k[0], False) and k in z]
         # dual update u += y - z and residuals (Boyd §3.3): only for copies that were live in the last
@@ -443,6 +624,8 @@ class PairState:
         both = [k for k in live if k in self.live_prev and k in self.y_hat]
         if both:
             rR = rp = sR = sp = 0.0
+            r_w = s_w = 0.0
+            have_prev = True
             for k in both:
                 zR, zp = z[k]
                 yR, yp = self.y_hat[k]
@@ -450,54 +633,56 @@ class PairState:
                 self.u[k] = (uR + yR - zR, up + yp - zp)
                 rR += float(np.sum((yR - zR) ** 2))
                 rp += float(np.sum((yp - zp) ** 2))
+                P, w_z = self.base[k]
+                r_w += _metric_norm2(_cols(yR - zR, yp - zp), yp[2] - zp[2], P, w_z)
                 if k in self.z_used:
-                    sR += float(np.sum((zR - self.z_used[k][0]) ** 2))
-                    sp += float(np.sum((zp - self.z_used[k][1]) ** 2))
+                    dR, dp = zR - self.z_used[k][0], zp - self.z_used[k][1]
+                    sR += float(np.sum(dR ** 2))
+                    sp += float(np.sum(dp ** 2))
+                    s_w += _metric_norm2(_cols(dR, dp), dp[2], P, w_z)
                 else:
-                    sR = sp = np.inf
+                    have_prev = False
             self.r_R, self.r_p = np.sqrt(rR), np.sqrt(rp)
-            self.s_R, self.s_p = self.rho_R * np.sqrt(sR), self.rho_p * np.sqrt(sp)
-            if (self.iterations % self.config.balance_every == 0 and np.isfinite(sR) and sR + sp > 0):
-                # one factor for both penalties, residuals measured in the penalty metric so that
-                # rotations (unitless) and positions (metres) compare
-                r_w = np.sqrt(self.rho_R * rR + self.rho_p * rp)
-                s_w = np.sqrt(self.rho_R * sR + self.rho_p * sp)
-                span = self.config.rho_span
-                new = balance_penalty(self.rho_scale, r_w, s_w, self.config, 1.0 / span, span)
-                factor = new / self.rho_scale
-                self.rho_scale = new
+            self.c_R, self.c_p = (np.sqrt(sR), np.sqrt(sp)) if have_prev else (np.inf, np.inf)
+            if self.iterations % self.config.balance_every == 0 and have_prev and s_w > 0:
+                # Boyd §3.4.1 in the penalty metric: r = ||y - z||_P, s = rho ||z - z_prev||_P
+                lo, hi = self.config.rho0 / self.config.rho_span, self.config.rho0 * self.config.rho_span
+                new = balance_penalty(self.rho, np.sqrt(r_w), self.rho * np.sqrt(s_w), self.config, lo, hi)
+                factor = new / self.rho
                 if factor != 1.0:
+                    self.rho = new
                     for k in self.u:
                         uR, up = self.u[k]
                         self.u[k] = (uR / factor, up / factor)
-                    self.rho_R *= factor
-                    self.rho_p *= factor
         else:
-            self.r_R = self.r_p = self.s_R = self.s_p = np.inf
+            self.r_R = self.r_p = self.c_R = self.c_p = np.inf
         for k in live:
             self.z_used[k] = z[k]
         self.live_prev = set(live)
         # copy update: prox towards z - u (live keys) or a vanishing pull to the last copy (others)
         n = prob.n
-        R_bar = np.zeros((n, 2, 2))
-        p_bar = np.zeros((n, 3))
-        rho_R = np.zeros(n)
-        rho_p = np.zeros(n)
+        P = np.zeros((n, 3, 3))
+        G = np.zeros((n, 2, 3))
+        w_z = np.zeros(n)
+        g_z = np.zeros(n)
         theta0 = np.zeros(n)
         tiny = 1e-9
         for i, k in enumerate(keys):
+            Pk, wk = self.base[k]
             if k in live:
                 zR, zp = z[k]
                 uR, up = self.u.get(k, (np.zeros((2, 2)), np.zeros(3)))
-                R_bar[i], p_bar[i] = zR - uR, zp - up
-                rho_R[i], rho_p[i] = self.rho_R, self.rho_p
+                Rb, pb = zR - uR, zp - up
+                weight = self.rho
                 theta0[i] = _yaw(self.y[k][0]) if k in self.y else _yaw(zR)
             else:
-                prev = self.y.get(k) or z.get(k) or (np.eye(2), np.zeros(3))
-                R_bar[i], p_bar[i] = prev
-                rho_R[i], rho_p[i] = tiny * self.rho_R, tiny * self.rho_p
-                theta0[i] = _yaw(prev[0])
-        sol = solve_prox(prob, R_bar, p_bar, rho_R, rho_p, theta0=theta0)
+                Rb, pb = self.y.get(k) or z.get(k) or (np.eye(2), np.zeros(3))
+                weight = tiny * self.rho
+                theta0[i] = _yaw(Rb)
+            P[i], w_z[i] = weight * Pk, weight * wk
+            G[i] = _cols(Rb, pb) @ P[i]
+            g_z[i] = w_z[i] * pb[2]
+        sol = solve_prox_metric(prob, P, G, w_z, g_z, theta0=theta0)
         self.certified = sol.certified
         R = sol.rotations
         self.y = {k: (R[i], sol.position[i]) for i, k in enumerate(keys)}
@@ -506,13 +691,14 @@ class PairState:
         self.y_hat = {k: ((a * y[0] + (1 - a) * z[k][0], a * y[1] + (1 - a) * z[k][1]) if k in live else y)
                       for k, y in self.y.items()}
         self.iterations += 1
-        out = {}
+        values, metrics = {}, {}
         for k in keys:
             uR, up = self.u.get(k, (np.zeros((2, 2)), np.zeros(3)))
             if k not in live:
                 uR, up = np.zeros((2, 2)), np.zeros(3)
-            out[k] = (self.y_hat[k][0] + uR, self.y_hat[k][1] + up)
-        return out
+            values[k] = (self.y_hat[k][0] + uR, self.y_hat[k][1] + up)
+            metrics[k] = self.metric(k)
+        return values, metrics
 
 
 class ConsensusState:
@@ -559,6 +745,21 @@ class ConsensusState:
             self.ready = True
         self.change = np.inf
 
+    def seed(self, values: dict[int, Pose2]) -> None:
+        """Adopt known consensus poses (step -> Pose2) for the steps of the window it has values for."""
+        if not any(k in values for k in self.steps):
+            return
+        for k in self.steps:
+            if k in values:
+                R, p = values[k]
+                self.z[k] = (np.array(R, float), np.array(p, float))
+        if self.pinned and self.steps:
+            first = self.steps[0]
+            R, p = self.z[first]
+            self.pin = (first, _yaw(R), p.copy())
+        self.ready = True
+        self.change = np.inf
+
     def anchored(self, step: int, factor_steps: set[int]) -> bool:
         """Whether ``step`` is tied by odometry to a step with visual factors (or to the pin)."""
         if not self.ready:
@@ -574,10 +775,23 @@ class ConsensusState:
                 return False
             k -= 1
 
-    def update(self, contributions: list[tuple[dict, float, float]]) -> bool:
-        """Consensus update from pair contributions ``(step -> (y + u), rho_R, rho_p)``.
+    def odometry_problem(self) -> LocalProblem | None:
+        """The odometry chain's quadratic form over the window steps (``None`` without odometry)."""
+        steps = self.steps
+        idx = {k: i for i, k in enumerate(steps)}
+        odo = [(idx[k - 1], idx[k]) + tuple(self.odometry[k]) for k in steps if k in self.odometry and (k - 1) in idx]
+        if not odo:
+            return None
+        iv, iu, dp, dth, wp, wR = zip(*odo)
+        return quadratic_form([(self.name, k) for k in steps], odometry=(
+            np.array(iv), np.array(iu), np.array(dp), np.array(dth), np.array(wp), np.array(wR)))
 
-        Returns whether the consensus changed (False when nothing usable arrived yet).
+    def update(self, contributions: list[tuple[dict, dict]]) -> bool:
+        r"""Consensus update from pair contributions ``(step -> (y + u), step -> (P, w_z))``.
+
+        Minimizes the odometry chain cost plus ``sum_e 1/2 ||z_k - v_{e,k}||^2_{P_{e,k}}``: a
+        matrix-weighted average when there is no odometry. Returns whether the consensus changed
+        (False when nothing usable arrived yet).
         """
         if not self.steps:
             return False
@@ -593,36 +807,35 @@ class ConsensusState:
                                                    np.array(wp), np.array(wR)))
         else:
             prob = quadratic_form(steps)
-        acc_R = np.zeros((n, 2, 2))
-        acc_p = np.zeros((n, 3))
-        rho_R = np.zeros(n)
-        rho_p = np.zeros(n)
-        scale_R = scale_p = 0.0
-        for values, rR, rp in contributions:
-            scale_R, scale_p = max(scale_R, rR), max(scale_p, rp)
+        P = np.zeros((n, 3, 3))
+        G = np.zeros((n, 2, 3))
+        w_z = np.zeros(n)
+        g_z = np.zeros(n)
+        scale = 0.0
+        for values, metrics in contributions:
             for k, (VR, Vp) in values.items():
-                if k in idx:
+                if k in idx and k in metrics:
                     i = idx[k]
-                    acc_R[i] += rR * VR
-                    acc_p[i] += rp * Vp
-                    rho_R[i] += rR
-                    rho_p[i] += rp
+                    Pk, wk = metrics[k]
+                    P[i] += Pk
+                    G[i] += _cols(VR, Vp) @ Pk
+                    w_z[i] += wk
+                    g_z[i] += wk * Vp[2]
+                    scale = max(scale, float(np.trace(Pk)) / 3)
         # a vanishing pull to the current value keeps steps without factors well posed
-        tiny_R = 1e-9 * max(scale_R, float(np.trace(prob.M[n:, n:])) / (2 * n), 1e-12)
-        tiny_p = 1e-9 * max(scale_p, float(np.trace(prob.M[:n, :n])) / n, 1e-12)
+        tiny = 1e-9 * max(scale, float(np.trace(prob.M)) / (3 * n), 1e-12)
         cur_R = np.array([self.z[k][0] for k in steps])
         cur_p = np.array([self.z[k][1] for k in steps])
-        acc_R += tiny_R * cur_R
-        acc_p += tiny_p * cur_p
-        rho_R += tiny_R
-        rho_p += tiny_p
-        R_bar = acc_R / rho_R[:, None, None]
-        p_bar = acc_p / rho_p[:, None]
+        for i in range(n):
+            P[i] += tiny * np.eye(3)
+            G[i] += tiny * _cols(cur_R[i], cur_p[i])
+        w_z += tiny
+        g_z += tiny * cur_p[:, 2]
         fixed = {}
         if self.pinned and self.pin is not None and self.pin[0] in idx:
             fixed[idx[self.pin[0]]] = (self.pin[1], self.pin[2])
         theta0 = np.array([_yaw(R) for R in cur_R])
-        sol = solve_prox(prob, R_bar, p_bar, rho_R, rho_p, fixed=fixed, theta0=theta0)
+        sol = solve_prox_metric(prob, P, G, w_z, g_z, fixed=fixed, theta0=theta0)
         R = sol.rotations
         change = 0.0
         for i, k in enumerate(steps):
@@ -632,3 +845,62 @@ class ConsensusState:
         self.ready = True
         return True
 
+
+def solve_joint(problems: list[LocalProblem], fixed_key, fixed_value: Pose2 | None = None) -> dict:
+    r"""Minimize the sum of local problems over the variables tied to ``fixed_key`` (held fixed).
+
+    The cold start of the ADMM: the pair forms of one step, shared by every agent, summed into the
+    joint problem (their sum is the joint cost, as for :func:`decentral.window.build_window`),
+    restricted to the connected component of the gauge variable, solved by :func:`solve_prox_metric`
+    with that variable fixed (identity by default); every position of the component is tied to it by
+    factors, so the position block is positive definite. Deterministic in its inputs, so agents that
+    hold the same forms get bit-identical answers.
+
+    Parameters
+    ----------
+    problems : list of LocalProblem
+        The forms (any keys; a key shared by several forms is one variable).
+    fixed_key : hashable
+        The gauge variable.
+    fixed_value : Pose2, optional
+        Its value; the identity by default.
+
+    Returns
+    -------
+    dict
+        key -> ``Pose2`` for every variable connected to ``fixed_key`` (only ``fixed_key`` when nothing is).
+    """
+    fixed_value = fixed_value or (np.eye(2), np.zeros(3))
+    edges: dict = {}
+    for prob in problems:
+        for a in prob.keys:
+            edges.setdefault(a, set()).update(prob.keys)
+    comp, todo = {fixed_key}, [fixed_key]
+    while todo:
+        for b in edges.get(todo.pop(), ()):
+            if b not in comp:
+                comp.add(b)
+                todo.append(b)
+    keys = sorted(comp, key=repr)
+    if len(keys) == 1:
+        return {fixed_key: fixed_value}
+    index = {k: i for i, k in enumerate(keys)}
+    n = len(keys)
+    M = np.zeros((3 * n, 3 * n))
+    b_z = np.zeros(n)
+    c_z = 0.0
+    for prob in problems:
+        if prob.keys[0] not in index:
+            continue
+        g = np.array([index[k] for k in prob.keys])
+        gc = np.concatenate([g, np.stack([n + 2 * g, n + 2 * g + 1], 1).ravel()])
+        m = prob.n
+        lc = np.concatenate([np.arange(m), np.stack([m + 2 * np.arange(m), m + 2 * np.arange(m) + 1], 1).ravel()])
+        M[np.ix_(gc, gc)] += prob.M[np.ix_(lc, lc)]
+        b_z[g] += prob.b_z
+        c_z += prob.c_z
+    joint = LocalProblem(tuple(keys), M, b_z, c_z)
+    sol = solve_prox_metric(joint, np.zeros((n, 3, 3)), np.zeros((n, 2, 3)), np.zeros(n), np.zeros(n),
+                            fixed={index[fixed_key]: (_yaw(fixed_value[0]), np.asarray(fixed_value[1], float))})
+    R = sol.rotations
+    return {k: (R[i], sol.position[i]) for i, k in enumerate(keys)}

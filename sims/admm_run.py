@@ -54,6 +54,9 @@ class AdmmRunConfig:
         Fault schedule in simulated network time (``round * round_period``).
     announce_every : int
         Configuration re-announcement period (steps).
+    share_forms : {"first", "every", "never"}
+        When the agents share their cost forms and start the ADMM at the joint solution
+        (:class:`agents.assembly.AgentConfig`): the cold start only (default), every step, or never.
     """
 
     window: int = 5
@@ -70,6 +73,7 @@ class AdmmRunConfig:
     crashes: tuple[Crash, ...] = ()
     partitions: tuple[Partition, ...] = ()
     announce_every: int = 5
+    share_forms: str = "first"
 
     def __post_init__(self) -> None:
         if not (isinstance(self.window, int) and self.window >= 1):
@@ -123,7 +127,7 @@ def _agent_config(log: ObservationLog, name: str, reference: str, config: AdmmRu
     cams = tuple(cam for cam in log.cameras.values() if cam.assembly == name)
     return AgentConfig(name=name, assemblies=tuple(log.assemblies), reference=reference, cameras=cams,
                        node_radius=log.node_radius, noise=config.noise, window=config.window, admm=config.admm,
-                       announce_every=config.announce_every)
+                       announce_every=config.announce_every, share_forms=config.share_forms)
 
 
 def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunConfig = AdmmRunConfig(),
@@ -232,7 +236,8 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
         "seconds": seconds,
         "seconds_per_round": tick_seconds / max(total_rounds, 1),
         "admm": {"rho0": config.admm.rho0, "mu": config.admm.mu, "tau": config.admm.tau,
-                 "eps_rot": config.admm.eps_rot, "eps_pos": config.admm.eps_pos},
+                 "alpha": config.admm.alpha, "metric": config.admm.metric, "metric_floor": config.admm.metric_floor,
+                 "eps_rot": config.admm.eps_rot, "eps_pos": config.admm.eps_pos, "share_forms": config.share_forms},
     }
     estimate = Estimate(reference, tuple(est_steps), stats)
     return AdmmRun(estimate, tuple(rounds), tuple(converged), tuple(per_agent), stats)

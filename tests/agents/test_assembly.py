@@ -8,7 +8,7 @@ import pytest
 
 from agents.assembly import AgentConfig, AssemblyAgent
 from decentral.errors import InputError, ProtocolError
-from protocols.admm_messages import ConfigAnnounce, ConfigRequest
+from protocols.admm_messages import ConfigAnnounce, ConfigRequest, FactorShare, pack_forms
 from protocols.messages import BROADCAST, AdmmDual, AdmmPrimal, decode
 from sims.admm_run import own_step
 from sims.scenarios import get_scenario, simulate
@@ -19,10 +19,10 @@ def log():
     return simulate(get_scenario("multi", n_assemblies=3, steps=2), seed=1).log
 
 
-def _agent(log, name):
+def _agent(log, name, share_forms="never"):
     cams = tuple(c for c in log.cameras.values() if c.assembly == name)
     return AssemblyAgent(AgentConfig(name=name, assemblies=log.assemblies, reference="A0", cameras=cams,
-                                     node_radius=log.node_radius))
+                                     node_radius=log.node_radius, share_forms=share_forms))
 
 
 def _observed(log, name):
@@ -83,6 +83,78 @@ def test_unknown_nodes_are_requested_then_the_pair_talks_to_its_target(log):
     duals = [m for m in agent.outbox() if isinstance(m, AdmmDual)]
     assert [m.receiver for m in duals] == [target]
     assert duals[0].blocks["x"].shape[1] == 8 and duals[0].blocks["meta"][0] == 1.0  # the reference is in gauge
+    assert duals[0].blocks["w"].shape == (duals[0].blocks["x"].shape[0], 7)  # its penalty metric rides along
+
+
+def _announced(log, names):
+    """Agents for `names` that have heard each other's configuration announcements at step 0."""
+    agents = {n: _agent(log, n, share_forms="first") for n in names}
+    for a in agents.values():
+        a.on_step(own_step(log, a.name, 0))
+    anns = [m for a in agents.values() for m in a.outbox() if isinstance(m, ConfigAnnounce)]
+    for a in agents.values():
+        for m in anns:
+            if m.sender != a.name:
+                a.handle(m)
+    return agents
+
+
+def test_cold_start_broadcasts_the_pair_forms_and_waits_for_everyone(log):
+    """At step 0 an agent broadcasts admm.factors (its pair forms) and sends no ADMM value until all forms are in."""
+    agent = _announced(log, log.assemblies)["A0"]
+    agent.tick(0)
+    out = agent.outbox()
+    shares = [m for m in out if isinstance(m, FactorShare)]
+    assert len(shares) == 1 and shares[0].receiver == BROADCAST and shares[0].step == 0
+    assert shares[0].have.tolist() == [0] and len(shares[0].unpack()) >= 1
+    assert not any(isinstance(m, (AdmmDual, AdmmPrimal)) for m in out)
+
+
+def test_an_agent_missing_from_a_share_answers_with_its_own_forms(log):
+    """An agent whose index is absent from a received share's `have` answers that sender directly."""
+    agents = _announced(log, log.assemblies)
+    for a in agents.values():
+        a.tick(0)
+    a0 = [m for m in agents["A0"].outbox() if isinstance(m, FactorShare)][0]
+    agents["A1"].outbox()
+    agents["A1"].handle(a0)
+    reply = [m for m in agents["A1"].outbox() if isinstance(m, FactorShare)]
+    assert len(reply) == 1 and reply[0].receiver == "A0"
+
+
+def test_after_the_shared_cold_start_every_agent_holds_the_same_joint_solution(log):
+    """Once every agent has every form, all seed the same consensus poses (bit-identical joint solve)."""
+    agents = _announced(log, log.assemblies)
+    for a in agents.values():
+        a.tick(0)
+    shares = [m for a in agents.values() for m in a.outbox() if isinstance(m, FactorShare)]
+    for a in agents.values():
+        for m in shares:
+            if m.sender != a.name:
+                a.handle(m)
+        a.tick(0)
+        a.tick(1)
+    seeds = [a._seeds for a in agents.values()]
+    assert seeds[0] and all(s.keys() == seeds[0].keys() for s in seeds)
+    for key in seeds[0]:
+        for s in seeds[1:]:
+            assert np.array_equal(s[key][0], seeds[0][key][0]) and np.array_equal(s[key][1], seeds[0][key][1])
+    assert np.allclose(seeds[0][("A0", 0)][0], np.eye(2)) and np.allclose(seeds[0][("A0", 0)][1], 0)
+
+
+def test_factor_share_round_trips_and_rejects_inconsistent_lengths():
+    """admm.factors decodes to an equal message with the same forms; forms that do not fit `keys` are refused."""
+    M = np.arange(36.0).reshape(6, 6)
+    M = M + M.T
+    keys, flat = pack_forms([(((0, 3), (2, 3)), M, np.array([1.0, 2.0]), 0.5)])
+    msg = FactorShare(sender="A0", receiver=BROADCAST, round=2, step=3, have=[0, 2], keys=keys, forms=flat,
+                      pin=[3, 0.0, 0.0, 0.0, 0.1])
+    back = decode(msg.to_bytes())
+    assert back == msg
+    (k, M2, b, c), = back.unpack()
+    assert k == ((0, 3), (2, 3)) and np.array_equal(M2, M) and b.tolist() == [1.0, 2.0] and c == 0.5
+    with pytest.raises(ProtocolError):
+        FactorShare(sender="A0", receiver=BROADCAST, round=2, step=3, have=[0], keys=keys, forms=flat[:-1], pin=[])
 
 
 def test_a_config_request_for_own_nodes_is_answered(log):
