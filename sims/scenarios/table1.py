@@ -2,7 +2,7 @@
 
 The observer (a three-node line carrying one camera on its middle strut, tilted down) drifts slowly
 on the table top; three targets of different configurations wander on the floor (one on a raised
-mat: a different terrain) 1.5-3 m in front of it. Frames at 5 Hz.
+mat: a different terrain) 0.8-2.5 m in front of it (1.85 m on average, as in the seed). Frames at 5 Hz.
 """
 
 from __future__ import annotations
@@ -52,7 +52,11 @@ class Table1Config(ScenarioConfig):
     table_height: float = 0.75
     target_shapes: tuple = ("L", "triangle", "tower")
     target_floors: tuple = (0.0, 0.0, 0.03)
-    ranges: tuple = (1.8, 2.5, 2.0)
+    # homes chosen so that the mean observer-target distance over a run is about 1.85 m, the seed's:
+    # its Table I gives 0.039 m = 2.09 % (ours), 0.112 m = 5.38 % (AprilTag), 0.304 m = 16.9 %
+    # (bearing), i.e. 1.8-2.1 m. (Homes of 1.8/2.5/2.0 m made it 2.47 m: nodes a quarter smaller.)
+    # Targets wander up to ~0.7 m from home, so the nearest comes within ~0.8 m (edge of the view).
+    ranges: tuple = (1.4, 1.8, 1.5)
     bearings_deg: tuple = (22.0, 0.0, -22.0)
     speed: float = 0.12
     wander_radius: float = 0.3
