@@ -56,14 +56,26 @@ class AprilTagConfig:
     roi_scale : float
         The region searched around a circle is a square of half-side ``roi_scale * r``.
     target_radius : float
-        Regions of circles smaller than this radius (px) are upscaled (bilinear) so that the circle
-        has this radius, by at most ``max_upscale``: tags under about 3 px per cell decode much
-        better so.
+        Regions of circles smaller than this radius (px) are upscaled so that the circle has this
+        radius, by at most ``max_upscale``: tags under about 3 px per cell decode much better so.
     max_upscale : float
         Largest upscaling factor.
     adaptive_window : int
         Single adaptive-threshold window (px, odd) of the tuned detector; None keeps OpenCV's
         default three windows (slower).
+    interpolation : int
+        OpenCV interpolation of the upscaling (bicubic keeps the cell edges sharper than bilinear).
+    sharpen : float
+        Unsharp-mask amount applied after upscaling (0: none).
+    decoder : str
+        ``"cells"``: OpenCV's ArUco detector finds the candidate quads (with a one-code dictionary)
+        and their 8 x 8 cells are decoded here against every code of the family at once (OpenCV
+        5.0's own identification against the 587 tag36h11 codes costs about 1 ms per candidate
+        quad, most of a frame's identification time); ``"opencv"``: OpenCV's identification.
+        Either way the read is re-measured and filtered by hamming distance and margin.
+
+    On rendered ``multi`` frames with the true circles, the defaults read 40 % of the wholly
+    visible nodes (bilinear x4 upscaling to 40 px, no sharpening: 9 %), with no wrong id.
     """
 
     family: str = "tag36h11"
@@ -71,9 +83,12 @@ class AprilTagConfig:
     max_hamming: int = 2
     min_margin: float = 15.0
     roi_scale: float = 1.1
-    target_radius: float = 40.0
-    max_upscale: float = 4.0
+    target_radius: float = 80.0
+    max_upscale: float = 6.0
     adaptive_window: int | None = 15
+    interpolation: int = cv2.INTER_CUBIC
+    sharpen: float = 2.0
+    decoder: str = "cells"
     extra: Mapping[str, float] = field(default_factory=dict)
 
 
@@ -93,11 +108,20 @@ def _detector(cfg: AprilTagConfig) -> cv2.aruco.ArucoDetector:
         params.adaptiveThreshWinSizeStep = 10
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
     params.cornerRefinementWinSize = 3
+    # cells sampled at their centres only: a print curved over a sphere strays from the planar
+    # homography most near the cell borders
+    params.perspectiveRemovePixelPerCell = 8
+    params.perspectiveRemoveIgnoredMarginPerCell = 0.3
+    params.errorCorrectionRate = 1.0  # the re-measured hamming distance is the filter
     for name, value in cfg.extra.items():
         setattr(params, name, type(getattr(params, name))(value))
     if cfg.family not in FAMILIES:
         raise ValueError(f"unknown tag family {cfg.family!r}; known: {', '.join(FAMILIES)}")
+    if cfg.decoder not in ("cells", "opencv"):
+        raise ValueError(f"unknown decoder {cfg.decoder!r}; known: cells, opencv")
     dictionary = cv2.aruco.getPredefinedDictionary(FAMILIES[cfg.family])
+    if cfg.decoder == "cells":  # quads only: every candidate comes back among the rejected ones
+        dictionary = cv2.aruco.Dictionary(dictionary.bytesList[:1], dictionary.markerSize, 0)
     return cv2.aruco.ArucoDetector(dictionary, params)
 
 
@@ -146,8 +170,14 @@ class AprilTagIdentifier:
     def __init__(self, config: AprilTagConfig | None = None):
         self.config = config or AprilTagConfig()
         self._detector = _detector(self.config)
-        self._dictionary = self._detector.getDictionary()
+        self._dictionary = cv2.aruco.getPredefinedDictionary(FAMILIES[self.config.family])
         self._codes: dict[int, np.ndarray] = {}
+        n = self._dictionary.markerSize + 2
+        self._all = np.array([cv2.aruco.generateImageMarker(self._dictionary, i, n, borderBits=1) > 127
+                              for i in range(self._dictionary.bytesList.shape[0])]).reshape(-1, n * n)  # (T, n*n)
+        inner = np.zeros((n, n), dtype=bool)
+        inner[1:-1, 1:-1] = True
+        self._inner = inner.ravel()
 
     def code(self, tag: int) -> np.ndarray:
         """The cells of tag ``tag`` with its black border, shape (c, c), True = white."""
@@ -166,20 +196,80 @@ class AprilTagIdentifier:
         roi = grey[y0:y1, x0:x1]
         if roi.size == 0 or min(roi.shape) < 8:
             return []
+        if self.config.sharpen > 0:
+            # unsharp mask at the camera's pixel scale, before upscaling (cheaper than after):
+            # restores the cell edges that the camera's blur softens
+            soft = cv2.GaussianBlur(roi, (0, 0), 1.0)
+            roi = cv2.addWeighted(roi, 1.0 + self.config.sharpen, soft, -self.config.sharpen, 0.0)
         if scale != 1.0:
-            roi = cv2.resize(roi, None, fx=scale, fy=scale, interpolation=cv2.INTER_LINEAR)
-        corners, ids, conf, _ = self._detector.detectMarkersWithConfidence(roi)
-        if ids is None or len(ids) == 0:
-            return []
+            roi = cv2.resize(roi, None, fx=scale, fy=scale, interpolation=self.config.interpolation)
+        if self.config.decoder == "cells":
+            found = self._decode_quads(roi)
+        else:
+            corners, ids, conf, _ = self._detector.detectMarkersWithConfidence(roi)
+            if ids is None or len(ids) == 0:
+                return []
+            found = [(np.asarray(c, dtype=float).reshape(4, 2), int(t), float(cf))
+                     for c, t, cf in zip(corners, np.asarray(ids).ravel(), np.asarray(conf).ravel())]
         out = []
-        for c, tag, cf in zip(corners, np.asarray(ids).ravel(), np.asarray(conf).ravel()):
-            c = np.asarray(c, dtype=float).reshape(4, 2)
+        for c, tag, cf in found:
             hamming, margin = tag_quality(roi, c, self.code(int(tag)))
             if hamming > self.config.max_hamming or margin < self.config.min_margin:
                 continue
             # a resized pixel centre k sits at (k + 0.5) / scale - 0.5 in the region
             full = (c + 0.5) / scale - 0.5 + np.array([x0, y0])
             out.append(TagRead(int(tag), self.node_of(int(tag)), full, hamming, margin, float(cf)))
+        return out
+
+    def _decode_quads(self, roi: np.ndarray) -> list[tuple[np.ndarray, int, float]]:
+        """Candidate quads of ``roi`` decoded against every code: (corners (4, 2), tag, confidence).
+
+        Each quad's cells are sampled at their centres for its 4 rotations (OpenCV returns the
+        corners of every candidate in one winding); the data cells, thresholded at the midpoint of
+        the border's and the brightest cells' grey levels, are matched against every code at once,
+        and the few best matches are re-scored as in :func:`tag_quality` (threshold between the
+        code's own white and black cell means). The best (fewest wrong data cells, then widest
+        margin) is kept if its hamming distance passes; its corners are refined to sub-pixel
+        (``cv2.cornerSubPix``, as OpenCV's own CORNER_REFINE_SUBPIX) in canonical order.
+        """
+        corners, ids, rejected = self._detector.detectMarkers(roi)
+        quads = list(rejected or ()) + list(corners or ())
+        n = self._dictionary.markerSize + 2
+        px = 4
+        side = n * px
+        dst = np.array([[0, 0], [side, 0], [side, side], [0, side]], np.float32) - 0.5
+        codes, inner = self._all, self._inner
+        signs = np.where(codes[:, inner], 1.0, -1.0)  # (T, d)
+        out = []
+        for q in quads:
+            q = np.asarray(q, dtype=np.float32).reshape(4, 2)
+            if cv2.contourArea(q) < 4.0 * n * n:  # under 2 px per cell: nothing to decode
+                continue
+            warped = cv2.warpPerspective(roi, cv2.getPerspectiveTransform(q, dst), (side, side),
+                                         flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            cells = warped.reshape(n, px, n, px)[:, 1:-1, :, 1:-1].astype(np.float32).mean(axis=(1, 3))
+            m = np.array([np.rot90(cells, -k).ravel() for k in range(4)])  # rotation k: the tag starts at corner -k
+            border = m[:, ~inner].mean(axis=1)
+            bright = np.sort(m[:, inner], axis=1)[:, -6:].mean(axis=1)
+            thr0 = 0.5 * (border + bright)
+            agree = np.where(m[:, inner] > thr0[:, None], 1.0, -1.0) @ signs.T  # (4, T)
+            ham0 = (inner.sum() - agree) / 2.0
+            best = None
+            for flat in np.argsort(ham0, axis=None)[:4]:
+                k, tag = np.unravel_index(int(flat), ham0.shape)
+                code = codes[tag]
+                white, black = m[k, code].mean(), m[k, ~code].mean()
+                thr = 0.5 * (white + black)
+                margin = float(min(white - thr, thr - black))
+                ham = int(((m[k] > thr) != code)[inner].sum())
+                if best is None or (ham, -margin) < (best[0], -best[1]):
+                    best = (ham, margin, k, tag)
+            ham, margin, k, tag = best
+            if ham > self.config.max_hamming or margin <= 0:
+                continue
+            c = cv2.cornerSubPix(roi, np.roll(q, k, axis=0).reshape(-1, 1, 2).copy(), (3, 3), (-1, -1),
+                                 (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 30, 0.01)).reshape(4, 2)
+            out.append((c.astype(float), int(tag), float(1.0 - ham / inner.sum())))
         return out
 
     def identify(self, image: np.ndarray, circles: Sequence[Circle]) -> list[TagRead | None]:

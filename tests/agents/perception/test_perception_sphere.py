@@ -112,3 +112,18 @@ def test_overlapping_equator_stickers_are_refused():
     """A layout whose equator stickers would overlap is rejected (the renderer and reader share it)."""
     with pytest.raises(ValueError):
         StickerLayout.around(n_equator=8, half_angle=0.5)
+
+
+def test_batched_eq1_circles_match_the_single_conversion():
+    """eq1_circles over many circles gives what eq1_circle gives one at a time."""
+    from agents.perception.sphere import eq1_circles
+    from agents.perception.types import Circle
+
+    K = np.array([[760.0, 0, 512], [0, 760.0, 384], [0, 0, 1]])
+    rng = np.random.default_rng(3)
+    C = np.column_stack([rng.uniform(0, 1024, 30), rng.uniform(0, 768, 30), rng.uniform(8, 150, 30)])
+    batch, ok = eq1_circles(C, K)
+    assert ok.all()
+    for c, b in zip(C, batch):
+        one = eq1_circle(Circle(*c, 1.0), K)
+        assert np.allclose([one.u, one.v, one.r], b, atol=1e-9)

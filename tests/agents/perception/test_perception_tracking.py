@@ -131,3 +131,42 @@ def test_circle_iou_basic_values():
     assert np.isclose(circle_iou(a, a)[0, 0], 1.0)
     assert circle_iou(a, np.array([[10.0, 0.0, 2.0]]))[0, 0] == 0.0
     assert np.isclose(circle_iou(a, np.array([[0.5, 0.0, 1.0]]))[0, 0], 0.25)
+
+
+def _c(u, v, r, s=0.9):
+    return Circle(u, v, r, s)
+
+
+def test_sticker_outline_inside_a_node_starts_no_track():
+    """A one-frame small circle inside a confirmed node's circle starts no track and shows no track number."""
+    tr = CircleTracker()
+    for k in range(3):
+        tr.update([_c(200 + k, 200, 30)], [None])
+    n_tracks = len(tr.tracks)
+    out = tr.update([_c(203, 204, 12)], [None])  # the node missed, its sticker's outline seen
+    assert out[0].track is None
+    assert len(tr.tracks) == n_tracks
+    out = tr.update([_c(204, 200, 30)], [None])
+    assert out[0].track == 1
+
+
+def test_unconfirmed_track_shows_no_number():
+    """A new track (after the first frame) shows its number only once confirmed by a second hit."""
+    tr = CircleTracker()
+    tr.update([_c(100, 100, 20)], [None])
+    first = tr.update([_c(100, 100, 20), _c(400, 300, 20)], [None, None])
+    assert first[0].track == 1 and first[1].track is None
+    second = tr.update([_c(100, 100, 20), _c(401, 300, 20)], [None, None])
+    assert second[1].track is not None
+
+
+def test_track_jumping_to_a_neighbour_needs_a_fresh_read():
+    """A track that reaches a barely overlapping detection (a neighbouring node) hides its id until a read agrees."""
+    tr = CircleTracker()
+    for _ in range(4):
+        out = tr.update([_c(200, 200, 20)], [_read(7)])
+    assert out[0].node == 7
+    out = tr.update([_c(226, 200, 20)], [None])  # within the enlarged radii, IoU of the plain circles < 0.4
+    assert out[0].track == 1 and out[0].node is None
+    out = tr.update([_c(226, 200, 20)], [_read(7)])
+    assert out[0].node == 7

@@ -1,0 +1,50 @@
+"""Ellipse fits and the float blur used by the rim refinement (off-axis spheres image as ellipses)."""
+
+import cv2
+import numpy as np
+
+from agents.perception import HoughCircleDetector
+from agents.perception.circle_fit import ellipse_circles, fit_ellipses_direct, sampson_distances
+from agents.perception.hough import _blur_float
+
+
+def _ellipse_points(cx, cy, a, b, th, n=64):
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    x = cx + a * np.cos(t) * np.cos(th) - b * np.sin(t) * np.sin(th)
+    y = cy + a * np.cos(t) * np.sin(th) + b * np.sin(t) * np.cos(th)
+    return np.stack([x, y], axis=1)
+
+
+def test_direct_ellipse_fit_recovers_centre_area_radius_and_axis():
+    """Exact ellipse points give back the centre, sqrt(a b), the axis ratio and the major axis."""
+    pts = _ellipse_points(300.0, 200.0, 50.0, 40.0, 0.7)[None]
+    c0, s0 = np.array([[290.0, 210.0]]), np.array([45.0])
+    conic, ok = fit_ellipses_direct(pts, np.ones((1, 64)), c0, s0)
+    circles, ratio, major, cok = ellipse_circles(conic, c0, s0)
+    assert ok.all() and cok.all()
+    assert np.allclose(circles[0], [300.0, 200.0, np.sqrt(50.0 * 40.0)], atol=1e-6)
+    assert np.isclose(ratio[0], 1.25)
+    assert abs(abs(major[0] @ [np.cos(0.7), np.sin(0.7)]) - 1.0) < 1e-9
+    assert np.abs(sampson_distances(pts, conic, c0, s0)).max() < 1e-6
+
+
+def test_off_axis_sphere_ellipse_is_detected_with_its_area_radius():
+    """A radially elongated bright ellipse (an off-axis sphere's image) is found within 1 px and 2 % of sqrt(a b)."""
+    img = np.full((480, 640, 3), (70, 80, 90), np.uint8)
+    cx, cy, a, b = 150.0, 120.0, 48.0, 40.0
+    th = np.arctan2(cy - 239.5, cx - 319.5)  # major axis towards the image centre
+    cv2.ellipse(img, ((cx, cy), (2 * a, 2 * b), np.degrees(th)), (200, 205, 210), -1, lineType=cv2.LINE_AA)
+    img = cv2.GaussianBlur(img, (0, 0), 0.8)
+    circles = HoughCircleDetector().detect(img)
+    near = [c for c in circles if np.hypot(c.u - cx, c.v - cy) < 10]
+    assert near
+    c = near[0]
+    assert np.hypot(c.u - cx, c.v - cy) < 1.0 and abs(c.r / np.sqrt(a * b) - 1.0) < 0.02
+
+
+def test_float_blur_matches_gaussian_blur_of_the_float_image():
+    """The uint8 -> float32 separable blur equals cv2.GaussianBlur on the float image."""
+    img = np.random.default_rng(0).integers(0, 256, (60, 80, 3), dtype=np.uint8)
+    for sigma in (0.5, 1.0, 2.0):
+        ref = cv2.GaussianBlur(img.astype(np.float32), (0, 0), sigma)
+        assert np.abs(_blur_float(img, sigma) - ref).max() < 1e-3
