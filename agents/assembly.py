@@ -26,7 +26,7 @@ rounds never overwrite newer values (reordering, duplicates), and a restarted ag
 iteration counter forward to its neighbours'. Ages in rounds are kept (:attr:`AssemblyAgent.ages`).
 An observer that detects nodes it cannot name asks their owners with ``admm.config_request``.
 
-Both ADMM kinds also carry a small gossip table (``(assembly index, step, round, x, y, z, theta)`` rows, the newest consensus pose of every
+Both ADMM kinds also carry (when it changed, see ``gossip_refresh``) a small gossip table (``(assembly index, step, round, x, y, z, theta)`` rows, the newest consensus pose of every
 assembly at its latest step) so every agent learns the poses of assemblies it does not talk to;
 :meth:`AssemblyAgent.estimates` turns it into poses relative to the agent (seed 000 eq. (19)).
 
@@ -87,6 +87,10 @@ class AgentConfig:
     share_timeout : int
         Rounds after which an agent goes on with the forms it has (agents that never answered start
         from the gauge flood instead).
+    gossip_refresh : int
+        The gossip table rides on an ADMM message to a neighbour only when it changed (a new row, a
+        new step, or a pose moved by more than the ADMM tolerances) since it last went to that
+        neighbour, or every this many rounds (repairs a lost copy).
     """
 
     name: str
@@ -102,6 +106,7 @@ class AgentConfig:
     patience: int = 6
     share_forms: str = "first"
     share_timeout: int = 24
+    gossip_refresh: int = 10
 
     def __post_init__(self) -> None:
         if self.name not in self.assemblies or self.reference not in self.assemblies:
@@ -206,6 +211,8 @@ class AssemblyAgent:
         self._own_forms: tuple | None = None  # (step, keys, forms, pin) last shared (answers late askers)
         self._table_changed = 0  # last round the gossip table changed by more than the tolerances
         self._booted = -1  # round whose pair phase finished the sharing of forms
+        self._table_version = 0  # bumped on every material change of the gossip table
+        self._table_sent: dict[str, tuple[int, int]] = {}  # neighbour -> (version, round) last sent
 
     # ------------------------------------------------------------------ sensing
     @property
@@ -522,7 +529,7 @@ class AssemblyAgent:
             if target in self._last_dual:  # a new value, or the last one again (repairs a lost copy)
                 self._outbox.append(AdmmDual(sender=me, receiver=target, round=self._round, window=self._step,
                                              rho=float(self._last_dual[target]["meta"][1]) or 1.0,
-                                             blocks=self._last_dual[target]))
+                                             blocks=self._with_table(self._last_dual[target], target)))
 
     def _consensus_phase(self) -> None:
         """Phase 1: the consensus update once every pair's copies of the next iteration are in."""
@@ -559,19 +566,23 @@ class AssemblyAgent:
             last = self._steps[-1]
             if cons.ready and cons.anchored(last, self._pair_steps | self._remote_steps()):
                 R, p = cons.z[last]
-                self._table[self._index[self.name]] = np.array(
-                    [self._index[self.name], last, self._round, p[0], p[1], p[2], np.arctan2(R[1, 0], R[0, 0])])
+                me = self._index[self.name]
+                row = np.array([me, last, self._round, p[0], p[1], p[2], np.arctan2(R[1, 0], R[0, 0])])
+                old = self._table.get(me)
+                if old is None or old[1] != row[1] or max(np.abs(row[3:6] - old[3:6]).max(),
+                                                          abs(wrap_angle(row[6] - old[6]))) > self._table_eps():
+                    self._table_version += 1
+                self._table[me] = row
             self._last_primal = self._blocks(sorted(cons.z.items()), cons.ready, self._iter)
         else:
             self._waiting[("cons", "")] = waited + 1
             self.counters["retransmits"] += 1
         if self._last_primal is not None:
-            if self._table:  # the gossip table is always the newest
-                self._last_primal = dict(self._last_primal, table=np.array([self._table[i] for i in sorted(self._table)]))
             for observer in self._observers:
                 if ages.get(observer, gone + 1) <= gone:
                     self._outbox.append(AdmmPrimal(sender=self.name, receiver=observer, round=self._round,
-                                                   window=self._step, blocks=self._last_primal))
+                                                   window=self._step,
+                                                   blocks=self._with_table(self._last_primal, observer)))
         if due:  # the flag describes the last completed iteration (kept while waiting for the next)
             eps = cfg.admm
             # nobody to agree with after `patience` rounds of this step and no unnamed detections:
@@ -595,15 +606,23 @@ class AssemblyAgent:
                 w: np.ndarray | None = None) -> dict:
         """Wire blocks: ``x`` rows ``(step, R00, R01, R10, R11, px, py, pz)``, ``meta`` = (ready, rho_R, rho_p,
         ADMM iteration),
-        ``table`` the gossip rows (few arrays: each costs a ~128-byte ``.npy`` header)."""
+        the gossip ``table`` is added per receiver by :meth:`_with_table`."""
         x = np.array([[k, *v[0].ravel(), *v[1]] for k, v in values], float).reshape(-1, 8)
         rho = rho or (0.0, 0.0)
         blocks = {"x": x, "meta": np.array([1.0 if ready else 0.0, rho[0], rho[1], float(iteration)])}
         if w is not None:
             blocks["w"] = w
-        if self._table:
-            blocks["table"] = np.array([self._table[i] for i in sorted(self._table)])
         return blocks
+
+    def _with_table(self, blocks: dict, receiver: str) -> dict:
+        """``blocks`` plus the gossip table if it changed since it last went to ``receiver`` (or is due)."""
+        if not self._table:
+            return blocks
+        version, when = self._table_sent.get(receiver, (-1, -(10**9)))
+        if version == self._table_version and self._round - when < self.config.gossip_refresh:
+            return blocks
+        self._table_sent[receiver] = (self._table_version, self._round)
+        return dict(blocks, table=np.array([self._table[i] for i in sorted(self._table)]))
 
     def _table_eps(self) -> float:
         return min(self.config.admm.eps_rot, self.config.admm.eps_pos)
@@ -621,6 +640,7 @@ class AssemblyAgent:
                 moved = max(np.abs(row[3:6] - old[3:6]).max(), abs(wrap_angle(row[6] - old[6]))) if old is not None else 0
                 if old is None or row[1] != old[1] or moved > self._table_eps():
                     self._table_changed = self._round
+                    self._table_version += 1
 
     # ------------------------------------------------------------------ results
     @property

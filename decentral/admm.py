@@ -28,12 +28,20 @@ window poses of ``a``) is owned by ``a``'s agent. Scaled-form ADMM [1]_ §3.1.1,
         g_a(z) + \sum_{e \ni a} \tfrac{\rho_e}{2} \| z - (y_{e,a}^{t+1} + u_{e,a}^t) \|^2 \\
     u_e^{t+1} &= u_e^t + y_e^{t+1} - z_e^{t+1},
 
-with separate penalties ``rho_R`` (rotation blocks, Frobenius norm) and ``rho_p`` (positions, metres)
-per pair, adapted by residual balancing [1]_ §3.4.1 (``r > mu s``: ``rho *= tau``, ``u /= tau``;
-``s > mu r``: the converse). The primal residual of pair ``e`` is ``r_e = ||y_e - z_e||``, its dual
-residual ``s_e = rho_e ||z_e^{t+1} - z_e^t||``; ADMM stops when the primal residual and the consensus
-change are below absolute tolerances. With over-relaxation [1]_ §3.4.3 the consensus and dual updates
-use ``y_hat = alpha y + (1 - alpha) z`` in place of ``y``.
+where the norms are *matrix weighted* (scaled ADMM, the metric selection of [2]_): pair ``e``
+penalizes its copy of pose ``i`` with ``rho_e/2 tr((X - Z) P_{e,i} (X - Z)^T)`` over the columns
+``X = [p_xy | R]`` of the pose (and ``rho_e/2 w_{e,i} (p_z - z_z)^2``), where ``P_{e,i}`` is the
+``3 x 3`` diagonal block of the pair's own Hessian for that pose, ``sum_d w_d [1, q_d]^T [1, q_d]``
+for a target (``t_d``, the metre-long lever arms, for an observer), plus a small floor
+(:func:`pair_metric`). The consensus update is then an information-weighted average
+``z = (sum_e rho_e P_e)^{-1} sum_e rho_e P_e (y_e + u_e)`` (with the odometry chain on top), and the
+scaled duals keep the multiplier ``lambda = rho u P`` fixed when ``P`` changes. On the 8-ring this
+cut the rounds of a warm window from 135 (scalar penalties) to 101. A scalar ``rho_e`` on top is
+adapted by residual balancing [1]_ §3.4.1 (``r > mu s``: ``rho *= tau``, ``u /= tau``; ``s > mu r``: the
+converse) with ``r = ||y - z||_P`` and ``s = rho ||z^{t+1} - z^t||_P``; with the information metric a
+fixed ``rho`` is close to best, so ``mu`` defaults to 100 (a safeguard only). ADMM stops when the
+primal residual and the consensus change are below absolute tolerances. With over-relaxation [1]_
+§3.4.3 the consensus and dual updates use ``y_hat = alpha y + (1 - alpha) z`` in place of ``y``.
 
 Both updates are the same kind of problem: a quadratic form ``tr(X M X^T)`` over ``X = [P_xy | R]``
 (as in :mod:`decentral.window`) plus a prox term. Since ``||R||_F^2 = 2`` on SO(2), the prox term is
@@ -59,13 +67,43 @@ they adopt the first copy that comes from an initialized neighbour (a breadth-fi
 gauge), which avoids averaging copies in unrelated gauges.
 
 Warm starts: when the window slides, consensus values, copies and scaled duals of the steps that
-remain are kept; a new step's consensus pose is the previous one moved by the odometry.
+remain are kept; a new step's consensus pose is the previous one moved by the odometry, and its duals
+start from the previous step's multipliers.
+
+Starting at a known solution (:meth:`PairState.seed`): at a minimizer ``x*`` of the joint cost, copies
+``y = x*`` with duals ``u_{e,i} = -grad_i f_e(x*) P_{e,i}^{-1} / rho_e`` are a fixed point of the
+iteration (each prox problem is stationary at ``y = z = x*``, and the consensus update sees the
+joint gradient, which has no component along the poses' tangent spaces). Agents that share their
+cost forms (a few hundred bytes per pair and step) can all compute ``x*`` with :func:`solve_joint`
+and start there: the cold start then converges in a few rounds instead of hundreds. A spanning-tree
+composition of pairwise relative poses is no substitute: a single pair fixes the target's position
+well but its relative yaw poorly (a few nodes, a metre or two away), so composing around half a
+16-ring was 7 m and 146 deg off the joint estimate.
+
+Why plain ADMM stays slow on rings: the joint window problem is ill-conditioned in a way no local
+metric removes. The Hessian of the 16-ring window (2 steps, gauge fixed) scaled by its block
+diagonal (the best local metric) has condition number ``kappa`` 7.6e3 (1.1e3 for 8, 2e5 for 32
+assemblies: the ring's long "bending" mode, in which small relative-yaw errors of every pair add up).
+ADMM on a quadratic with optimally chosen penalty converges at best like
+``((sqrt(kappa) - 1) / (sqrt(kappa) + 1))^t`` [3]_, i.e. ~300 rounds per 1000x error reduction at
+``kappa`` 7.6e3; measured warm windows on the 16-ring contract by ~0.9925 per round. Neither
+over-relaxation nor penalty adaptation changes the order; Nesterov-type acceleration with restart [4]_
+needs a global restart test (with local restarts it lost its gain in a model of the ring). Only
+exchanging second-order information (the forms) beats it; see ``share_forms`` in
+:mod:`agents.assembly`.
 
 References
 ----------
 .. [1] S. Boyd, N. Parikh, E. Chu, B. Peleato, J. Eckstein, "Distributed optimization and statistical
    learning via the alternating direction method of multipliers", Foundations and Trends in Machine
    Learning 3(1), 2011.
+.. [2] P. Giselsson, S. Boyd, "Linear convergence and metric selection for Douglas-Rachford splitting
+   and ADMM", IEEE Transactions on Automatic Control 62(2), 2017.
+.. [3] E. Ghadimi, A. Teixeira, I. Shames, M. Johansson, "Optimal parameter selection for the
+   alternating direction method of multipliers (ADMM): quadratic problems", IEEE Transactions on
+   Automatic Control 60(3), 2015.
+.. [4] T. Goldstein, B. O'Donoghue, S. Setzer, R. Baraniuk, "Fast alternating direction optimization
+   methods", SIAM Journal on Imaging Sciences 7(3), 2014.
 """
 
 from __future__ import annotations
@@ -76,7 +114,7 @@ import numpy as np
 
 from decentral.errors import InputError
 from decentral.geometry import rot2
-from decentral.relaxation import solve_low_rank
+from decentral.relaxation import recover_positions, reduce_rotations, solve_low_rank
 
 __all__ = [
     "AdmmConfig",
@@ -106,7 +144,8 @@ class AdmmConfig:
     Attributes
     ----------
     rho0 : float
-        Initial penalties relative to each pair's mean curvature (diagonal of its quadratic form).
+        Initial penalty scale: pair ``e`` penalizes key ``i`` with ``rho P_{e,i}``, ``rho = rho0`` at
+        the start, ``P`` the information metric (or the mean curvature, ``metric="scalar"``).
     mu, tau : float
         Residual balancing: rescale ``rho`` by ``tau`` when one residual exceeds ``mu`` times the other.
     rho_span : float
@@ -119,22 +158,33 @@ class AdmmConfig:
         Adapt ``rho`` every this many pair iterations (1: every iteration).
     alpha : float
         Over-relaxation [1]_ §3.4.3 (1: none; 1.5-1.8 typical).
+    metric : {"information", "scalar"}
+        Penalty metric per key: the pair's diagonal Hessian block (:func:`pair_metric`) or a scalar
+        per rotation / position (the pair's mean curvatures).
+    metric_floor : float
+        Regularization of the information metric, relative to its mean diagonal.
+    carry_duals : bool
+        A new step's duals start from the previous step's multipliers (:meth:`PairState.set_problem`).
 
-    The defaults were picked on the 6-assembly ring (K = 5, 6 steps): rounds to converge summed over
-    the steps 531 (rho0 0.3, mu 10, alpha 1), 396 (mu 3), 347 (alpha 1.5), 282 (rho0 1, mu 3,
-    alpha 1.5), 287 (alpha 1.8), 315 (rho0 3).
+    Defaults, measured on the 8-ring (K = 5, 6 steps, the first started from the shared forms; rounds
+    of steps 2-6): information metric, rho0 0.3, floor 0.005, alpha 1.8, mu 100: 84, 95, 118, 91, 142;
+    mu 1e6 (no balancing): 84, 101, 119, 102, 134; mu 3: 110, 133, 140, 118, 148; mu 10: 132, 138,
+    155, 132, 181; rho0 1, floor 0.05, alpha 1.5, mu 3: 91, 105, 110, 103, 146; scalar metric (rho0 1,
+    mu 3, alpha 1.5): 110, 115, 112, 133 (4 steps). On a seeded 8-ring step (one warm window): floor
+    0.005 101, 0.05 109, 0.2 125, 1.0 175 rounds; scalar metric 135; rho0 0.1 ~200, 0.2 117, 0.5 135,
+    1 ~220 (alpha 1.5, no balancing).
     """
 
-    rho0: float = 1.0
-    mu: float = 3.0
+    rho0: float = 0.3
+    mu: float = 100.0
     tau: float = 2.0
     rho_span: float = 1e4
     eps_rot: float = 3e-5
     eps_pos: float = 3e-5
     balance_every: int = 1
-    alpha: float = 1.5
+    alpha: float = 1.8
     metric: str = "information"
-    metric_floor: float = 0.05
+    metric_floor: float = 0.005
     carry_duals: bool = True
 
     def __post_init__(self) -> None:
@@ -851,10 +901,10 @@ def solve_joint(problems: list[LocalProblem], fixed_key, fixed_value: Pose2 | No
 
     The cold start of the ADMM: the pair forms of one step, shared by every agent, summed into the
     joint problem (their sum is the joint cost, as for :func:`decentral.window.build_window`),
-    restricted to the connected component of the gauge variable, solved by :func:`solve_prox_metric`
-    with that variable fixed (identity by default); every position of the component is tied to it by
-    factors, so the position block is positive definite. Deterministic in its inputs, so agents that
-    hold the same forms get bit-identical answers.
+    restricted to the connected component of the gauge variable, solved gauge-free like the
+    centralized window (rotations eliminated per seed 000 eq. (14), the certified low-rank solve,
+    positions per eq. (18)) and moved rigidly so that the gauge variable takes its value (identity by
+    default). Deterministic in its inputs, so agents that hold the same forms get bit-identical answers.
 
     Parameters
     ----------
@@ -899,8 +949,15 @@ def solve_joint(problems: list[LocalProblem], fixed_key, fixed_value: Pose2 | No
         M[np.ix_(gc, gc)] += prob.M[np.ix_(lc, lc)]
         b_z[g] += prob.b_z
         c_z += prob.c_z
-    joint = LocalProblem(tuple(keys), M, b_z, c_z)
-    sol = solve_prox_metric(joint, np.zeros((n, 3, 3)), np.zeros((n, 2, 3)), np.zeros(n), np.zeros(n),
-                            fixed={index[fixed_key]: (_yaw(fixed_value[0]), np.asarray(fixed_value[1], float))})
-    R = sol.rotations
-    return {k: (R[i], sol.position[i]) for i, k in enumerate(keys)}
+    # gauge-free, as the centralized window (seed 000 eq. (14)-(18)), then moved onto the fixed value
+    res = solve_low_rank(reduce_rotations(M, n))
+    position = recover_positions(M, res.theta, b_z)
+    f = index[fixed_key]
+    d = _yaw(fixed_value[0]) - res.theta[f]
+    Rd = rot2(d)
+    theta = res.theta + d
+    p_fix = np.asarray(fixed_value[1], float)
+    position[:, :2] = (position[:, :2] - position[f, :2]) @ Rd.T + p_fix[:2]
+    position[:, 2] += p_fix[2] - position[f, 2]
+    R = rot2(theta)
+    return {k: (R[i], position[i]) for i, k in enumerate(keys)}

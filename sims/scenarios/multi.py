@@ -3,8 +3,11 @@
 ``n_assemblies`` assemblies (2-16 in the issue; up to 64 for scaling runs) stand on a circle, neighbours ``spacing`` metres apart, each with
 a random configuration (library shapes and random lattice shapes). The first ``observers`` of them
 carry a camera aimed at the next assembly around the ring (all of them by default: the view graph is
-a cycle; cameras also see farther assemblies when they are in view). Everyone drifts smoothly; halfway
-through the run the first observer's camera strut turns (a mount change announced in the log).
+a cycle; cameras also see farther assemblies when they are in view). With ``chord_every = c > 0``
+every ``c``-th assembly carries a second camera aimed across the ring at the assembly ``chord_skip``
+places ahead: a cyclic view graph that is not a ring (chords close shorter loops). Everyone drifts
+smoothly; halfway through the run the first observer's camera strut turns (a mount change announced
+in the log).
 """
 
 from __future__ import annotations
@@ -44,6 +47,11 @@ class MultiConfig(ScenarioConfig):
         Amplitude [rad] of each assembly's heading changes.
     mount_turn_deg : float
         Turn [deg] of the first observer's camera strut at mid-run (0: no mount change).
+    chord_every : int
+        Every this many assemblies (indices 0, c, 2c, ...) carry a second camera, ``cam1``, aimed at
+        the assembly ``chord_skip`` places ahead (0: none, the plain ring).
+    chord_skip : int
+        How far ahead around the ring a chord camera looks (>= 2).
     """
 
     steps: int = 80
@@ -53,9 +61,15 @@ class MultiConfig(ScenarioConfig):
     drift: float = 0.1
     yaw_drift: float = 0.08
     mount_turn_deg: float = 6.0
+    chord_every: int = 0
+    chord_skip: int = 2
 
     def __post_init__(self):
         super().__post_init__()
+        if not (isinstance(self.chord_every, int) and self.chord_every >= 0):
+            raise ValueError(f"chord_every must be an integer >= 0, got {self.chord_every!r}")
+        if not (isinstance(self.chord_skip, int) and self.chord_skip >= 2):
+            raise ValueError(f"chord_skip must be an integer >= 2, got {self.chord_skip!r}")
         if not 2 <= self.n_assemblies <= 64:
             raise ValueError(f"n_assemblies must be in 2..64, got {self.n_assemblies!r}")
         if self.observers is not None and not 1 <= self.observers <= self.n_assemblies:
@@ -111,6 +125,12 @@ class Multi(Scenario):
                     turned = Pose(rot_z(look + np.radians(c.mount_turn_deg)), at)
                     mounts = tuple(None if k < c.steps // 2 else turned for k in range(c.steps))
                 cameras.append(strut_camera(name, "cam0", at=at, look_yaw=look, mounts=mounts))
+            if c.chord_every and i % c.chord_every == 0 and c.chord_skip < n:
+                across = homes[(i + c.chord_skip) % n] - homes[i]
+                look2 = look + float(np.arctan2(across[1], across[0])) - world_look
+                d2 = np.array([np.cos(look2), np.sin(look2), 0.0])
+                reach2 = max(float((shape.centres @ d2).max()), 0.0)
+                cameras.append(strut_camera(name, "cam1", at=(reach2 + NODE_RADIUS + 0.04) * d2, look_yaw=look2))
         return World(NODE_RADIUS, times, tuple(assemblies), tuple(cameras), {"shapes": kinds})
 
 

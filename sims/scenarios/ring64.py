@@ -27,6 +27,10 @@ class Ring64Config(MultiConfig):
             raise ValueError(f"n_assemblies must be in 2..64, got {self.n_assemblies!r}")
         if self.observers is not None and not 1 <= self.observers <= self.n_assemblies:
             raise ValueError("observers must be between 1 and n_assemblies")
+        if not (isinstance(self.chord_every, int) and self.chord_every >= 0):
+            raise ValueError(f"chord_every must be an integer >= 0, got {self.chord_every!r}")
+        if not (isinstance(self.chord_skip, int) and self.chord_skip >= 2):
+            raise ValueError(f"chord_skip must be an integer >= 2, got {self.chord_skip!r}")
 
 
 class Ring64(Multi):
