@@ -3,8 +3,9 @@
 Fixed inputs: the ``table1`` and ``multi`` scenarios (seed 0), rendered at 1024 x 768 with the
 renderer's default degradations (sensor noise, blur, motion blur, exposure drift; struts and nearer
 nodes occlude). For each frame the front end runs detection + identification + tracking; two
-identifiers are timed: OpenCV's AprilTag detector restricted to the circles (no camera model), and
-the sphere-model reader (with the log's camera model, as ``decentral perceive --log-template``).
+configurations are timed: images only (OpenCV's AprilTag detector restricted to the circles, camera
+motion from image registration), and with the log (the sphere-model reader with the log's camera
+model, camera motion from the observer's odometry: what ``decentral perceive --log-template`` does).
 The reference measured in the same run is OpenCV's ``HoughCircles(HOUGH_GRADIENT_ALT)`` alone on the
 same frames (FINDINGS' detector). Times are CPU seconds of the process (threads pinned to one, so
 this is one core's work; wall time, inflated when the shared machine is loaded, is kept beside it).

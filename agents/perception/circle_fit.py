@@ -44,8 +44,9 @@ def fit_circles_algebraic(points: np.ndarray, weights: np.ndarray) -> tuple[np.n
     x = points - mean[:, None, :]  # centring keeps the normal equations well conditioned
     A = np.concatenate([x, np.ones(x.shape[:2] + (1,))], axis=2)  # (N, M, 3)
     b = (x * x).sum(axis=2)
-    AtA = np.einsum("nmi,nm,nmj->nij", A, w, A)
-    Atb = np.einsum("nmi,nm,nm->ni", A, w, b)
+    Aw = A * w[..., None]
+    AtA = np.matmul(Aw.transpose(0, 2, 1), A)  # batched matmul: much faster than the equivalent einsum
+    Atb = np.matmul(Aw.transpose(0, 2, 1), b[..., None])[..., 0]
     sol, ok = _solve3(AtA, Atb)
     cu, cv = sol[:, 0] / 2.0, sol[:, 1] / 2.0
     r2 = sol[:, 2] + cu * cu + cv * cv
@@ -75,8 +76,9 @@ def fit_circles_geometric(
         dist = np.maximum(np.hypot(d[..., 0], d[..., 1]), 1e-9)
         res = dist - est[:, None, 2]
         J = np.stack([-d[..., 0] / dist, -d[..., 1] / dist, -np.ones_like(dist)], axis=2)
-        JtJ = np.einsum("nmi,nm,nmj->nij", J, w, J)
-        Jtr = np.einsum("nmi,nm,nm->ni", J, w, res)
+        Jw = (J * w[..., None]).transpose(0, 2, 1)
+        JtJ = np.matmul(Jw, J)
+        Jtr = np.matmul(Jw, res[..., None])[..., 0]
         step, ok = _solve3(JtJ, -Jtr)
         new = est + step
         good = ok & np.all(np.isfinite(new), axis=1) & (new[:, 2] > 0)

@@ -179,7 +179,15 @@ def suppress(circles: list[Circle], strong: float = 0.45) -> list[Circle]:
     kept: list[Circle] = []
     first = sorted((c for c in circles if c.score >= strong), key=lambda c: (-c.r, -c.score))
     then = sorted((c for c in circles if c.score < strong), key=lambda c: (-c.score, -c.r))
-    for c in first + then:
-        if all(np.hypot(c.u - k.u, c.v - k.v) >= 0.9 * max(k.r, c.r) for k in kept):
-            kept.append(c)
+    order = first + then
+    if not order:
+        return []
+    arr = np.array([[c.u, c.v, c.r] for c in order])
+    clash = np.hypot(arr[:, None, 0] - arr[None, :, 0], arr[:, None, 1] - arr[None, :, 1]) < 0.9 * np.maximum(
+        arr[:, None, 2], arr[None, :, 2])
+    keep = np.zeros(len(order), dtype=bool)
+    for i in range(len(order)):
+        if not (clash[i] & keep).any():
+            keep[i] = True
+            kept.append(order[i])
     return sorted(kept, key=lambda c: -c.score)

@@ -92,7 +92,9 @@ def perceive_paths(
     """Run perception over image files or one video; return the :class:`DetectionFrame` list.
 
     ``log`` (an :class:`~decentral.observations.ObservationLog`) and ``camera`` supply the camera
-    model (eq. (1) circles) and, with ``motion="odometry"``, the observer's rotation per step.
+    model (eq. (1) circles) and, with ``motion="odometry"`` (or ``"auto"``, the default, when the log
+    has odometry for the camera's assembly), the observer's rotation per step; without a log,
+    ``"auto"`` is image registration.
     """
     from agents.perception import AprilTagConfig, AprilTagIdentifier, HoughCircleDetector, HoughConfig, Perception
     from agents.perception.frames import iter_frames

@@ -1,7 +1,7 @@
 """Seed 000 Table I and Fig. 4 reproduced on rendered data: perception front end + estimators.
 
 Table I (§V-D): the ``table1`` scenario (one observer on a 0.75 m table, three moving targets of
-different configurations 1.5-3 m away, 5 Hz) is rendered; the frames go through the perception
+different configurations, 1.85 m away on average as in the seed, 5 Hz) is rendered; the frames go through the perception
 front end (circles, sphere-model tag reads, tracking) and the perceived log feeds
 
 - **ours**: the windowed estimator (``decentral.estimator.estimate_log``, K = 5);
