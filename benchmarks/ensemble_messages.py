@@ -211,10 +211,16 @@ def plot(result: dict, path: Path) -> None:
         ax1.annotate(f"{r['levels']} lv", (r["n"], r["messages_per_module"]), textcoords="offset points",
                      xytext=(4, -10), fontsize=7)
     ax1.set_xscale("log")
+    from matplotlib.ticker import NullFormatter
+
+    ax1.set_xticks(n)
+    ax1.set_xticklabels([f"{int(v):,}" for v in n], fontsize=8)
+    ax1.xaxis.set_minor_formatter(NullFormatter())
     ax1.set_xlabel("modules N (2D triple)")
     ax1.set_ylabel("messages sent per module")
     ax1.set_title("seed 003 Fig. 11: messages per module", fontsize=10)
-    ax1.legend(fontsize=8)
+    ax1.legend(fontsize=7, loc="upper left")
+    ax1.set_ylim(0, 1.35 * y.max())
     picks = [rows[0], rows[-1]] if len(rows) > 1 else rows
     _split_bars(axes[1], picks, [f"N={r['n']}" for r in picks], "Fig. 12: split by phase (2D)")
     if cubes:
@@ -239,7 +245,12 @@ def main(argv=None) -> int:
     ap.add_argument("--cubes", type=int, nargs="*", default=[5, 10], help="sides of the 3D cubic test cases")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "ensemble_messages"))
     ap.add_argument("--merge", help="a previous result JSON of the same parameters whose rows to include")
+    ap.add_argument("--replot", action="store_true", help="only redraw the PNG from the saved JSON")
     args = ap.parse_args(argv)
+    if args.replot:
+        with open(Path(args.out).with_suffix(".json"), encoding="utf-8") as fh:
+            plot(json.load(fh), Path(args.out).with_suffix(".png"))
+        return 0
     t0 = time.perf_counter()
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
