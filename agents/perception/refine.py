@@ -61,6 +61,10 @@ class RefineConfig:
     max_axis_turn_deg : float
         Second pass: an elongated ellipse is kept only if its major axis points within this angle
         of the image centre (a sphere's image is elongated radially from the principal point).
+    min_focal_px : float
+        Second pass: the shortest focal length (px) assumed; an ellipse at distance d from the
+        image centre may be elongated at most ``sqrt(1 + (d / min_focal_px)^2)`` (+ 0.03). 500 px
+        allows a 92 deg horizontal field of view at 1024 px.
     """
 
     rays: int = 64
@@ -77,6 +81,7 @@ class RefineConfig:
     max_axis_ratio: float = 1.5
     ellipse_gate: float = 0.12
     max_axis_turn_deg: float = 20.0
+    min_focal_px: float = 500.0
 
 
 def rim_points(
@@ -282,6 +287,11 @@ def _ellipse_stage(pts, strength, circles, inl, tol, cfg: RefineConfig, image_ce
     radial = ec[:, :2] - np.asarray(image_centre, dtype=float)[None]
     radial /= np.maximum(np.hypot(radial[:, 0], radial[:, 1]), 1e-9)[:, None]
     aligned = (ratio <= 1.03) | (np.abs(np.einsum("ni,ni->n", major, radial)) >= np.cos(np.radians(cfg.max_axis_turn_deg)))
-    better = (eok & cok & (ratio <= cfg.max_axis_ratio) & aligned & (einl.sum(axis=1) > inl.sum(axis=1))
+    # and no more elongated than a sphere can look there: ratio ~ 1 / cos(off-axis angle), the angle
+    # at most atan(d / f) for a focal length f of at least ``min_focal_px`` (the distance d from the
+    # image centre); partly hidden rims otherwise pass for ellipses
+    d = np.hypot(ec[:, 0] - image_centre[0], ec[:, 1] - image_centre[1])
+    possible = np.minimum(cfg.max_axis_ratio, np.sqrt(1.0 + (d / cfg.min_focal_px) ** 2) + 0.03)
+    better = (eok & cok & (ratio <= possible) & aligned & (einl.sum(axis=1) > inl.sum(axis=1))
               & (moved <= 0.2 * scale) & (np.abs(ec[:, 2] / scale - 1.0) <= 0.2))
     return np.where(better[:, None], ec, circles), np.where(better[:, None], einl, inl)

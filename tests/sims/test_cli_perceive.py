@@ -126,3 +126,24 @@ def test_log_assembly_from_a_rendered_run(tmp_path):
             assert np.hypot(d.u - t["u"], d.v - t["v"]) < 0.3 * t["r"]
             seen += 1
     assert seen >= 3
+
+
+def test_auto_motion_uses_the_logs_odometry_not_registration(tmp_path, monkeypatch):
+    """With a log template that has odometry, the default motion source is the odometry (no image registration)."""
+    pytest.importorskip("sims.render")
+    from agents.perception import motion
+
+    def no_flow(self, *args, **kwargs):
+        raise AssertionError("image registration ran although the log has odometry")
+
+    run = tmp_path / "run"
+    assert main(["simulate", "table1", "-o", str(run), "--steps", "3", "--frames", "png", "--seed", "2"]) == 0
+    frames = sorted(str(p) for p in (run / "frames").rglob("*.png"))
+    monkeypatch.setattr(motion.FlowRegistration, "__call__", no_flow)
+    used = []
+    real = motion.odometry_homography
+    monkeypatch.setattr(motion, "odometry_homography", lambda *a: used.append(1) or real(*a))
+    out, log_out = tmp_path / "dets.json", tmp_path / "log.json"
+    assert main(["perceive", *frames, "-o", str(out), "--log-template", str(run / "log.json"),
+                 "--camera", "A0/cam0", "--log-out", str(log_out)]) == 0
+    assert len(used) == len(frames) - 1

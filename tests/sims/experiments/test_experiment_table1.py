@@ -2,6 +2,8 @@
 
 import json
 
+import numpy as np
+
 import pytest
 
 from sims.cli.main import main
@@ -49,3 +51,15 @@ def test_small_rendered_run_places_targets_and_beats_bearing():
     ours, bearing = table["Ours (window K=5)"], table["Bearing (root node)"]
     assert ours["coverage"] > 0.2 and ours["position_m"] < 0.3
     assert bearing["position_m"] is None or ours["position_m"] < bearing["position_m"]
+
+
+def test_restricted_estimate_keeps_only_the_other_methods_placements():
+    """Like-for-like scoring keeps ours' poses only at the (step, target) pairs the baseline placed."""
+    from decentral.observations import Estimate, EstimateStep, PlanarPose
+    from sims.experiments.table1 import _restricted
+
+    pose = PlanarPose(np.zeros(3), 0.0)
+    ours = Estimate("A0", (EstimateStep(0.0, {"A1": pose, "A2": pose}), EstimateStep(0.2, {"A1": pose})), {})
+    base = Estimate("A0", (EstimateStep(0.0, {"A2": pose}), EstimateStep(0.2, {})), {})
+    kept = _restricted(ours, base)
+    assert [set(s.poses) for s in kept.steps] == [{"A2"}, set()]
