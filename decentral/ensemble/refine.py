@@ -1,6 +1,6 @@
 """Refinement of an ensemble estimate to the maximum likelihood (seed 003 eq. 3, Algorithm 1 line 11).
 
-Two methods, both on the sparse structure of the contact graph and fully vectorized:
+Three methods, all on the sparse structure of the contact graph and fully vectorized:
 
 ``"alternating"`` (default)
     Exact block-coordinate descent: for fixed centres the best orientations are a closed-form
@@ -13,6 +13,10 @@ Two methods, both on the sparse structure of the contact graph and fully vectori
     Levenberg-Marquardt on the full Jacobian (positions and orientation increments), one sparse LU
     per iteration: quadratic convergence, but the factorization of the coupled system fills in
     about 27 times more than the Laplacian's, so it is only used for small problems.
+``"pcg"``
+    Preconditioned nonlinear conjugate gradient, the refiner of seed 003 §VI-B/E: O(E) per
+    iteration, no factorization, so it undoes errors far from where they are corrected only slowly
+    (Fig. 3c); kept for the faithful accuracy study.
 
 The iteration count is reported per call so callers can charge it to the modules involved
 (seed 003 Fig. 6). All quantities are made dimensionless by the module radius inside, so the
@@ -40,7 +44,8 @@ class RefineConfig:
     Attributes
     ----------
     max_iter : int
-        Maximum number of linear solves (accepted or rejected steps).
+        Maximum number of iterations: linear solves (accepted or rejected steps) for
+        ``"alternating"`` and ``"lm"``, conjugate-gradient steps for ``"pcg"``.
     gtol : float
         Stop when the largest gradient entry (in module radii) is below this (seed 003 §VI-B stops
         each level at a fixed gradient norm).
