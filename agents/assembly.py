@@ -225,6 +225,7 @@ class AssemblyAgent:
         self._table_changed = 0  # last round the gossip table changed by more than the tolerances
         self._booted = -1  # round whose pair phase finished the sharing of forms
         self._table_version = 0  # bumped on every material change of the gossip table
+        self._expected: set[str] = set()  # observers whose first values a seeded start waits for
         self._table_sent: dict[str, tuple[int, int]] = {}  # neighbour -> (version, round) last sent
 
     # ------------------------------------------------------------------ sensing
@@ -237,6 +238,7 @@ class AssemblyAgent:
         cfg = self.config
         first = self._step is None and own.step == 0
         self._seeds = {}
+        self._expected = set()
         if cfg.share_forms == "every" or (cfg.share_forms == "first" and first):
             self._boot = {"records": {}, "start": None, "sent": -(10**9), "waited": 0, "step": own.step,
                           "pin": None}
@@ -486,6 +488,10 @@ class AssemblyAgent:
         elif first != 0:
             return  # the gauge's value at this window is unknown here: the ADMM goes on from its own state
         seeds = solve_joint(problems, (ref, first), value)
+        # the seeded duals balance only with every observer's contribution: wait for their first values
+        names, me = self.config.assemblies, self._index[self.name]
+        self._expected = {names[keys[0][0]] for idx in boot["records"] for keys, _ in boot["records"][idx]
+                          if len(keys) >= 2 and keys[1][0] == me and keys[0][0] != me}
         if self.config.share_forms == "every":
             # a fresh ADMM start at the new window's fixed point: earlier values belong to the old window
             self._targets_z = {a: v for a, v in self._targets_z.items() if v.window >= self._step}
@@ -568,6 +574,8 @@ class AssemblyAgent:
         self._last_ages = ages
         waited = self._waiting.get(("cons", ""), 0)
         lowest = min((it for it, _, _ in inputs), default=self._iter + 1)
+        if any(a not in self._observers for a in self._expected):
+            lowest = -1  # a seeded start without an observer's contribution would leave the fixed point
         self._iter_before = self._iter
         due = lowest >= self._iter + 1 or waited >= cfg.patience or cons.pinned and not inputs
         if due:
@@ -585,6 +593,7 @@ class AssemblyAgent:
                 if old is None or old[1] != row[1] or max(np.abs(row[3:6] - old[3:6]).max(),
                                                           abs(wrap_angle(row[6] - old[6]))) > self._table_eps():
                     self._table_version += 1
+                    self._table_changed = self._round
                 self._table[me] = row
             self._last_primal = self._blocks(sorted(cons.z.items()), cons.ready, self._iter)
         else:
