@@ -17,7 +17,8 @@ accuracy (identified detections naming the matched node), id switches (a node's 
 changing between frames where it is matched to a tracked detection), node-id changes (the node id
 shown on a true node changing), and matched detections left untracked (low score, no track).
 
-Usage: ``python benchmarks/perception.py [--steps 60]``; writes ``benchmarks/results/perception.json``
+Usage: ``python benchmarks/perception.py [--steps 60] [--repeats 3]`` (each sequence runs ``repeats`` times and
+per frame the smallest CPU time counts: the machine is shared, and interference only adds time); writes ``benchmarks/results/perception.json``
 and ``perception.png``.
 """
 
@@ -66,7 +67,7 @@ def _match(dets, nodes, w, h):
     return pairs, counted
 
 
-def _run(sim, frames, mode: str) -> dict:
+def _run(sim, frames, mode: str, repeats: int = 1) -> dict:
     from agents.perception import AprilTagIdentifier, HoughCircleDetector, Perception
     from agents.perception.motion import odometry_homography
     from agents.perception.sphere_tags import SphereTagIdentifier
@@ -83,9 +84,14 @@ def _run(sim, frames, mode: str) -> dict:
         else:  # images only: image registration for the tracker
             ident = AprilTagIdentifier()
             p = Perception(HoughCircleDetector(), ident)
-        last_track: dict[int, int] = {}
-        last_node: dict[int, int] = {}
-        for k, frame in seq:
+        cpu_t = np.full((repeats, len(seq)), np.inf)
+        wall_t = np.full((repeats, len(seq)), np.inf)
+        stage_t: dict[str, np.ndarray] = {}
+        for rep, i, k, frame in ((rep, i, k, f) for rep in range(repeats) for i, (k, f) in enumerate(seq)):
+            if i == 0:  # each repeat runs the whole sequence again from a fresh tracker
+                p.reset()
+                last_track: dict[int, int] = {}
+                last_node: dict[int, int] = {}
             img = frame.image
             h, w = img.shape[:2]
             start, cpu = time.perf_counter(), time.process_time()
@@ -98,10 +104,17 @@ def _run(sim, frames, mode: str) -> dict:
                 if odo is not None:
                     given = odometry_homography(cam.K, R, odo.dtheta)
             dets, secs = p.process(img, motion=given)
-            out["cpu_seconds"].append(time.process_time() - cpu)
-            out["seconds"].append(time.perf_counter() - start)
-            for s, v in secs.items():
-                out["stage_seconds"].setdefault(s, []).append(v)
+            cpu_t[rep, i] = time.process_time() - cpu
+            wall_t[rep, i] = time.perf_counter() - start
+            for name, v in secs.items():
+                stage_t.setdefault(name, np.full((repeats, len(seq)), np.inf))[rep, i] = v
+            if rep == repeats - 1:  # per frame, the least interfered-with repeat
+                out["cpu_seconds"].append(float(cpu_t[:, i].min()))
+                out["seconds"].append(float(wall_t[:, i].min()))
+                for name, v in stage_t.items():
+                    out["stage_seconds"].setdefault(name, []).append(float(v[:, i].min()))
+            if rep > 0:  # the outputs repeat exactly; quality is counted once
+                continue
             pairs, counted = _match(dets, frame.nodes, w, h)
             counted_ids = {n["id"] for n in counted}
             truth = {n["id"]: n for n in frame.nodes}
@@ -135,16 +148,19 @@ def _run(sim, frames, mode: str) -> dict:
     return out
 
 
-def _hough_alt_seconds(frames) -> list[float]:
+def _hough_alt_seconds(frames, repeats: int = 1) -> list[float]:
     out = []
     for seq in frames.values():
         for _, frame in seq:
             grey = cv2.cvtColor(frame.image, cv2.COLOR_BGR2GRAY)
-            cpu = time.process_time()
-            blurred = cv2.GaussianBlur(grey, (0, 0), 2.0)
-            cv2.HoughCircles(blurred, cv2.HOUGH_GRADIENT_ALT, dp=1.5, minDist=8, param1=150, param2=0.6,
-                             minRadius=8, maxRadius=160)
-            out.append(time.process_time() - cpu)
+            best = np.inf
+            for _ in range(repeats):
+                cpu = time.process_time()
+                blurred = cv2.GaussianBlur(grey, (0, 0), 2.0)
+                cv2.HoughCircles(blurred, cv2.HOUGH_GRADIENT_ALT, dp=1.5, minDist=8, param1=150, param2=0.6,
+                                 minRadius=8, maxRadius=160)
+                best = min(best, time.process_time() - cpu)
+            out.append(best)
     return out
 
 
@@ -175,17 +191,21 @@ def _summary(r: dict, ref_median: float) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=60)
+    parser.add_argument("--repeats", type=int, default=3,
+                        help="runs of each sequence; per frame the smallest CPU time counts (default 3)")
     args = parser.parse_args()
     result = {"benchmark": "perception", "parameters": {"scenarios": ["table1", "multi"], "seed": 0, "steps": args.steps,
-                                                         "image": [1024, 768], "threads": 1},
+                                                         "image": [1024, 768], "threads": 1, "repeats": args.repeats,
+                                                         "timing": "per frame the minimum CPU time over the repeats, "
+                                                                   "then the median over frames"},
               "machine": machine(), "scenarios": {}}
     for name in ("table1", "multi"):
         sim, frames = _render(name, args.steps)
-        ref = _hough_alt_seconds(frames)
+        ref = _hough_alt_seconds(frames, args.repeats)
         ref_med = float(np.median(ref))
         entry = {"reference_hough_alt_cpu_seconds_median": ref_med}
         for mode in ("opencv_apriltag", "sphere_model"):
-            r = _run(sim, frames, "sphere" if mode == "sphere_model" else "opencv")
+            r = _run(sim, frames, "sphere" if mode == "sphere_model" else "opencv", args.repeats)
             entry[mode] = _summary(r, ref_med)
         result["scenarios"][name] = entry
     save("perception", result)
@@ -200,17 +220,18 @@ def plot(result: dict, path) -> None:
 
     names = list(result["scenarios"])
     modes = ("opencv_apriltag", "sphere_model")
+    labels = {"opencv_apriltag": "images only (OpenCV AprilTag, flow)", "sphere_model": "with the log (sphere model, odometry)"}
     fig, axes = plt.subplots(1, 3, figsize=(12, 3.3))
     width = 0.38
     for j, mode in enumerate(modes):
         fps = [result["scenarios"][n][mode]["fps_median"] for n in names]
-        axes[0].bar(np.arange(len(names)) + j * width, fps, width, label=mode)
+        axes[0].bar(np.arange(len(names)) + j * width, fps, width, label=labels[mode])
         pr = [result["scenarios"][n][mode]["precision"] for n in names]
         rc = [result["scenarios"][n][mode]["recall"] for n in names]
-        axes[1].bar(np.arange(len(names)) + j * width, rc, width, label=f"recall, {mode}")
+        axes[1].bar(np.arange(len(names)) + j * width, rc, width, label=f"recall, {labels[mode]}")
         axes[1].plot(np.arange(len(names)) + j * width, pr, "k^")
         acc = [result["scenarios"][n][mode]["identified_fraction"] for n in names]
-        axes[2].bar(np.arange(len(names)) + j * width, acc, width, label=mode)
+        axes[2].bar(np.arange(len(names)) + j * width, acc, width, label=labels[mode])
     axes[0].axhline(30, color="r", linestyle=":", label="30 fps target")
     axes[0].set_title("frames per second (1 core, CPU time)", fontsize=9)
     axes[1].set_title("circle recall (bars), precision (triangles)", fontsize=9)
