@@ -58,9 +58,11 @@ class RefineConfig:
     history : int
         Anderson mixing depth (``"alternating"`` only; 0 disables acceleration).
     gnorm : str
-        How ``gtol`` measures the gradient (in module radii): ``"max"``, the largest entry of the
-        position gradient; ``"l2"``, the Euclidean norm of the whole gradient (positions and
-        orientations), the "norm of the gradient" of seed 003 §VI-B.
+        How ``gtol`` measures the gradient (in module radii): ``"max"``, its largest entry;
+        ``"l2"``, its Euclidean norm, the "norm of the gradient" of seed 003 §VI-B. The gradient is
+        the position gradient for ``"alternating"`` (its orientations are optimal for the centres
+        after every sweep, so their gradient vanishes) and the whole gradient (positions and
+        orientation increments) for ``"lm"`` and ``"pcg"``.
     """
 
     max_iter: int = 200
@@ -281,6 +283,11 @@ def _position_gradient(n, d, i, j, r):
     return g
 
 
+def _norm(g: np.ndarray, kind: str) -> float:
+    """Largest entry (``"max"``) or Euclidean norm (``"l2"``) of a gradient array."""
+    return float(np.sqrt(np.vdot(g, g))) if kind == "l2" else float(np.abs(g).max())
+
+
 def _refine_alternating(problem: EnsembleProblem, position: np.ndarray, rotation: np.ndarray,
                         config: RefineConfig) -> RefineResult:
     n, d, s = problem.n, problem.dim, problem.radius
@@ -312,7 +319,7 @@ def _refine_alternating(problem: EnsembleProblem, position: np.ndarray, rotation
     f_prev = g_prev = None
     it = 0
     status = "max_iter"
-    gnorm = float(np.abs(_position_gradient(n, d, i, j, r)).max())
+    gnorm = _norm(_position_gradient(n, d, i, j, r), config.gnorm)
     while it < config.max_iter:
         if gnorm <= config.gtol or E <= 1e-30:
             status = "converged"
@@ -348,7 +355,7 @@ def _refine_alternating(problem: EnsembleProblem, position: np.ndarray, rotation
             R_new, rz_new, r_new, E_new = energy(g)
         decrease = (E - E_new) / max(E, 1e-300)
         x, R, rz, r, E = x_new, R_new, rz_new, r_new, E_new
-        gnorm = float(np.abs(_position_gradient(n, d, i, j, r)).max())
+        gnorm = _norm(_position_gradient(n, d, i, j, r), config.gnorm)
         if gnorm <= config.gtol or E <= 1e-30 or 0 <= decrease < config.ftol:
             status = "converged"
             break
@@ -374,6 +381,8 @@ def refine(problem: EnsembleProblem, position: np.ndarray, rotation: np.ndarray,
         The best estimate found, never NaN; a numerical failure ends the iteration with status
         ``"stalled"`` at the best point so far.
     """
+    if config.gnorm not in ("max", "l2"):
+        raise ValueError(f"unknown gradient norm {config.gnorm!r} (max or l2)")
     if config.method == "lm":
         return _refine_lm(problem, position, rotation, config)
     if config.method == "alternating":
@@ -400,7 +409,7 @@ def _refine_lm(problem: EnsembleProblem, position: np.ndarray, rotation: np.ndar
     gnorm = np.inf
     J = _jacobian(n, d, i, j, z, R, rz)
     g = J.T @ r.ravel()
-    gnorm = float(np.abs(g).max())
+    gnorm = _norm(g, config.gnorm)
     while it < config.max_iter:
         if gnorm <= config.gtol or cost <= 1e-30:
             status = "converged"
@@ -427,7 +436,7 @@ def _refine_lm(problem: EnsembleProblem, position: np.ndarray, rotation: np.ndar
             lam = max(lam / 10.0, 1e-12)
             J = _jacobian(n, d, i, j, z, R, rz)
             g = J.T @ r.ravel()
-            gnorm = float(np.abs(g).max())
+            gnorm = _norm(g, config.gnorm)
             if decrease < config.ftol:
                 status = "converged"
                 break

@@ -78,3 +78,19 @@ def test_l2_gradient_norm_is_at_least_the_largest_entry(lattice):
     b = refine(prob, x0, R0, RefineConfig(method="pcg", max_iter=5, gtol=0.0, ftol=0.0, gnorm="l2"))
     assert np.allclose(a.position, b.position)
     assert b.gradient_norm >= a.gradient_norm
+
+
+@pytest.mark.parametrize("method", ["alternating", "lm", "pcg"])
+def test_l2_tolerance_is_honoured_by_every_method(lattice, method):
+    """With gnorm="l2" each method stops converged with a Euclidean gradient norm below gtol."""
+    prob, x, R = lattice(2, (6, 6), noise=0.2, seed=4)
+    x0, R0 = _perturb(x, R, np.random.default_rng(2), 2)
+    res = refine(prob, x0, R0, RefineConfig(method=method, gtol=1e-3, gnorm="l2", ftol=0.0, max_iter=3000))
+    assert res.status == "converged" and res.gradient_norm <= 1e-3
+
+
+def test_unknown_gradient_norm_is_refused(lattice):
+    """A misspelt gnorm raises instead of silently using another norm."""
+    prob, x, R = lattice(2, (3, 3))
+    with pytest.raises(ValueError):
+        refine(prob, x, R, RefineConfig(gnorm="L2"))
