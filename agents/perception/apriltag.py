@@ -178,6 +178,10 @@ class AprilTagIdentifier:
         inner = np.zeros((n, n), dtype=bool)
         inner[1:-1, 1:-1] = True
         self._inner = inner.ravel()
+        # per quad only these change: every code's data cells as +-1 (T, d), transposed once here,
+        # and the cell order of the 4 rotations (rotation k: np.rot90(cells, -k))
+        self._signs_t = np.ascontiguousarray(np.where(self._all[:, self._inner], 1.0, -1.0).T)
+        self._rot = np.array([np.rot90(np.arange(n * n).reshape(n, n), -k).ravel() for k in range(4)])
 
     def code(self, tag: int) -> np.ndarray:
         """The cells of tag ``tag`` with its black border, shape (c, c), True = white."""
@@ -239,7 +243,6 @@ class AprilTagIdentifier:
         side = n * px
         dst = np.array([[0, 0], [side, 0], [side, side], [0, side]], np.float32) - 0.5
         codes, inner = self._all, self._inner
-        signs = np.where(codes[:, inner], 1.0, -1.0)  # (T, d)
         out = []
         for q in quads:
             q = np.asarray(q, dtype=np.float32).reshape(4, 2)
@@ -248,23 +251,24 @@ class AprilTagIdentifier:
             warped = cv2.warpPerspective(roi, cv2.getPerspectiveTransform(q, dst), (side, side),
                                          flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
             cells = warped.reshape(n, px, n, px)[:, 1:-1, :, 1:-1].astype(np.float32).mean(axis=(1, 3))
-            m = np.array([np.rot90(cells, -k).ravel() for k in range(4)])  # rotation k: the tag starts at corner -k
+            m = cells.ravel()[self._rot]  # (4, n*n); rotation k: the tag starts at corner -k
             border = m[:, ~inner].mean(axis=1)
             bright = np.sort(m[:, inner], axis=1)[:, -6:].mean(axis=1)
             thr0 = 0.5 * (border + bright)
-            agree = np.where(m[:, inner] > thr0[:, None], 1.0, -1.0) @ signs.T  # (4, T)
-            ham0 = (inner.sum() - agree) / 2.0
-            best = None
-            for flat in np.argsort(ham0, axis=None)[:4]:
-                k, tag = np.unravel_index(int(flat), ham0.shape)
-                code = codes[tag]
-                white, black = m[k, code].mean(), m[k, ~code].mean()
-                thr = 0.5 * (white + black)
-                margin = float(min(white - thr, thr - black))
-                ham = int(((m[k] > thr) != code)[inner].sum())
-                if best is None or (ham, -margin) < (best[0], -best[1]):
-                    best = (ham, margin, k, tag)
-            ham, margin, k, tag = best
+            agree = np.where(m[:, inner] > thr0[:, None], 1.0, -1.0) @ self._signs_t  # (4, T)
+            ham0 = ((inner.sum() - agree) / 2.0).ravel()
+            # the 4 best (rotation, tag) pairs, fewest wrong cells first, re-scored all at once
+            few = np.argpartition(ham0, 3)[:4]
+            few = few[np.argsort(ham0[few], kind="stable")]
+            ks, tags = np.unravel_index(few, agree.shape)
+            code, mk = codes[tags], m[ks]  # (4, n*n)
+            white = (mk * code).sum(axis=1) / code.sum(axis=1)
+            black = (mk * ~code).sum(axis=1) / (~code).sum(axis=1)
+            thr = 0.5 * (white + black)
+            margins = np.minimum(white - thr, thr - black)
+            hams = (((mk > thr[:, None]) != code) & inner).sum(axis=1)
+            j = int(np.lexsort((-margins, hams))[0])  # fewest wrong cells, then widest margin
+            ham, margin, k, tag = int(hams[j]), float(margins[j]), int(ks[j]), int(tags[j])
             if ham > self.config.max_hamming or margin <= 0:
                 continue
             c = cv2.cornerSubPix(roi, np.roll(q, k, axis=0).reshape(-1, 1, 2).copy(), (3, 3), (-1, -1),
