@@ -83,17 +83,24 @@ class Perception:
         t0 = time.process_time()
         circles = self.detector.detect(image)
         t1 = time.process_time()
-        reads = self.identifier.identify(image, circles)
-        t2 = time.process_time()
         if self.tracker is None:
+            reads = self.identifier.identify(image, circles)
+            t2 = time.process_time()
             out = [TrackedCircle(c, r, r.node if r is not None else None, None) for c, r in zip(circles, reads)]
             return out, {"detect": t1 - t0, "identify": t2 - t1}
         if motion is None and self.motion is not None:
             motion = self.motion(image, circles)
+        t2 = time.process_time()
+        # circles whose track is beyond doubt are not read in every frame (the tracker says which)
+        settled = getattr(self.tracker, "settled", None)
+        skip = settled(circles, motion=motion) if settled is not None else np.zeros(len(circles), dtype=bool)
+        todo = [c for c, s in zip(circles, skip) if not s]
+        got = iter(self.identifier.identify(image, todo) if todo else [])
+        reads = [None if s else next(got) for s in skip]
         t3 = time.process_time()
         out = self.tracker.update(circles, reads, motion=motion)
         t4 = time.process_time()
-        return out, {"detect": t1 - t0, "identify": t2 - t1, "motion": t3 - t2, "track": t4 - t3}
+        return out, {"detect": t1 - t0, "identify": t3 - t2, "motion": t2 - t1, "track": t4 - t3}
 
 
 def perceive_frames(

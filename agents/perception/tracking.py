@@ -72,6 +72,12 @@ class TrackerConfig:
     verify_iou : float
         The same holds for a track whose detection overlaps its predicted circle by less than this
         IoU (plain circles): it may have jumped to a neighbouring node of the same size.
+    settle_votes, settle_iou, reread_every : int, float, int
+        :meth:`CircleTracker.settled`: a detection needs no tag read in this frame when exactly one
+        active, verified track with at least ``settle_votes`` reads for its id overlaps it by at
+        least ``settle_iou`` (plain circles, after prediction and camera motion), nothing else
+        competes for either, and that track's circle was read within the last ``reread_every - 1``
+        frames (``reread_every`` = 1 reads every circle in every frame).
     kalman : KalmanConfig
         Noise model of the circle Kalman filter.
     """
@@ -89,6 +95,9 @@ class TrackerConfig:
     confident_votes: int = 3
     reverify_after: int = 3
     verify_iou: float = 0.4
+    settle_votes: int = 4
+    settle_iou: float = 0.6
+    reread_every: int = 3
     kalman: KalmanConfig = field(default_factory=KalmanConfig)
 
 
@@ -105,6 +114,7 @@ class Track:
     lost: int = 0
     confirmed: bool = False
     verified: bool = True
+    read_frame: int = 0
 
     @property
     def circle(self) -> np.ndarray:
@@ -127,12 +137,54 @@ class CircleTracker:
         self.tracks: list[Track] = []
         self.frame = 0
         self._next_id = 1
+        self._unread: set[int] = set()
 
     def reset(self) -> None:
         """Forget every track (a new sequence starts)."""
         self.tracks = []
         self.frame = 0
         self._next_id = 1
+        self._unread = set()
+
+    def settled(self, circles: Sequence[Circle], *, motion: np.ndarray | None = None) -> np.ndarray:
+        """Which of the coming frame's circles need no tag read, shape (N,) bool.
+
+        A circle is settled when its track is beyond doubt: exactly one active (not lost), confirmed,
+        verified track with at least ``settle_votes`` reads for its node id overlaps it by IoU >=
+        ``settle_iou`` (plain circles, the track predicted and moved by ``motion``), that track
+        overlaps no other circle and the circle no other track (IoU >= ``match_iou``), and the track's
+        circle was read within the last ``reread_every - 1`` frames. Reading it would at most add a
+        vote to an id that a contradicting read cannot flip anyway (it is confident), so the read is
+        skipped; every ``reread_every``-th frame it is read again. Nothing changes state here except
+        the note, for the next :meth:`update`, of which circles went unread (their tracks keep the
+        frame of their last read).
+        """
+        cfg = self.config
+        n = len(circles)
+        out = np.zeros(n, dtype=bool)
+        self._unread = set()
+        if n == 0 or not self.tracks or cfg.reread_every <= 1:
+            return out
+        preds = []
+        for t in self.tracks:
+            mean, cov = self.kf.predict(t.mean, t.cov)
+            if motion is not None:
+                mean, _ = warp_state(mean, cov, np.asarray(motion, dtype=float))
+            preds.append(mean[:3])
+        dets = np.array([[c.u, c.v, c.r] for c in circles], dtype=float)
+        iou = circle_iou(np.array(preds), dets)  # (tracks, circles)
+        touch = iou >= cfg.match_iou
+        for i, t in enumerate(self.tracks):
+            sure = self._confident_node(t)
+            if (sure is None or not t.confirmed or not t.verified or t.lost > 0 or t.votes.get(sure, 0) < cfg.settle_votes
+                    or self.frame + 1 - t.read_frame >= cfg.reread_every or touch[i].sum() != 1):
+                continue
+            j = int(np.argmax(iou[i]))
+            ratio = min(preds[i][2], dets[j, 2]) / max(preds[i][2], dets[j, 2])
+            if iou[i, j] >= cfg.settle_iou and touch[:, j].sum() == 1 and ratio >= cfg.radius_ratio:
+                out[j] = True
+        self._unread = set(np.flatnonzero(out).tolist())
+        return out
 
     # -- association helpers -------------------------------------------------------------------
     def _confident_node(self, t: Track) -> int | None:
@@ -186,6 +238,7 @@ class CircleTracker:
             raise ValueError("circles and reads must have the same length")
         first_frame = self.frame == 0
         self.frame += 1
+        unread, self._unread = self._unread, set()
         for t in self.tracks:
             t.mean, t.cov = self.kf.predict(t.mean, t.cov)
             if motion is not None:
@@ -226,6 +279,8 @@ class CircleTracker:
             t.lost = 0
             if t.hits >= cfg.confirm_hits:
                 t.confirmed = True
+            if j not in unread:
+                t.read_frame = self.frame
             if nodes[j] is not None:
                 t.vote(nodes[j])
                 if nodes[j] == t.node:
@@ -245,7 +300,7 @@ class CircleTracker:
             if j in owner or scores[j] < cfg.new_track_score or self._inside_known(dets[j], owner, j):
                 continue
             mean, cov = self.kf.initiate(dets[j])
-            t = Track(self._next_id, mean, cov, confirmed=first_frame)
+            t = Track(self._next_id, mean, cov, confirmed=first_frame, read_frame=self.frame)
             self._next_id += 1
             if nodes[j] is not None:
                 t.vote(nodes[j])

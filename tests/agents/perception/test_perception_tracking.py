@@ -3,6 +3,7 @@
 import numpy as np
 
 from agents.perception import CircleTracker, Perception
+from agents.perception.tracking import TrackerConfig
 from agents.perception.kalman import circle_iou, warp_state
 from agents.perception.types import Circle, TagRead, Tracker
 from perception_scenes import frame
@@ -170,3 +171,75 @@ def test_track_jumping_to_a_neighbour_needs_a_fresh_read():
     assert out[0].track == 1 and out[0].node is None
     out = tr.update([_c(226, 200, 20)], [_read(7)])
     assert out[0].node == 7
+
+
+def _feed(tracker, circles, node_of):
+    """One frame as the pipeline runs it: settled circles are not read, the others read ``node_of(j)``."""
+    skip = tracker.settled(circles)
+    reads = [None if s else (_read(node_of(j)) if node_of(j) is not None else None) for j, s in enumerate(skip)]
+    return skip, tracker.update(circles, reads)
+
+
+def test_settled_track_is_reread_every_nth_frame():
+    """A confidently identified, unambiguous track skips reads, but never more than reread_every - 1 frames in a row."""
+    t = CircleTracker(TrackerConfig(settle_votes=4, reread_every=3))
+    skipped, gap, longest = 0, 0, 0
+    for k in range(30):
+        skip, out = _feed(t, [Circle(200 + 2 * k, 150, 25, 0.9)], lambda j: 4)
+        assert out[0].node == 4
+        skipped += int(skip[0])
+        gap = gap + 1 if skip[0] else 0
+        longest = max(longest, gap)
+    assert skipped >= 10
+    assert longest == 2
+
+
+def test_no_read_is_skipped_before_enough_votes():
+    """A track with fewer than settle_votes reads of its id is read in every frame."""
+    t = CircleTracker(TrackerConfig(settle_votes=4, reread_every=3))
+    skips = [bool(_feed(t, [Circle(200, 150, 25, 0.9)], lambda j: 4)[0][0]) for _ in range(4)]
+    assert skips == [False] * 4
+
+
+def test_reread_every_one_reads_every_circle():
+    """reread_every = 1 switches skipping off."""
+    t = CircleTracker(TrackerConfig(reread_every=1))
+    assert not any(bool(_feed(t, [Circle(200, 150, 25, 0.9)], lambda j: 4)[0][0]) for _ in range(12))
+
+
+def test_ambiguous_circles_are_always_read():
+    """Two circles overlapping one settled track are both read (a neighbour may have moved in)."""
+    t = CircleTracker(TrackerConfig(settle_votes=4, reread_every=3))
+    for _ in range(6):
+        _feed(t, [Circle(200, 150, 25, 0.9)], lambda j: 4)
+    skip = t.settled([Circle(200, 150, 25, 0.9), Circle(220, 150, 25, 0.9)])
+    assert not skip.any()
+
+
+def test_pipeline_reads_fewer_circles_with_the_same_ids():
+    """Perception skips reads of settled tracks: fewer circles read, the same node ids shown."""
+
+    class Counting:
+        def __init__(self, inner):
+            self.inner, self.read = inner, 0
+
+        def identify(self, image, circles):
+            self.read += len(circles)
+            return self.inner.identify(image, circles)
+
+    from agents.perception import AprilTagIdentifier
+
+    runs = {}
+    for every in (1, 3):
+        ident = Counting(AprilTagIdentifier())
+        p = Perception(identifier=ident, tracker=CircleTracker(TrackerConfig(reread_every=every)))
+        nodes = []
+        for k in range(14):
+            img = frame([SceneNode(150 + 8 * k, 240, 40, tag=77, tag_size=0.75),
+                         SceneNode(480, 300 - 4 * k, 36, tag=12, tag_size=0.75)], noise=2.0, seed=k)
+            dets, _ = p.process(img)
+            nodes.append(sorted(d.node for d in dets if d.node is not None))
+        runs[every] = (ident.read, nodes)
+    assert runs[3][0] < runs[1][0] * 0.75
+    assert runs[3][1] == runs[1][1]
+    assert runs[3][1][-1] == [12, 77]
