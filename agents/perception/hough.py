@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from agents.perception.heap import keep_freed_memory
 from agents.perception.refine import RefineConfig, coarse_fit, refine_circles
 from agents.perception.types import Circle
 
@@ -88,6 +89,11 @@ class HoughCircleDetector:
 
     def __init__(self, config: HoughConfig | None = None):
         self.config = config or HoughConfig()
+        # the blurred frame (9.4 MB at 1024 x 768 x 3 float32) is written into the same buffer
+        # every frame: a fresh one is a fresh mmap whose pages fault in again, which cost ~7 ms of
+        # CPU per frame once the allocator began returning memory to the system between frames
+        self._fine: np.ndarray | None = None
+        keep_freed_memory()  # the same for the many per-frame arrays (see agents.perception.heap)
 
     def proposals(self, grey: np.ndarray) -> np.ndarray:
         """Rough Hough circles of a grey uint8 image over all levels, shape (N, 3) as (u, v, r)."""
@@ -126,7 +132,10 @@ class HoughCircleDetector:
         # the rim search runs on the colour image when there is one (chroma edges count too),
         # blurred in float: blurring the uint8 image is faster but its rounding to whole grey levels
         # cost accuracy downstream (table1 experiment: 0.039 -> 0.065 m with confident placement)
-        fine_img = _blur_float(image if image.ndim == 3 and image.shape[2] == 3 else grey, cfg.refine_blur)
+        src = image if image.ndim == 3 and image.shape[2] == 3 else grey
+        if self._fine is None or self._fine.shape != src.shape:
+            self._fine = np.empty(src.shape, np.float32)
+        fine_img = _blur_float(src, cfg.refine_blur, out=self._fine)
         # each proposal also stands for larger circles: a proposal that locked onto the square
         # sticker inside a node (0.35-0.5 of its radius) or onto its lit side then still finds the rim
         rough = _dedupe(rough)
@@ -144,18 +153,24 @@ class HoughCircleDetector:
         return suppress(found)[: cfg.max_circles]
 
 
-def _blur_float(image: np.ndarray, sigma: float) -> np.ndarray:
+def _blur_float(image: np.ndarray, sigma: float, out: np.ndarray | None = None) -> np.ndarray:
     """``image`` (uint8 or float) as float32, Gaussian-blurred with ``sigma`` px (0: none).
 
     The same kernel as ``cv2.GaussianBlur`` on the float image (size ``2 ceil(4 sigma) + 1``), applied
     straight from uint8 to float32 by ``sepFilter2D``: no float copy of the frame is blurred, and no
     rounding to whole grey levels happens (about half the cost of converting and then blurring).
+    ``out`` (float32, the image's shape), if given, receives the result.
     """
     if sigma <= 0:
-        return image.astype(np.float32)
+        if out is None:
+            return image.astype(np.float32)
+        out[...] = image
+        return out
     size = 2 * int(np.ceil(4.0 * sigma)) + 1
     k = cv2.getGaussianKernel(size, sigma).astype(np.float32)
-    return cv2.sepFilter2D(image, cv2.CV_32F, k, k)
+    if out is None:
+        return cv2.sepFilter2D(image, cv2.CV_32F, k, k)
+    return cv2.sepFilter2D(image, cv2.CV_32F, k, k, dst=out)
 
 
 def _dedupe(rough: np.ndarray) -> np.ndarray:

@@ -152,8 +152,15 @@ def rim_points(
     strongest = deriv.max(axis=2, keepdims=True)
     cand = lm & (deriv >= np.maximum(cfg.outer_frac * strongest, cfg.min_step))
     if candidates == 1:
-        k = (last - np.argmax(cand[..., ::-1], axis=2))[..., None]
-        k = np.where(cand.any(axis=2)[..., None], k, np.argmax(deriv, axis=2)[..., None])
+        # the last qualifying index as the maximum of (index + 1) over the qualifying samples (0: none;
+        # one uint8 pass instead of an argmax over a reversed view); rays with none fall back to
+        # their strongest step
+        kk1 = (cand.view(np.uint8) * np.arange(1, last + 2, dtype=np.uint8 if last < 255 else np.intp)).max(axis=2)
+        k = kk1.astype(np.intp) - 1
+        none = kk1 == 0
+        if none.any():
+            k[none] = np.argmax(deriv[none], axis=1)
+        k = k[..., None]
     else:
         # the ``candidates`` outermost qualifying maxima, outermost first (-1: none)
         count = np.cumsum(cand[..., ::-1], axis=2)[..., ::-1]  # qualifying maxima at or beyond each sample

@@ -49,3 +49,38 @@ def test_float_blur_matches_gaussian_blur_of_the_float_image():
     for sigma in (0.5, 1.0, 2.0):
         ref = cv2.GaussianBlur(img.astype(np.float32), (0, 0), sigma)
         assert np.abs(_blur_float(img, sigma) - ref).max() < 1e-3
+
+
+def test_blur_into_a_given_buffer_equals_a_fresh_blur():
+    """_blur_float with ``out`` writes into that buffer the same values as without it."""
+    rng = np.random.default_rng(3)
+    img = rng.integers(0, 256, (40, 50, 3), dtype=np.uint8)
+    buf = np.full((40, 50, 3), -1.0, np.float32)
+    got = _blur_float(img, 1.0, out=buf)
+    assert np.shares_memory(got, buf)
+    assert np.array_equal(buf, _blur_float(img, 1.0))
+
+
+def test_keep_freed_memory_is_idempotent():
+    """keep_freed_memory answers a bool and the same answer on every call."""
+    from agents.perception.heap import keep_freed_memory
+
+    first = keep_freed_memory()
+    assert isinstance(first, bool)
+    assert keep_freed_memory() is first
+
+
+def test_rim_points_outermost_edge_on_a_two_edge_ray():
+    """The rim on a ray crossing a strong inner edge and a weaker outer one is the outer edge."""
+    from agents.perception.refine import RefineConfig, rim_points
+
+    img = np.full((200, 200), 40.0, np.float32)
+    yy, xx = np.mgrid[:200, :200]
+    d = np.hypot(xx - 100.0, yy - 100.0)
+    img[d < 40] = 120.0  # the node (outer, weaker step of 80)
+    img[d < 20] = 250.0  # a bright disc inside (stronger step of 130)
+    img = cv2.GaussianBlur(img, (0, 0), 1.0)
+    pts, strength = rim_points(img, np.array([[100.0, 100.0, 30.0]]), (0.5, 1.5), RefineConfig(), rays=16, samples=30)
+    r = np.hypot(pts[0, :, 0] - 100.0, pts[0, :, 1] - 100.0)
+    assert (strength[0] > 0).all()
+    assert np.abs(r - 40.0).max() < 1.0
