@@ -22,7 +22,8 @@ recorded and CPU time is reported beside wall time.
 Each row also splits the CPU time into the top-level refinement and everything below it, and
 records the top-level refinement iterations (they dominate in 3D).
 
-Usage: ``python benchmarks/ensemble_scaling.py [--quick]``.
+Usage: ``python benchmarks/ensemble_scaling.py [--quick] [--sizes "2:2500,10000;3:5000,20000" --name STEM]``
+(``--sizes`` re-measures a few sizes, e.g. when the shared machine is quiet).
 """
 
 from __future__ import annotations
@@ -172,8 +173,15 @@ def main() -> None:
         return
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="small sizes only (a smoke run)")
+    ap.add_argument("--sizes", help='only these sizes, e.g. "2:2500,10000;3:5000,20000" (a spot check)')
+    ap.add_argument("--name", default="ensemble_scaling", help="results file stem")
     args = ap.parse_args()
     sizes = {2: [1000, 4000], 3: [1000]} if args.quick else {2: SIZES_2D, 3: SIZES_3D}
+    if args.sizes:
+        sizes = {2: [], 3: []}
+        for part in args.sizes.split(";"):
+            dim, ns = part.split(":")
+            sizes[int(dim)] = [int(v) for v in ns.split(",")]
     info = machine()
     runs = []
     for dim in (2, 3):
@@ -209,8 +217,8 @@ def main() -> None:
         "targets": targets,
         "machine": info,
     }
-    save("ensemble_scaling", payload)
-    plot(payload, RESULTS / "ensemble_scaling.png")
+    save(args.name, payload)
+    plot(payload, RESULTS / f"{args.name}.png")
 
 
 if __name__ == "__main__":
