@@ -468,9 +468,10 @@ class AssemblyAgent:
             if len(message.pin):
                 boot["pin"] = np.array(message.pin)
         mine = self._own_forms
-        if (mine is not None and mine[0] == message.step and message.sender != self.name
-                and self._index[self.name] not in set(message.have.tolist())):
-            self._outbox.append(self._factor_share(message.sender))  # it lacks ours: answer directly
+        # it lacks ours: answer directly (only broadcasts are answered, so answers never ping-pong)
+        if (mine is not None and mine[0] == message.step and message.receiver == BROADCAST
+                and message.sender != self.name and self._index[self.name] not in set(message.have.tolist())):
+            self._outbox.append(self._factor_share(message.sender))
 
     def _finish_bootstrap(self) -> None:
         """Solve the joint problem of the shared forms (:func:`decentral.admm.solve_joint`) and seed the ADMM."""

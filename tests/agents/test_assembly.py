@@ -122,6 +122,22 @@ def test_an_agent_missing_from_a_share_answers_with_its_own_forms(log):
     assert len(reply) == 1 and reply[0].receiver == "A0"
 
 
+def test_answers_to_a_share_are_not_answered_again(log):
+    """A unicast answer that lacks the receiver does not trigger another answer (no ping-pong)."""
+    agents = _announced(log, log.assemblies)
+    for a in agents.values():
+        a.tick(0)
+    a0 = [m for m in agents["A0"].outbox() if isinstance(m, FactorShare)][0]
+    agents["A1"].outbox()
+    agents["A1"]._boot = None  # A1 is done: its answer lists only itself, so it lacks A0
+    agents["A1"].handle(a0)
+    answer = [m for m in agents["A1"].outbox() if isinstance(m, FactorShare)][0]
+    assert 0 not in answer.have.tolist()
+    agents["A0"].outbox()
+    agents["A0"].handle(answer)
+    assert not [m for m in agents["A0"].outbox() if isinstance(m, FactorShare)]
+
+
 def test_after_the_shared_cold_start_every_agent_holds_the_same_joint_solution(log):
     """Once every agent has every form, all seed the same consensus poses (bit-identical joint solve)."""
     agents = _announced(log, log.assemblies)
