@@ -196,8 +196,11 @@ class AprilTagIdentifier:
         return int(tag) if table is None else (int(table[tag]) if tag in table else None)
 
     def read_region(self, grey: np.ndarray, x0: int, y0: int, x1: int, y1: int, scale: float) -> list[TagRead]:
-        """Every accepted tag read in ``grey[y0:y1, x0:x1]`` (upscaled by ``scale``), image coordinates."""
-        roi = grey[y0:y1, x0:x1]
+        """Every accepted tag read in ``grey[y0:y1, x0:x1]`` (upscaled by ``scale``), image coordinates.
+
+        ``grey`` may also be the colour (BGR/BGRA) frame: only the region is converted then.
+        """
+        roi = to_grey(grey[y0:y1, x0:x1])
         if roi.size == 0 or min(roi.shape) < 8:
             return []
         if self.config.sharpen > 0:
@@ -278,7 +281,9 @@ class AprilTagIdentifier:
 
     def identify(self, image: np.ndarray, circles: Sequence[Circle]) -> list[TagRead | None]:
         """One accepted read per circle (the largest margin among reads centred inside it) or None."""
-        grey = to_grey(np.asarray(image))
+        grey = np.asarray(image)  # converted to grey region by region (read_region)
+        if grey.ndim not in (2, 3):
+            raise ValueError(f"expected a (H, W), (H, W, 3) or (H, W, 4) image, got shape {grey.shape}")
         h, w = grey.shape[:2]
         out: list[TagRead | None] = []
         for circle in circles:
