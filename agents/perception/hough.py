@@ -144,10 +144,11 @@ class HoughCircleDetector:
         # coarse pass on every proposal, suppression, then the fine pass on the survivors
         circles, scores, ok = coarse_fit(fine_img, hyp, cfg.refine)
         ok &= (scores >= cfg.min_score) & (circles[:, 2] >= 0.8 * cfg.min_radius) & (circles[:, 2] <= 1.2 * cfg.max_radius)
-        coarse = suppress([Circle(*map(float, c), float(s)) for c, s in zip(circles[ok], scores[ok])])
-        if not coarse:
+        cand = np.column_stack([circles[ok], scores[ok]])
+        coarse = cand[_suppress_order(cand)]
+        if len(coarse) == 0:
             return []
-        circles, scores, ok = refine_circles(fine_img, np.array([[c.u, c.v, c.r] for c in coarse]), cfg.refine)
+        circles, scores, ok = refine_circles(fine_img, coarse[:, :3], cfg.refine)
         ok &= scores >= cfg.min_score
         found = [Circle(*map(float, c), float(min(s, 1.0))) for c, s in zip(circles[ok], scores[ok])]
         return suppress(found)[: cfg.max_circles]
@@ -191,18 +192,29 @@ def suppress(circles: list[Circle], strong: float = 0.45) -> list[Circle]:
     ``strong``) are therefore kept largest first, then the weaker ones best score first, each only
     if it clashes with nothing kept.
     """
-    kept: list[Circle] = []
-    first = sorted((c for c in circles if c.score >= strong), key=lambda c: (-c.r, -c.score))
-    then = sorted((c for c in circles if c.score < strong), key=lambda c: (-c.score, -c.r))
-    order = first + then
-    if not order:
+    if not circles:
         return []
-    arr = np.array([[c.u, c.v, c.r] for c in order])
-    clash = np.hypot(arr[:, None, 0] - arr[None, :, 0], arr[:, None, 1] - arr[None, :, 1]) < 0.9 * np.maximum(
-        arr[:, None, 2], arr[None, :, 2])
+    arr = np.array([[c.u, c.v, c.r, c.score] for c in circles], dtype=float)
+    return [circles[i] for i in _suppress_order(arr, strong)]
+
+
+def _suppress_order(arr: np.ndarray, strong: float = 0.45) -> list[int]:
+    """:func:`suppress` on an (N, 4) array of (u, v, r, score): the kept rows' indices, best score first."""
+    if len(arr) == 0:
+        return []
+    r, score = arr[:, 2], arr[:, 3]
+    first = np.flatnonzero(score >= strong)
+    then = np.flatnonzero(score < strong)
+    # stable sorts, ties in input order (as Python's sorted)
+    first = first[np.lexsort((-score[first], -r[first]))]
+    then = then[np.lexsort((-r[then], -score[then]))]
+    order = np.concatenate([first, then])
+    a = arr[order]
+    clash = np.hypot(a[:, None, 0] - a[None, :, 0], a[:, None, 1] - a[None, :, 1]) < 0.9 * np.maximum(
+        a[:, None, 2], a[None, :, 2])
     keep = np.zeros(len(order), dtype=bool)
     for i in range(len(order)):
         if not (clash[i] & keep).any():
             keep[i] = True
-            kept.append(order[i])
-    return sorted(kept, key=lambda c: -c.score)
+    kept = order[keep]
+    return [int(i) for i in kept[np.argsort(-score[kept], kind="stable")]]
