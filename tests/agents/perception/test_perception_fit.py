@@ -84,3 +84,18 @@ def test_rim_points_outermost_edge_on_a_two_edge_ray():
     r = np.hypot(pts[0, :, 0] - 100.0, pts[0, :, 1] - 100.0)
     assert (strength[0] > 0).all()
     assert np.abs(r - 40.0).max() < 1.0
+
+
+def test_algebraic_fit_exact_on_weighted_circle_points():
+    """The batched algebraic fit recovers exact circles, ignoring zero-weight outliers."""
+    from agents.perception.circle_fit import fit_circles_algebraic
+
+    t = np.linspace(0.0, 2.0 * np.pi, 32, endpoint=False)
+    truth = np.array([[100.0, 50.0, 20.0], [400.5, 300.25, 75.0]])
+    pts = np.stack([truth[:, None, 0] + truth[:, None, 2] * np.cos(t), truth[:, None, 1] + truth[:, None, 2] * np.sin(t)], axis=2)
+    w = np.ones((2, 32))
+    pts[:, :5] += 30.0  # outliers, weighted out
+    w[:, :5] = 0.0
+    fit, ok = fit_circles_algebraic(pts, w)
+    assert ok.all()
+    assert np.abs(fit - truth).max() < 1e-8
