@@ -138,6 +138,7 @@ class CircleTracker:
         self.frame = 0
         self._next_id = 1
         self._unread: set[int] = set()
+        self._predicted: tuple | None = None  # (frame, motion, [(mean, cov)]) from settled()
 
     def reset(self) -> None:
         """Forget every track (a new sequence starts)."""
@@ -145,6 +146,7 @@ class CircleTracker:
         self.frame = 0
         self._next_id = 1
         self._unread = set()
+        self._predicted = None
 
     def settled(self, circles: Sequence[Circle], *, motion: np.ndarray | None = None) -> np.ndarray:
         """Which of the coming frame's circles need no tag read, shape (N,) bool.
@@ -165,19 +167,20 @@ class CircleTracker:
         self._unread = set()
         if n == 0 or not self.tracks or cfg.reread_every <= 1:
             return out
-        preds = []
+        eligible = []
         for t in self.tracks:
-            mean, cov = self.kf.predict(t.mean, t.cov)
-            if motion is not None:
-                mean, _ = warp_state(mean, cov, np.asarray(motion, dtype=float))
-            preds.append(mean[:3])
+            sure = self._confident_node(t)
+            eligible.append(sure is not None and t.confirmed and t.verified and t.lost == 0
+                            and t.votes.get(sure, 0) >= cfg.settle_votes and self.frame + 1 - t.read_frame < cfg.reread_every)
+        if not any(eligible):  # the usual case without confident ids: no prediction needed
+            return out
+        self._predicted = (self.frame, motion, [self._predict(t, motion) for t in self.tracks])
+        preds = [mean[:3] for mean, _ in self._predicted[2]]
         dets = np.array([[c.u, c.v, c.r] for c in circles], dtype=float)
         iou = circle_iou(np.array(preds), dets)  # (tracks, circles)
         touch = iou >= cfg.match_iou
         for i, t in enumerate(self.tracks):
-            sure = self._confident_node(t)
-            if (sure is None or not t.confirmed or not t.verified or t.lost > 0 or t.votes.get(sure, 0) < cfg.settle_votes
-                    or self.frame + 1 - t.read_frame >= cfg.reread_every or touch[i].sum() != 1):
+            if not eligible[i] or touch[i].sum() != 1:
                 continue
             j = int(np.argmax(iou[i]))
             ratio = min(preds[i][2], dets[j, 2]) / max(preds[i][2], dets[j, 2])
@@ -185,6 +188,13 @@ class CircleTracker:
                 out[j] = True
         self._unread = set(np.flatnonzero(out).tolist())
         return out
+
+    def _predict(self, t: Track, motion: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """Track ``t``'s state predicted one frame ahead and moved by ``motion``."""
+        mean, cov = self.kf.predict(t.mean, t.cov)
+        if motion is not None:
+            mean, cov = warp_state(mean, cov, np.asarray(motion, dtype=float))
+        return mean, cov
 
     # -- association helpers -------------------------------------------------------------------
     def _confident_node(self, t: Track) -> int | None:
@@ -239,10 +249,12 @@ class CircleTracker:
         first_frame = self.frame == 0
         self.frame += 1
         unread, self._unread = self._unread, set()
-        for t in self.tracks:
-            t.mean, t.cov = self.kf.predict(t.mean, t.cov)
-            if motion is not None:
-                t.mean, t.cov = warp_state(t.mean, t.cov, np.asarray(motion, dtype=float))
+        # the predictions settled() made for this frame with this motion, if any (the same values)
+        frame, moved, done = self._predicted if self._predicted is not None else (-1, None, None)
+        reuse = frame == self.frame - 1 and moved is motion and done is not None and len(done) == len(self.tracks)
+        self._predicted = None
+        for i, t in enumerate(self.tracks):
+            t.mean, t.cov = done[i] if reuse else self._predict(t, motion)
         dets = np.array([[c.u, c.v, c.r] for c in circles], dtype=float).reshape(-1, 3)
         scores = np.array([c.score for c in circles], dtype=float)
         nodes = [r.node if r is not None else None for r in reads]
