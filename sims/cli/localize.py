@@ -28,6 +28,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="joint estimate (default) or one agent per assembly with consensus-ADMM")
     parser.add_argument("--loss", type=float, default=0.0, help="admm: probability that a message is dropped")
     parser.add_argument("--seed", type=int, default=0, help="admm: seed of the simulated network")
+    parser.add_argument("--share-forms", choices=("first", "every", "never"), default="first",
+                        help="admm: when agents broadcast their pairs' cost forms and start at the joint solution: "
+                             "the first step only (default), every step (fewest rounds; messages grow with the "
+                             "number of assemblies), or never (plain consensus-ADMM)")
+    parser.add_argument("--max-rounds", type=int, default=300, help="admm: round budget per step (default 300)")
     parser.add_argument("--estimator", choices=tuple(ESTIMATORS), default="windowed",
                         help="; ".join(f"{k}: {v}" for k, v in ESTIMATORS.items()))
     parser.add_argument("--solver", choices=("low-rank", "sdp"), default="low-rank",
@@ -53,6 +58,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"must be >= 1, got {args.window}", field="--window")
     if not 0.0 <= args.loss < 1.0:
         raise InputError(f"must be in [0, 1), got {args.loss}", field="--loss")
+    if args.max_rounds < 1:
+        raise InputError(f"must be >= 1, got {args.max_rounds}", field="--max-rounds")
     log = read_log(args.log)
     reference = args.reference or log.assemblies[0]
     if reference not in log.assemblies:
@@ -76,5 +83,6 @@ def run(args: argparse.Namespace) -> int:
 def _run_admm(log, args, noise, reference):
     from sims.admm_run import AdmmRunConfig, run_admm
 
-    config = AdmmRunConfig(window=args.window, noise=noise, loss=args.loss)
+    config = AdmmRunConfig(window=args.window, noise=noise, loss=args.loss, share_forms=args.share_forms,
+                           max_rounds=args.max_rounds)
     return run_admm(log, reference, config, seed=args.seed).estimate

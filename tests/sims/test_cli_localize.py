@@ -103,6 +103,21 @@ def test_unreadable_or_malformed_files_exit_2(tmp_path, content, capsys):
     assert "log.json" in capsys.readouterr().err and not out.exists()
 
 
+def test_admm_share_forms_every_matches_the_centralized_estimate(tmp_path, good_doc):
+    """`--mode admm --share-forms every` writes the centralized answer (to 1 mm / 0.05 deg) and says so in stats."""
+    log, central, admm = write(tmp_path, good_doc), tmp_path / "c.json", tmp_path / "a.json"
+    assert main(["localize", str(log), "-o", str(central)]) == 0
+    assert main(["localize", str(log), "-o", str(admm), "--mode", "admm", "--share-forms", "every",
+                 "--max-rounds", "100"]) == 0
+    c, a = read_estimate(central), read_estimate(admm)
+    assert json.loads(admm.read_text())["stats"]["admm"]["share_forms"] == "every"
+    for sc, sa in zip(c.steps, a.steps):
+        assert set(sc.poses) == set(sa.poses)
+        for name, pose in sc.poses.items():
+            assert np.linalg.norm(pose.p - sa.poses[name].p) < 1e-3
+            assert abs(np.rad2deg(np.angle(np.exp(1j * (pose.theta - sa.poses[name].theta))))) < 0.05
+
+
 def test_missing_file_and_bad_options_exit_2(tmp_path, good_doc, capsys):
     """A missing log, an unknown reference or a bad window exit 2 with one line."""
     out = tmp_path / "est.json"
@@ -110,8 +125,9 @@ def test_missing_file_and_bad_options_exit_2(tmp_path, good_doc, capsys):
     log = write(tmp_path, good_doc)
     assert main(["localize", str(log), "-o", str(out), "--reference", "Z9"]) == 2
     assert main(["localize", str(log), "-o", str(out), "--window", "0"]) == 2
+    assert main(["localize", str(log), "-o", str(out), "--mode", "admm", "--max-rounds", "0"]) == 2
     assert main(["localize", str(log), "-o", str(tmp_path / "no" / "dir.json")]) == 2
-    assert len(capsys.readouterr().err.strip().splitlines()) == 4
+    assert len(capsys.readouterr().err.strip().splitlines()) == 5
     assert not out.exists()
 
 
