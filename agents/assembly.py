@@ -95,8 +95,8 @@ class AgentConfig:
         its own last value, which repairs lost copies) before going on with the newest value it has.
     share_forms : {"first", "every", "never"}
         When agents share their cost forms (``admm.factors``) and start the ADMM at the joint solution
-        they all compute from them: at the run's first step (step 0, the cold start; default), at every
-        step, or never (the gauge flood alone). See the module docstring.
+        they all compute from them: at the run's first step only (step 0, the cold start), at every
+        step (default), or never (the gauge flood alone). See the module docstring.
     share_timeout : int
         Rounds after which an agent goes on with the forms it has (agents that never answered start
         from the gauge flood instead).
@@ -117,7 +117,7 @@ class AgentConfig:
     announce_every: int = 5
     stale_rounds: int = 2
     patience: int = 6
-    share_forms: str = "first"
+    share_forms: str = "every"
     share_timeout: int = 24
     gossip_refresh: int = 10
 
@@ -220,6 +220,7 @@ class AssemblyAgent:
         self._last_dual: dict[str, dict] = {}
         self._last_primal: dict | None = None
         self._seeds: dict[tuple[str, int], tuple] = {}  # (assembly, step) -> Pose2 of a known joint solution
+        self._seeds_complete = False  # the seeds come from every agent's forms
         self._boot: dict | None = None  # cold-start state while sharing the first step's pair forms
         self._own_forms: tuple | None = None  # (step, keys, forms, pin) last shared (answers late askers)
         self._table_changed = 0  # last round the gossip table changed by more than the tolerances
@@ -238,6 +239,7 @@ class AssemblyAgent:
         cfg = self.config
         first = self._step is None and own.step == 0
         self._seeds = {}
+        self._seeds_complete = False
         self._expected = set()
         if cfg.share_forms == "every" or (cfg.share_forms == "first" and first):
             self._boot = {"records": {}, "start": None, "sent": -(10**9), "waited": 0, "step": own.step,
@@ -489,6 +491,8 @@ class AssemblyAgent:
         elif first != 0:
             return  # the gauge's value at this window is unknown here: the ADMM goes on from its own state
         seeds = solve_joint(problems, (ref, first), value)
+        # every agent's forms: the seeds are the joint estimate of this step (a fixed point of the ADMM)
+        self._seeds_complete = len(boot["records"]) == len(self.config.assemblies)
         # the seeded duals balance only with every observer's contribution: wait for their first values
         names, me = self.config.assemblies, self._index[self.name]
         self._expected = {names[keys[0][0]] for idx in boot["records"] for keys, _ in boot["records"][idx]
@@ -688,16 +692,28 @@ class AssemblyAgent:
         return dict(self._last_ages)
 
     def estimates(self) -> dict[str, PlanarPose]:
-        """Pose of every assembly it can place at the current step, in its own root frame (eq. (19))."""
+        """Pose of every assembly it can place at the current step, in its own root frame (eq. (19)).
+
+        From the gossip table's rows of the current step; an assembly whose row of this step has not
+        arrived (lost copies) is taken from the joint solution of the step's shared forms when this
+        agent holds every agent's forms (that solution is the ADMM's fixed point, restricted to the
+        assemblies tied to the gauge, the same placement rule as the consensus).
+        """
         if self._step is None or not self._consensus.ready:
             return {}
         me = self._table.get(self._index[self.name])
         if me is None or int(me[1]) != self._step:
             return {}
+        rows = {i: row for i, row in self._table.items() if int(row[1]) == self._step}
+        if self._seeds_complete:
+            for (name, step), (R, p) in self._seeds.items():
+                i = self._index.get(name)
+                if step == self._step and i is not None and i not in rows:
+                    rows[i] = np.array([i, step, 0, *p, np.arctan2(R[1, 0], R[0, 0])])
         c, s = np.cos(me[6]), np.sin(me[6])
         out = {}
-        for i, row in self._table.items():
-            if i == self._index[self.name] or int(row[1]) != self._step:
+        for i, row in rows.items():
+            if i == self._index[self.name]:
                 continue
             d = row[3:6] - me[3:6]
             p = np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1], d[2]])  # seed 000 eq. (19)

@@ -56,7 +56,7 @@ class AdmmRunConfig:
         Configuration re-announcement period (steps).
     share_forms : {"first", "every", "never"}
         When the agents share their cost forms and start the ADMM at the joint solution
-        (:class:`agents.assembly.AgentConfig`): the cold start only (default), every step, or never.
+        (:class:`agents.assembly.AgentConfig`): the cold start only, every step (default), or never.
     """
 
     window: int = 5
@@ -73,7 +73,7 @@ class AdmmRunConfig:
     crashes: tuple[Crash, ...] = ()
     partitions: tuple[Partition, ...] = ()
     announce_every: int = 5
-    share_forms: str = "first"
+    share_forms: str = "every"
 
     def __post_init__(self) -> None:
         if not (isinstance(self.window, int) and self.window >= 1):

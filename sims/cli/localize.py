@@ -28,10 +28,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="joint estimate (default) or one agent per assembly with consensus-ADMM")
     parser.add_argument("--loss", type=float, default=0.0, help="admm: probability that a message is dropped")
     parser.add_argument("--seed", type=int, default=0, help="admm: seed of the simulated network")
-    parser.add_argument("--share-forms", choices=("first", "every", "never"), default="first",
+    parser.add_argument("--share-forms", choices=("every", "first", "never"), default="every",
                         help="admm: when agents broadcast their pairs' cost forms and start at the joint solution: "
-                             "the first step only (default), every step (fewest rounds; messages grow with the "
-                             "number of assemblies), or never (plain consensus-ADMM)")
+                             "every step (default: each window starts at the joint solution, fewest rounds and "
+                             "bytes; form messages grow with the number of assemblies), the first step only, "
+                             "or never (plain consensus-ADMM)")
     parser.add_argument("--max-rounds", type=int, default=300, help="admm: round budget per step (default 300)")
     parser.add_argument("--estimator", choices=tuple(ESTIMATORS), default="windowed",
                         help="; ".join(f"{k}: {v}" for k, v in ESTIMATORS.items()))

@@ -32,6 +32,10 @@ def _gap(central, decentral):
     return dp, dth, mismatched
 
 
+#: the runner's two start modes: cost forms shared every window (default) or only at the cold start
+MODES = ("every", "first")
+
+
 def _check_matches(n, steps, window=5, sim=None, **config):
     sim = sim or _sim(n, steps)
     central = estimate_log(sim.log, EstimatorConfig(window=window))
@@ -63,15 +67,16 @@ def test_three_assemblies_on_a_cycle_match_the_centralized_estimate():
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("share_forms", MODES)
 @pytest.mark.parametrize("n", [4, 6])
-def test_larger_rings_match_the_centralized_estimate(n):
-    """4 and 6 assemblies with cyclic view graphs, K = 5, no loss: equal to the joint estimate."""
-    _check_matches(n, 6)
+def test_larger_rings_match_the_centralized_estimate(n, share_forms):
+    """4 and 6 assemblies with cyclic view graphs, K = 5, no loss: equal to the joint estimate (both start modes)."""
+    _check_matches(n, 6, share_forms=share_forms)
 
 
 def test_shared_forms_cold_start_converges_at_once():
     """The first step starts at the joint solution of the shared pair forms: converged within 12 rounds, exact."""
-    run = _check_matches(4, 1)
+    run = _check_matches(4, 1, share_forms="first")
     assert run.rounds[0] <= 12
     assert run.stats["messages"]["per_kind"]["admm.factors"]["sent"] > 0
 
@@ -79,7 +84,7 @@ def test_shared_forms_cold_start_converges_at_once():
 @pytest.mark.slow
 def test_sixteen_ring_cold_start_matches_within_a_hundred_rounds():
     """16 assemblies, first window (formerly 400-600 rounds without converging): exact within 100 rounds."""
-    run = _check_matches(16, 1, max_rounds=100)
+    run = _check_matches(16, 1, share_forms="first", max_rounds=100)
     assert run.rounds[0] <= 100
 
 
@@ -116,22 +121,25 @@ def _error_vs_truth(sim, estimate):
 
 
 @pytest.mark.slow
-def test_thirty_percent_loss_with_duplicates_and_reordering_stays_within_twice_the_central_error():
+@pytest.mark.parametrize("share_forms", MODES)
+def test_thirty_percent_loss_with_duplicates_and_reordering_stays_within_twice_the_central_error(share_forms):
     """30 % i.i.d. loss, 10 % duplicates, jitter > a phase (reordering): error vs truth <= 2x centralized."""
     sim = _sim(4, 6)
     central = estimate_log(sim.log, EstimatorConfig(window=5))
-    run = run_admm(sim.log, config=AdmmRunConfig(loss=0.3, duplicate=0.1, jitter=0.008, max_rounds=600), seed=3)
+    run = run_admm(sim.log, config=AdmmRunConfig(loss=0.3, duplicate=0.1, jitter=0.008, max_rounds=600,
+                                                 share_forms=share_forms), seed=3)
     assert run.estimate.steps[-1].poses.keys() == central.steps[-1].poses.keys()
     assert _error_vs_truth(sim, run.estimate) <= 2 * _error_vs_truth(sim, central)
 
 
 @pytest.mark.slow
-def test_fifty_percent_loss_still_converges():
+@pytest.mark.parametrize("share_forms", MODES)
+def test_fifty_percent_loss_still_converges(share_forms):
     """50 % loss: every step ends converged (more rounds) and matches the joint estimate to 1 mm / 0.05 deg."""
     sim = _sim(3, 3)
     central = estimate_log(sim.log, EstimatorConfig(window=5))
-    lossless = run_admm(sim.log, config=AdmmRunConfig(), seed=5)
-    run = run_admm(sim.log, config=AdmmRunConfig(loss=0.5, max_rounds=1500), seed=5)
+    lossless = run_admm(sim.log, config=AdmmRunConfig(share_forms=share_forms), seed=5)
+    run = run_admm(sim.log, config=AdmmRunConfig(loss=0.5, max_rounds=1500, share_forms=share_forms), seed=5)
     assert all(run.converged)
     assert sum(run.rounds) > sum(lossless.rounds)
     dp, dth, mismatched = _gap(central, run.estimate)
@@ -139,12 +147,15 @@ def test_fifty_percent_loss_still_converges():
 
 
 @pytest.mark.slow
-def test_a_crashed_agent_is_worked_around_and_catches_up():
+@pytest.mark.parametrize("share_forms", MODES)
+def test_a_crashed_agent_is_worked_around_and_catches_up(share_forms):
     """A2 goes down during step 1 and restarts empty 1.5 s later: peers go on; afterwards A2 agrees with them."""
     sim = _sim(4, 5)
-    probe = run_admm(sim.log, config=AdmmRunConfig(), seed=2)
+    probe = run_admm(sim.log, config=AdmmRunConfig(share_forms=share_forms), seed=2)
     t0 = (probe.rounds[0] + 5) * 0.01  # network time of a round = round * round_period
-    run = run_admm(sim.log, config=AdmmRunConfig(crashes=(Crash("A2", t0, t0 + 1.5),), max_rounds=600), seed=2)
+    down = 1.5 if share_forms == "first" else 0.4  # shared forms finish a step in ~10 rounds: a shorter outage
+    run = run_admm(sim.log, config=AdmmRunConfig(crashes=(Crash("A2", t0, t0 + down),), max_rounds=600,
+                                                  share_forms=share_forms), seed=2)
     assert run.stats["agents"]["A2"]["restarts"] == 1
     assert "A2" not in run.agent_estimates[1]  # down at the end of step 1
     assert run.converged[-1]
@@ -157,12 +168,15 @@ def test_a_crashed_agent_is_worked_around_and_catches_up():
 
 
 @pytest.mark.slow
-def test_a_partition_heals():
+@pytest.mark.parametrize("share_forms", MODES)
+def test_a_partition_heals(share_forms):
     """{A0, A1} cut from {A2, A3} for a while: afterwards the estimates match the joint estimate again."""
     sim = _sim(4, 6)
     central = estimate_log(sim.log, EstimatorConfig(window=5))
-    part = Partition(t0=0.5, t1=2.0, groups=(frozenset({"A0", "A1"}),))
-    run = run_admm(sim.log, config=AdmmRunConfig(partitions=(part,), max_rounds=600), seed=4)
+    probe = run_admm(sim.log, config=AdmmRunConfig(share_forms=share_forms), seed=4)
+    t0 = (probe.rounds[0] + 2) * 0.01  # from step 1 on, for ~1/3 of the lossless run's rounds (at least 0.3 s)
+    part = Partition(t0=t0, t1=t0 + max(0.3, sum(probe.rounds) * 0.01 / 3), groups=(frozenset({"A0", "A1"}),))
+    run = run_admm(sim.log, config=AdmmRunConfig(partitions=(part,), max_rounds=600, share_forms=share_forms), seed=4)
     assert run.stats["messages"]["drop_reasons"].get("partition", 0) > 0
     a, b = central.steps[-1], run.estimate.steps[-1]
     assert a.poses.keys() == b.poses.keys()
