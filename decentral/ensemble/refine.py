@@ -288,14 +288,24 @@ def _norm(g: np.ndarray, kind: str) -> float:
     return float(np.sqrt(np.vdot(g, g))) if kind == "l2" else float(np.abs(g).max())
 
 
+def _in_radii(problem: EnsembleProblem, position: np.ndarray, rotation: np.ndarray):
+    """The refiners' working copies: observations (E, d) and centres (n, d) in module radii, orientations copied."""
+    s = problem.radius
+    return problem.z / s, np.asarray(position, float) / s, np.asarray(rotation, float).copy()
+
+
+def _no_observations(x: np.ndarray, R: np.ndarray, s: float) -> RefineResult:
+    """Nothing to refine: the start, back in metres."""
+    return RefineResult(x * s, R, 0.0, 0.0, 0, "converged")
+
+
 def _refine_alternating(problem: EnsembleProblem, position: np.ndarray, rotation: np.ndarray,
                         config: RefineConfig) -> RefineResult:
     n, d, s = problem.n, problem.dim, problem.radius
     i, j = problem.i, problem.j
-    z = problem.z / s
-    x = np.asarray(position, float) / s
+    z, x, R0 = _in_radii(problem, position, rotation)
     if i.size == 0:
-        return RefineResult(x * s, np.asarray(rotation, float).copy(), 0.0, 0.0, 0, "converged")
+        return _no_observations(x, R0, s)
     lap = LaplacianSolver(n, i, j, problem.adjacency())
     rots = (_Rotations2D if d == 2 else _Rotations3D)(i, z, n)
 
@@ -396,11 +406,9 @@ def _refine_lm(problem: EnsembleProblem, position: np.ndarray, rotation: np.ndar
                config: RefineConfig) -> RefineResult:
     n, d, s = problem.n, problem.dim, problem.radius
     i, j = problem.i, problem.j
-    z = problem.z / s
-    c = np.asarray(position, float) / s
-    R = np.asarray(rotation, float).copy()
+    z, c, R = _in_radii(problem, position, rotation)
     if i.size == 0:
-        return RefineResult(c * s, R, 0.0, 0.0, 0, "converged")
+        return _no_observations(c, R, s)
     rz, r = _residual(i, j, z, c, R)
     cost = 0.5 * float(np.einsum("ea,ea->", r, r))
     lam = config.damping
@@ -466,11 +474,9 @@ def _refine_pcg(problem: EnsembleProblem, position: np.ndarray, rotation: np.nda
     """
     n, d, s = problem.n, problem.dim, problem.radius
     i, j = problem.i, problem.j
-    z = problem.z / s
-    x = np.asarray(position, float) / s
-    R = np.asarray(rotation, float).copy()
+    z, x, R = _in_radii(problem, position, rotation)
     if i.size == 0:
-        return RefineResult(x * s, R, 0.0, 0.0, 0, "converged")
+        return _no_observations(x, R, s)
     p = 1 if d == 2 else 3
     deg = np.bincount(i, minlength=n) + np.bincount(j, minlength=n)
     px = 1.0 / np.maximum(deg / 4.0, 1e-12)
