@@ -110,13 +110,19 @@ def test_cold_start_broadcasts_the_pair_forms_and_waits_for_everyone(log):
     assert not any(isinstance(m, (AdmmDual, AdmmPrimal)) for m in out)
 
 
-def test_an_agent_missing_from_a_share_answers_with_its_own_forms(log):
-    """An agent whose index is absent from a received share's `have` answers that sender directly."""
+def _first_shares(log):
+    """Announced agents after their first tick: the agents and A0's broadcast share (A1's outbox drained)."""
     agents = _announced(log, log.assemblies)
     for a in agents.values():
         a.tick(0)
     a0 = [m for m in agents["A0"].outbox() if isinstance(m, FactorShare)][0]
     agents["A1"].outbox()
+    return agents, a0
+
+
+def test_an_agent_missing_from_a_share_answers_with_its_own_forms(log):
+    """An agent whose index is absent from a received share's `have` answers that sender directly."""
+    agents, a0 = _first_shares(log)
     agents["A1"].handle(a0)
     reply = [m for m in agents["A1"].outbox() if isinstance(m, FactorShare)]
     assert len(reply) == 1 and reply[0].receiver == "A0"
@@ -124,11 +130,7 @@ def test_an_agent_missing_from_a_share_answers_with_its_own_forms(log):
 
 def test_answers_to_a_share_are_not_answered_again(log):
     """A unicast answer that lacks the receiver does not trigger another answer (no ping-pong)."""
-    agents = _announced(log, log.assemblies)
-    for a in agents.values():
-        a.tick(0)
-    a0 = [m for m in agents["A0"].outbox() if isinstance(m, FactorShare)][0]
-    agents["A1"].outbox()
+    agents, a0 = _first_shares(log)
     agents["A1"]._boot = None  # A1 is done: its answer lists only itself, so it lacks A0
     agents["A1"].handle(a0)
     answer = [m for m in agents["A1"].outbox() if isinstance(m, FactorShare)][0]
