@@ -122,6 +122,9 @@ def _detector(cfg: AprilTagConfig) -> cv2.aruco.ArucoDetector:
     dictionary = cv2.aruco.getPredefinedDictionary(FAMILIES[cfg.family])
     if cfg.decoder == "cells":  # quads only: every candidate comes back among the rejected ones
         dictionary = cv2.aruco.Dictionary(dictionary.bytesList[:1], dictionary.markerSize, 0)
+        # keep nested candidates: OpenCV drops the inner of two close quads before identification,
+        # and a tag printed on a sticker whose paper square contrasts with the node nests in it
+        params.minMarkerDistanceRate = 0.01
     return cv2.aruco.ArucoDetector(dictionary, params)
 
 

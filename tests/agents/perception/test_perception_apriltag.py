@@ -80,3 +80,29 @@ def test_strict_filters_reject_weak_reads():
     nodes = layout(0)
     reads = AprilTagIdentifier(AprilTagConfig(min_margin=1000)).identify(frame(nodes), _circles(nodes))
     assert reads == [None] * len(nodes)
+
+
+def _sticker_frame(tags_radii):
+    """Grey floor; per node a light disc holding a tag on a whiter paper square (the sticker's edge)."""
+    dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11)
+    img = np.full((480, 800), 100, np.uint8)
+    nodes = []
+    for k, (tag, r) in enumerate(tags_radii):
+        cx, cy = 120 + 220 * k, 240
+        cv2.circle(img, (cx, cy), r, 225, -1, cv2.LINE_AA)
+        side = r
+        code = cv2.aruco.generateImageMarker(dictionary, tag, side, borderBits=1)
+        pad = side // 8
+        paper = cv2.resize(cv2.copyMakeBorder(code, pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=255),
+                           (side, side), interpolation=cv2.INTER_AREA)
+        img[cy - side // 2:cy - side // 2 + side, cx - side // 2:cx - side // 2 + side] = paper
+        nodes.append(Circle(float(cx), float(cy), float(r), 1.0))
+    return img, nodes
+
+
+def test_tags_on_paper_stickers_of_large_nodes_are_read():
+    """A tag nested in its sticker's paper square is read on large nodes too (30-90 px radius)."""
+    tags_radii = [(5, 90), (7, 70), (12, 45), (21, 30)]
+    img, circles = _sticker_frame(tags_radii)
+    reads = AprilTagIdentifier().identify(img, circles)
+    assert [r.node if r else None for r in reads] == [t for t, _ in tags_radii]
