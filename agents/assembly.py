@@ -53,7 +53,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from decentral.admm import AdmmConfig, ConsensusState, LocalProblem, PairState, quadratic_form, scalar_metric, solve_joint
+from decentral.admm import (AdmmConfig, ConsensusState, LocalProblem, PairState, joint_placeable, quadratic_form,
+                            scalar_metric, solve_joint)
+from decentral.estimator import EstimatorConfig
 from decentral.errors import InputError
 from decentral.factors import NoiseModel, detection_weights
 from decentral.geometry import backproject, rot2, wrap_angle
@@ -100,6 +102,10 @@ class AgentConfig:
     share_timeout : int
         Rounds after which an agent goes on with the forms it has (agents that never answered start
         from the gauge flood instead).
+    max_yaw_std : float
+        With every agent's forms in hand, an assembly is reported only if the centralized estimator's
+        placement test passes on the joint form (relative yaw determined, Laplace std at most this, rad;
+        :class:`decentral.estimator.EstimatorConfig`).
     gossip_refresh : int
         The gossip table rides on an ADMM message to a neighbour only when it changed (a new row, a
         new step, or a pose moved by more than the ADMM tolerances) since it last went to that
@@ -118,6 +124,7 @@ class AgentConfig:
     stale_rounds: int = 2
     patience: int = 6
     share_forms: str = "every"
+    max_yaw_std: float = EstimatorConfig.max_yaw_std
     share_timeout: int = 24
     gossip_refresh: int = 10
 
@@ -221,6 +228,7 @@ class AssemblyAgent:
         self._last_primal: dict | None = None
         self._seeds: dict[tuple[str, int], tuple] = {}  # (assembly, step) -> Pose2 of a known joint solution
         self._seeds_complete = False  # the seeds come from every agent's forms
+        self._placeable: frozenset = frozenset()  # (assembly, step) keys the joint test places
         self._boot: dict | None = None  # cold-start state while sharing the first step's pair forms
         self._own_forms: tuple | None = None  # (step, keys, forms, pin) last shared (answers late askers)
         self._table_changed = 0  # last round the gossip table changed by more than the tolerances
@@ -240,6 +248,7 @@ class AssemblyAgent:
         first = self._step is None and own.step == 0
         self._seeds = {}
         self._seeds_complete = False
+        self._placeable = frozenset()
         self._expected = set()
         if cfg.share_forms == "every" or (cfg.share_forms == "first" and first):
             self._boot = {"records": {}, "start": None, "sent": -(10**9), "waited": 0, "step": own.step,
@@ -491,8 +500,12 @@ class AssemblyAgent:
         elif first != 0:
             return  # the gauge's value at this window is unknown here: the ADMM goes on from its own state
         seeds = solve_joint(problems, (ref, first), value)
-        # every agent's forms: the seeds are the joint estimate of this step (a fixed point of the ADMM)
+        # every agent's forms: the seeds are the joint estimate of this step (a fixed point of the ADMM),
+        # and the centralized estimator's placement test can be run on them
         self._seeds_complete = len(boot["records"]) == len(self.config.assemblies)
+        if self._seeds_complete:
+            limit = self.config.max_yaw_std if self.config.noise.weighting == "information" else np.inf
+            self._placeable = joint_placeable(problems, seeds, (self.name, self._step), limit)
         # the seeded duals balance only with every observer's contribution: wait for their first values
         names, me = self.config.assemblies, self._index[self.name]
         self._expected = {names[keys[0][0]] for idx in boot["records"] for keys, _ in boot["records"][idx]
@@ -715,6 +728,8 @@ class AssemblyAgent:
         for i, row in rows.items():
             if i == self._index[self.name]:
                 continue
+            if self._seeds_complete and (self.config.assemblies[i], self._step) not in self._placeable:
+                continue  # its yaw relative to this agent is not determined: left out, never guessed
             d = row[3:6] - me[3:6]
             p = np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1], d[2]])  # seed 000 eq. (19)
             out[self.config.assemblies[i]] = PlanarPose(p, float(wrap_angle(row[6] - me[6])))

@@ -113,6 +113,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from decentral.errors import InputError
+from decentral.estimator import placeable_yaws
 from decentral.geometry import rot2
 from decentral.relaxation import recover_positions, reduce_rotations, solve_low_rank
 
@@ -127,6 +128,7 @@ __all__ = [
     "pose_columns",
     "pair_metric",
     "solve_joint",
+    "joint_placeable",
     "balance_penalty",
     "PairState",
     "ConsensusState",
@@ -921,6 +923,53 @@ class ConsensusState:
         return True
 
 
+def _joint_form(problems: list[LocalProblem], fixed_key) -> tuple[list, dict, np.ndarray, np.ndarray]:
+    """The summed window form over the variables connected to ``fixed_key``.
+
+    Returns the keys (sorted), key -> index, ``M`` (3n, 3n) over ``[P_xy | R]`` and ``b_z`` (n,).
+    """
+    edges: dict = {}
+    for prob in problems:
+        for a in prob.keys:
+            edges.setdefault(a, set()).update(prob.keys)
+    comp, todo = {fixed_key}, [fixed_key]
+    while todo:
+        for b in edges.get(todo.pop(), ()):
+            if b not in comp:
+                comp.add(b)
+                todo.append(b)
+    keys = sorted(comp, key=repr)
+    index = {k: i for i, k in enumerate(keys)}
+    n = len(keys)
+    M = np.zeros((3 * n, 3 * n))
+    b_z = np.zeros(n)
+    for prob in problems:
+        if prob.keys[0] not in index:
+            continue
+        g = np.array([index[k] for k in prob.keys])
+        gc = np.concatenate([g, np.stack([n + 2 * g, n + 2 * g + 1], 1).ravel()])
+        m = prob.n
+        lc = np.concatenate([np.arange(m), np.stack([m + 2 * np.arange(m), m + 2 * np.arange(m) + 1], 1).ravel()])
+        M[np.ix_(gc, gc)] += prob.M[np.ix_(lc, lc)]
+        b_z[g] += prob.b_z
+    return keys, index, M, b_z
+
+
+def joint_placeable(problems: list[LocalProblem], solution: dict, reference, max_yaw_std: float) -> frozenset:
+    """Keys at ``reference``'s step that the centralized estimator would place, from the shared forms.
+
+    The same test as :func:`decentral.estimator.placeable_yaws` (the relative yaw is outside the
+    null space of the yaw Hessian and its Laplace standard deviation is at most ``max_yaw_std``), on
+    the joint form of ``problems`` at ``solution`` (key -> Pose2, e.g. from :func:`solve_joint`).
+    """
+    keys, index, M, _ = _joint_form(problems, reference)
+    if len(keys) == 1 or any(k not in solution for k in keys):
+        return frozenset()
+    theta = np.array([_yaw(solution[k][0]) for k in keys])
+    placed, _ = placeable_yaws(reduce_rotations(M, len(keys)), theta, index, reference, max_yaw_std)
+    return placed
+
+
 def solve_joint(problems: list[LocalProblem], fixed_key, fixed_value: Pose2 | None = None) -> dict:
     r"""Minimize the sum of local problems over the variables tied to ``fixed_key`` (held fixed).
 
@@ -946,34 +995,10 @@ def solve_joint(problems: list[LocalProblem], fixed_key, fixed_value: Pose2 | No
         key -> ``Pose2`` for every variable connected to ``fixed_key`` (only ``fixed_key`` when nothing is).
     """
     fixed_value = fixed_value or (np.eye(2), np.zeros(3))
-    edges: dict = {}
-    for prob in problems:
-        for a in prob.keys:
-            edges.setdefault(a, set()).update(prob.keys)
-    comp, todo = {fixed_key}, [fixed_key]
-    while todo:
-        for b in edges.get(todo.pop(), ()):
-            if b not in comp:
-                comp.add(b)
-                todo.append(b)
-    keys = sorted(comp, key=repr)
+    keys, index, M, b_z = _joint_form(problems, fixed_key)
     if len(keys) == 1:
         return {fixed_key: fixed_value}
-    index = {k: i for i, k in enumerate(keys)}
     n = len(keys)
-    M = np.zeros((3 * n, 3 * n))
-    b_z = np.zeros(n)
-    c_z = 0.0
-    for prob in problems:
-        if prob.keys[0] not in index:
-            continue
-        g = np.array([index[k] for k in prob.keys])
-        gc = np.concatenate([g, np.stack([n + 2 * g, n + 2 * g + 1], 1).ravel()])
-        m = prob.n
-        lc = np.concatenate([np.arange(m), np.stack([m + 2 * np.arange(m), m + 2 * np.arange(m) + 1], 1).ravel()])
-        M[np.ix_(gc, gc)] += prob.M[np.ix_(lc, lc)]
-        b_z[g] += prob.b_z
-        c_z += prob.c_z
     # gauge-free, as the centralized window (seed 000 eq. (14)-(18)), then moved onto the fixed value
     res = solve_low_rank(reduce_rotations(M, n))
     position = recover_positions(M, res.theta, b_z)

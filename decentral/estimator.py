@@ -27,7 +27,7 @@ from decentral.observations import Estimate, EstimateStep, ObservationLog, Plana
 from decentral.relaxation import RelaxationResult, recover_positions, reduce_rotations, solve_relaxation, yaw_hessian
 from decentral.window import WindowProblem, build_window
 
-__all__ = ["EstimatorConfig", "WindowEstimate", "solve_window", "estimate_log"]
+__all__ = ["EstimatorConfig", "WindowEstimate", "solve_window", "estimate_log", "placeable_yaws"]
 
 #: eigenvalues of the yaw Hessian below this fraction of its largest are treated as exact zeros
 NULL_TOL = 1e-9
@@ -93,14 +93,27 @@ class WindowEstimate:
         return PlanarPose(p, float(wrap_angle(self.theta[i] - self.theta[r])))
 
 
-def _placeable(problem: WindowProblem, Q: np.ndarray, theta: np.ndarray, reference: tuple[str, int],
-               max_yaw_std: float) -> tuple[frozenset, dict]:
-    """Keys at the reference's step whose relative yaw is determined, and their yaw std (rad)."""
+def placeable_yaws(Q: np.ndarray, theta: np.ndarray, index: dict, reference: tuple[str, int],
+                   max_yaw_std: float) -> tuple[frozenset, dict]:
+    """Keys at the reference's step whose yaw relative to it is determined, and their yaw std (rad).
+
+    Parameters
+    ----------
+    Q : ndarray, shape (2m, 2m)
+        The rotation-only cost after eliminating positions (seed 000 eq. (14)).
+    theta : ndarray, shape (m,)
+        The yaws at the optimum (any common offset: the test looks at differences only).
+    index : dict
+        ``(assembly, step)`` key -> variable index into ``theta``.
+    reference : tuple
+        The reference key; only keys of its step are tested.
+    max_yaw_std : float
+        Largest Laplace-approximate yaw standard deviation that still places (rad).
+    """
     H = yaw_hessian(Q, theta)
     lam, V = np.linalg.eigh(0.5 * (H + H.T))
     scale = max(np.abs(lam).max(), 1e-300)
     null = V[:, lam < NULL_TOL * scale]  # always holds the gauge (all ones)
-    index = problem.index()
     r = index[reference]
     inv = np.where(lam >= NULL_TOL * scale, 1.0 / np.where(lam > 0, lam, 1.0), 0.0)
     placed, stds = set(), {}
@@ -127,7 +140,7 @@ def solve_window(problem: WindowProblem, reference: tuple[str, int], config: Est
     result = solve_relaxation(Q, config.solver, theta0)
     position = recover_positions(problem.M, result.theta, problem.b_z)  # seed 000 eq. (18)
     limit = config.max_yaw_std if config.noise.weighting == "information" else np.inf
-    placeable, stds = _placeable(problem, Q, result.theta, reference, limit)
+    placeable, stds = placeable_yaws(Q, result.theta, problem.index(), reference, limit)
     return WindowEstimate(problem, result, result.theta, position, placeable, stds)
 
 

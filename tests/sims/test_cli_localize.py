@@ -138,3 +138,32 @@ def test_console_script_prints_no_traceback(tmp_path):
                           capture_output=True, text=True)
     assert proc.returncode == 2
     assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+
+
+CONTRACT_EXAMPLE = {
+    "format": "decentral.log/1", "node_radius": 0.06,
+    "assemblies": {"A0": {"cameras": {"cam0": {
+        "K": [[760, 0, 512], [0, 760, 384], [0, 0, 1]],
+        "strut_in_root": {"R": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "p": [0.09, 0.02, 0.0]},
+        "cam_in_strut": {"R": [[0, 0, 1], [-1, 0, 0], [0, -1, 0]], "p": [0.05, 0.0, 0.04]}}}},
+        "A1": {}},
+    "steps": [
+        {"t": 0.0, "config": {"A0": {"0": [0, 0, 0], "1": [0.2, 0, 0]},
+                              "A1": {"5": [0, 0, 0], "6": [0.2, 0, 0], "7": [0.2, 0.2, 0]}},
+         "detections": {"A0/cam0": [{"id": 5, "u": 611.2, "v": 402.9, "r": 23.1}]}},
+        {"t": 0.2, "config": {"A0": {"0": [0, 0, 0], "1": [0.2, 0, 0]},
+                              "A1": {"5": [0, 0, 0], "6": [0.2, 0, 0], "7": [0.2, 0.2, 0]}},
+         "odometry": {"A0": {"dp": [0.01, 0.0, 0.0], "dtheta": 0.002}, "A1": {"dp": [0.02, 0.001, 0.0], "dtheta": -0.01}},
+         "detections": {"A0/cam0": [{"id": 5, "u": 613.0, "v": 401.7, "r": 23.2},
+                                    {"id": 7, "u": 650.4, "v": 398.2, "r": 22.0}]}},
+    ],
+}
+
+
+@pytest.mark.parametrize("mode", ["centralized", "admm"])
+def test_contract_example_leaves_an_undetermined_yaw_out(tmp_path, mode):
+    """CONTRACT §1's example: one node seen at t=0 leaves A1's yaw open, so A1 is left out there, placed at t=0.2."""
+    out = tmp_path / "est.json"
+    assert main(["localize", str(write(tmp_path, CONTRACT_EXAMPLE)), "-o", str(out), "--mode", mode]) == 0
+    steps = json.loads(out.read_text())["steps"]
+    assert steps[0]["poses"] == {} and set(steps[1]["poses"]) == {"A1"}
