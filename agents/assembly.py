@@ -53,7 +53,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from decentral.admm import (AdmmConfig, ConsensusState, LocalProblem, PairState, joint_placeable, quadratic_form,
+from decentral.admm import (AdmmConfig, ConsensusState, LocalProblem, PairState, quadratic_form,
                             scalar_metric, solve_joint)
 from decentral.estimator import EstimatorConfig
 from decentral.errors import InputError
@@ -499,13 +499,14 @@ class AssemblyAgent:
             value = (rot2(float(pin[4])), np.array(pin[1:4]))
         elif first != 0:
             return  # the gauge's value at this window is unknown here: the ADMM goes on from its own state
-        seeds = solve_joint(problems, (ref, first), value)
+        joint = solve_joint(problems, (ref, first), value)
+        seeds = joint.poses
         # every agent's forms: the seeds are the joint estimate of this step (a fixed point of the ADMM),
         # and the centralized estimator's placement test can be run on them
         self._seeds_complete = len(boot["records"]) == len(self.config.assemblies)
         if self._seeds_complete:
             limit = self.config.max_yaw_std if self.config.noise.weighting == "information" else np.inf
-            self._placeable = joint_placeable(problems, seeds, (self.name, self._step), limit)
+            self._placeable = joint.placeable((self.name, self._step), limit)
         # the seeded duals balance only with every observer's contribution: wait for their first values
         names, me = self.config.assemblies, self._index[self.name]
         self._expected = {names[keys[0][0]] for idx in boot["records"] for keys, _ in boot["records"][idx]

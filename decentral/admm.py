@@ -128,7 +128,7 @@ __all__ = [
     "pose_columns",
     "pair_metric",
     "solve_joint",
-    "joint_placeable",
+    "JointSolution",
     "balance_penalty",
     "PairState",
     "ConsensusState",
@@ -955,22 +955,41 @@ def _joint_form(problems: list[LocalProblem], fixed_key) -> tuple[list, dict, np
     return keys, index, M, b_z
 
 
-def joint_placeable(problems: list[LocalProblem], solution: dict, reference, max_yaw_std: float) -> frozenset:
-    """Keys at ``reference``'s step that the centralized estimator would place, from the shared forms.
+@dataclass(frozen=True)
+class JointSolution:
+    """The joint window of the shared forms, solved (:func:`solve_joint`).
 
-    The same test as :func:`decentral.estimator.placeable_yaws` (the relative yaw is outside the
-    null space of the yaw Hessian and its Laplace standard deviation is at most ``max_yaw_std``), on
-    the joint form of ``problems`` at ``solution`` (key -> Pose2, e.g. from :func:`solve_joint`).
+    Attributes
+    ----------
+    poses : dict
+        key -> ``Pose2`` for every variable connected to the gauge variable.
+    index : dict
+        key -> index into ``theta`` and the rows of ``Q``.
+    Q : ndarray, shape (2m, 2m)
+        The rotation-only cost after eliminating positions (seed 000 eq. (14)); empty for one variable.
+    theta : ndarray, shape (m,)
+        The yaws at the optimum.
     """
-    keys, index, M, _ = _joint_form(problems, reference)
-    if len(keys) == 1 or any(k not in solution for k in keys):
-        return frozenset()
-    theta = np.array([_yaw(solution[k][0]) for k in keys])
-    placed, _ = placeable_yaws(reduce_rotations(M, len(keys)), theta, index, reference, max_yaw_std)
-    return placed
+
+    poses: dict
+    index: dict
+    Q: np.ndarray
+    theta: np.ndarray
+
+    def placeable(self, reference, max_yaw_std: float) -> frozenset:
+        """Keys at ``reference``'s step that the centralized estimator would place relative to it.
+
+        The same test as :func:`decentral.estimator.placeable_yaws` (the relative yaw is outside the
+        null space of the yaw Hessian and its Laplace standard deviation is at most ``max_yaw_std``);
+        nothing when ``reference`` is not tied to the gauge variable.
+        """
+        if reference not in self.index or len(self.index) == 1:
+            return frozenset()
+        placed, _ = placeable_yaws(self.Q, self.theta, self.index, reference, max_yaw_std)
+        return placed
 
 
-def solve_joint(problems: list[LocalProblem], fixed_key, fixed_value: Pose2 | None = None) -> dict:
+def solve_joint(problems: list[LocalProblem], fixed_key, fixed_value: Pose2 | None = None) -> JointSolution:
     r"""Minimize the sum of local problems over the variables tied to ``fixed_key`` (held fixed).
 
     The cold start of the ADMM: the pair forms of one step, shared by every agent, summed into the
@@ -991,16 +1010,18 @@ def solve_joint(problems: list[LocalProblem], fixed_key, fixed_value: Pose2 | No
 
     Returns
     -------
-    dict
-        key -> ``Pose2`` for every variable connected to ``fixed_key`` (only ``fixed_key`` when nothing is).
+    JointSolution
+        Its ``poses``: key -> ``Pose2`` for every variable connected to ``fixed_key`` (only
+        ``fixed_key`` when nothing is); and what the placement test needs.
     """
     fixed_value = fixed_value or (np.eye(2), np.zeros(3))
     keys, index, M, b_z = _joint_form(problems, fixed_key)
     if len(keys) == 1:
-        return {fixed_key: fixed_value}
+        return JointSolution({fixed_key: fixed_value}, index, np.zeros((0, 0)), np.zeros(1))
     n = len(keys)
     # gauge-free, as the centralized window (seed 000 eq. (14)-(18)), then moved onto the fixed value
-    res = solve_low_rank(reduce_rotations(M, n))
+    Q = reduce_rotations(M, n)
+    res = solve_low_rank(Q)
     position = recover_positions(M, res.theta, b_z)
     f = index[fixed_key]
     d = _yaw(fixed_value[0]) - res.theta[f]
@@ -1010,4 +1031,4 @@ def solve_joint(problems: list[LocalProblem], fixed_key, fixed_value: Pose2 | No
     position[:, :2] = (position[:, :2] - position[f, :2]) @ Rd.T + p_fix[:2]
     position[:, 2] += p_fix[2] - position[f, 2]
     R = rot2(theta)
-    return {k: (R[i], position[i]) for i, k in enumerate(keys)}
+    return JointSolution({k: (R[i], position[i]) for i, k in enumerate(keys)}, index, Q, theta)
