@@ -32,6 +32,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from decentral.estimator import EstimatorConfig, estimate_log  # noqa: E402
+from decentral.metrics import estimate_gap  # noqa: E402
 from sims.admm_run import AdmmRunConfig, run_admm  # noqa: E402
 from sims.io.atomic import write_atomic, write_json_atomic  # noqa: E402
 from sims.scenarios import get_scenario, simulate  # noqa: E402
@@ -41,13 +42,7 @@ KINDS = {"admm": ("admm.primal", "admm.dual"), "forms": ("admm.factors",),
 
 
 def _gap(central, decentral):
-    dp = dth = 0.0
-    mismatched = 0
-    for a, b in zip(central.steps, decentral.steps):
-        mismatched += len(set(a.poses) ^ set(b.poses))
-        for name in set(a.poses) & set(b.poses):
-            dp = max(dp, float(np.linalg.norm(a.poses[name].p - b.poses[name].p)))
-            dth = max(dth, abs(float(np.angle(np.exp(1j * (a.poses[name].theta - b.poses[name].theta))))))
+    dp, dth, mismatched = estimate_gap(central, decentral)
     return dp, float(np.degrees(dth)), mismatched
 
 

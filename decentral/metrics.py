@@ -33,7 +33,7 @@ import numpy as np
 from decentral.errors import InputError
 from decentral.observations import Estimate
 
-__all__ = ["GroundTruth", "AssemblyScore", "Score", "relative_truth", "score_estimate"]
+__all__ = ["GroundTruth", "AssemblyScore", "Score", "relative_truth", "score_estimate", "estimate_gap"]
 
 
 @dataclass(frozen=True)
@@ -206,3 +206,21 @@ def score_estimate(truth: GroundTruth, estimate: Estimate, *, time_tol: float = 
         len(times) * len(targets),
     )
     return Score(ref, per, overall, unmatched)
+
+
+def estimate_gap(a: Estimate, b: Estimate) -> tuple[float, float, int]:
+    """How far two estimates of the same log are apart (e.g. decentralized vs centralized).
+
+    Steps are paired in order. Returns the largest position difference (m) and the largest yaw
+    difference (rad, wrapped) over the assemblies both place, and the number of (step, assembly)
+    placements only one of them makes.
+    """
+    dp = dth = 0.0
+    mismatched = 0
+    for sa, sb in zip(a.steps, b.steps):
+        mismatched += len(set(sa.poses) ^ set(sb.poses))
+        for name in set(sa.poses) & set(sb.poses):
+            pa, pb = sa.poses[name], sb.poses[name]
+            dp = max(dp, float(np.linalg.norm(pa.p - pb.p)))
+            dth = max(dth, abs(float(np.angle(np.exp(1j * (pa.theta - pb.theta))))))
+    return dp, dth, mismatched

@@ -126,3 +126,15 @@ def test_unknown_reference_is_bad_input():
     truth = _truth(np.random.default_rng(4))
     with pytest.raises(InputError):
         score_estimate(truth, Estimate("B9", (), {}))
+
+
+def test_estimate_gap_reports_largest_differences_and_mismatched_placements():
+    """estimate_gap: max position and wrapped yaw difference over shared placements, plus one-sided ones."""
+    from decentral.metrics import estimate_gap
+
+    a = Estimate("A0", (EstimateStep(0.0, {"A1": PlanarPose(np.array([1.0, 0, 0]), 3.1)}),
+                        EstimateStep(0.2, {"A1": PlanarPose(np.zeros(3), 0.0), "A2": PlanarPose(np.zeros(3), 0.0)})), {})
+    b = Estimate("A0", (EstimateStep(0.0, {"A1": PlanarPose(np.array([1.0, 0.002, 0]), -3.1)}),
+                        EstimateStep(0.2, {"A1": PlanarPose(np.zeros(3), 0.0)})), {})
+    dp, dth, mismatched = estimate_gap(a, b)
+    assert dp == pytest.approx(0.002) and dth == pytest.approx(2 * np.pi - 6.2) and mismatched == 1

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from decentral.estimator import EstimatorConfig, estimate_log
-from decentral.metrics import score_estimate
+from decentral.metrics import estimate_gap, score_estimate
 from protocols.network import Crash, Partition
 from sims.admm_run import AdmmRunConfig, own_step, run_admm
 from sims.cli.main import main
@@ -20,18 +20,6 @@ def _sim(n, steps, seed=1, **kw):
     return simulate(get_scenario("multi", n_assemblies=n, steps=steps, **kw), seed=seed)
 
 
-def _gap(central, decentral):
-    """Largest position (m) and yaw (rad) difference over steps and assemblies, and placement mismatches."""
-    dp = dth = 0.0
-    mismatched = 0
-    for a, b in zip(central.steps, decentral.steps):
-        mismatched += len(set(a.poses) ^ set(b.poses))
-        for name in set(a.poses) & set(b.poses):
-            dp = max(dp, float(np.linalg.norm(a.poses[name].p - b.poses[name].p)))
-            dth = max(dth, abs(float(np.angle(np.exp(1j * (a.poses[name].theta - b.poses[name].theta))))))
-    return dp, dth, mismatched
-
-
 #: the runner's two start modes: cost forms shared every window (default) or only at the cold start
 MODES = ("every", "first")
 
@@ -40,7 +28,7 @@ def _check_matches(n, steps, window=5, sim=None, **config):
     sim = sim or _sim(n, steps)
     central = estimate_log(sim.log, EstimatorConfig(window=window))
     run = run_admm(sim.log, config=AdmmRunConfig(window=window, **config), seed=0)
-    dp, dth, mismatched = _gap(central, run.estimate)
+    dp, dth, mismatched = estimate_gap(central, run.estimate)
     assert mismatched == 0
     assert dp < POS_TOL and dth < YAW_TOL, (dp, np.degrees(dth))
     assert all(run.converged)
@@ -142,7 +130,7 @@ def test_fifty_percent_loss_still_converges(share_forms):
     run = run_admm(sim.log, config=AdmmRunConfig(loss=0.5, max_rounds=1500, share_forms=share_forms), seed=5)
     assert all(run.converged)
     assert sum(run.rounds) > sum(lossless.rounds)
-    dp, dth, mismatched = _gap(central, run.estimate)
+    dp, dth, mismatched = estimate_gap(central, run.estimate)
     assert mismatched == 0 and dp < POS_TOL and dth < YAW_TOL
 
 
