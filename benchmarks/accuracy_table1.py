@@ -19,6 +19,7 @@ from decentral.bearing import BearingConfig, estimate_log_bearing
 from decentral.estimator import EstimatorConfig, estimate_log
 from decentral.factors import NoiseModel
 from decentral.metrics import score_estimate
+from sims.experiments.table1 import table_markdown
 from sims.scenarios import get_scenario, simulate
 
 #: the scenario's nominal sensor noise (its spec sheet, not its ground truth)
@@ -60,15 +61,6 @@ def run(seeds: int, steps: int) -> dict:
     }
 
 
-def markdown(result: dict) -> str:
-    lines = ["| Method | Positional error [m] | Relative positional error [%] | Angular error [deg] | Coverage | FPS [Hz] |",
-             "|---|---|---|---|---|---|"]
-    for name, r in result["table_mean_over_seeds"].items():
-        lines.append(f"| {name} | {r['position_m']:.3f} | {r['relative_position_pct']:.2f} | {r['yaw_deg']:.2f} | "
-                     f"{100 * r['coverage']:.0f} % | {r['fps']:.0f} |")
-    return "\n".join(lines) + "\n"
-
-
 def plot(result: dict, path) -> None:
     import matplotlib
 
@@ -96,9 +88,9 @@ def main() -> None:
     args = parser.parse_args()
     result = run(args.seeds, args.steps)
     save("accuracy_table1", result)
-    (RESULTS / "accuracy_table1.md").write_text(markdown(result))
+    (RESULTS / "accuracy_table1.md").write_text(table_markdown(result))
     plot(result, RESULTS / "accuracy_table1.png")
-    print(markdown(result))
+    print(table_markdown(result))
 
 
 if __name__ == "__main__":
