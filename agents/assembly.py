@@ -4,7 +4,8 @@ An agent holds only what its assembly really has: its own node configuration, od
 detections (never ground truth), plus what arrives in its inbox. Per log step it
 
 1. back-projects its own detections (seed 000 eq. (1), (4)) and announces its configuration
-   (``admm.config``, a broadcast, when it changes and every ``announce_every`` steps);
+   (``admm.config``: a broadcast when it changes; every ``announce_every`` steps a unicast to its
+   current observers);
 2. names the owner of every node it sees from the announced configurations and builds one
    directed pair subproblem ``self -> target`` per observed assembly over the sliding window;
 3. runs ADMM rounds, two phases each (:meth:`AssemblyAgent.tick`):
@@ -33,18 +34,31 @@ assembly at its latest step) so every agent learns the poses of assemblies it do
 Message counts per round and agent: one ``admm.dual`` per observed assembly and one ``admm.primal``
 per observer, i.e. the agent's degree in the view graph.
 
-Shared forms (``AgentConfig.share_forms``): at the run's first step (``"first"``, the default) or at
-every step (``"every"``) an agent first broadcasts ``admm.factors``: the quadratic forms of the pairs
-it observes over the window and of its own odometry chain (its private data stay private; only these
-sums of squares travel), with the list of agents whose forms it has; agents missing from that list
-answer directly, and the gauge agent adds the value of its pinned pose. Once it holds every agent's
-forms (or after ``share_timeout`` rounds) each agent solves the same joint problem
-(:func:`decentral.admm.solve_joint`, bit-identical everywhere) and seeds its consensus poses, pair
-copies and duals at that solution, a fixed point of the ADMM (:meth:`decentral.admm.PairState.seed`);
-the ADMM rounds that follow confirm it (or finish the job for agents whose forms were missing). This
-replaces the gauge flood of the cold start, which on the 16-ring needed 400-600+ rounds, by ~8
-rounds; with ``"every"`` every window converges in ~8-11 rounds up to 64 assemblies, at the price of
-one broadcast per agent and window (messages grow with the number of agents, not the degree).
+Shared forms (``AgentConfig.share_forms``): at every step (``"every"``, the default) or at the run's
+first step only (``"first"``) the agents first share their cost forms: the quadratic forms of the
+pairs each observes over the window and of its own odometry chain (private data stay private; only
+these sums of squares travel). Once an agent holds every agent's forms (or after ``share_timeout``
+rounds) it solves the same joint problem (:func:`decentral.admm.solve_joint`, bit-identical
+everywhere) and seeds its consensus poses, pair copies and duals at that solution, a fixed point of
+the ADMM (:meth:`decentral.admm.PairState.seed`); the ADMM rounds that follow confirm it (or finish the
+job for agents whose forms were missing). How the forms travel:
+
+* **tree** (``aggregation="tree"``, default, once the agent has a route to the reference): a
+  convergecast up a spanning tree of the view graph to the reference agent and a broadcast back down
+  (:mod:`protocols.aggregation`, ``admm.bundle`` / ``admm.bundle_ack``). Its parent is the neighbour
+  with the smallest hop count to the reference (distance vector carried as the ``tree`` block of the
+  ADMM messages, and filled at once from the view graph the forms of a complete window reveal). The
+  reference's down bundle names the round at which every agent starts the ADMM, so agents near the
+  reference do not spend rounds waiting for the far ones. Per window and agent without loss: one
+  bundle up, and per child one acknowledgement and one bundle down.
+* **broadcast** (the cold start, a restarted agent, a side of a partition without the reference, or
+  ``aggregation="broadcast"``): ``admm.factors`` to everyone, with the list of agents whose forms it
+  has; agents missing from that list answer directly. Messages per agent grow with the number of
+  agents.
+
+When an agent holds every agent's forms, the joint solution also fills the gossip table's rows of
+the step (the table need not cross the graph before the convergence flag settles), and the ADMM is
+converged once the consensus stays within the tolerances of that fixed point.
 """
 
 from __future__ import annotations
@@ -60,7 +74,9 @@ from decentral.errors import InputError
 from decentral.factors import NoiseModel, detection_weights
 from decentral.geometry import backproject, rot2, wrap_angle
 from decentral.observations import Camera, Detection, Odometry, PlanarPose, Pose
-from protocols.admm_messages import ConfigAnnounce, ConfigRequest, FactorShare, pack_forms
+from protocols.admm_messages import (ConfigAnnounce, ConfigRequest, FactorShare, FormAck, FormBundle, pack_bundle,
+                                     pack_forms)
+from protocols.aggregation import TreeAggregation, choose_parent, tree_from_edges
 from protocols.messages import BROADCAST, AdmmDual, AdmmPrimal, Message
 
 __all__ = ["AgentConfig", "OwnStep", "AssemblyAgent"]
@@ -89,7 +105,8 @@ class AgentConfig:
     admm : AdmmConfig
         ADMM parameters.
     announce_every : int
-        Re-announce the configuration every this many steps (repairs lost announcements).
+        Re-announce the configuration to the current observers (unicast) every this many steps
+        (repairs lost announcements; it is broadcast only when it changes).
     stale_rounds : int
         Inputs older than this many rounds keep the agent from reporting convergence.
     patience : int
@@ -101,7 +118,8 @@ class AgentConfig:
         step (default), or never (the gauge flood alone). See the module docstring.
     share_timeout : int
         Rounds after which an agent goes on with the forms it has (agents that never answered start
-        from the gauge flood instead).
+        from the gauge flood instead); below the reference in the tree, twice this (the reference's
+        partial set comes down first).
     max_yaw_std : float
         With every agent's forms in hand, an assembly is reported only if the centralized estimator's
         placement test passes on the joint form (relative yaw determined, Laplace std at most this, rad;
@@ -110,6 +128,11 @@ class AgentConfig:
         The gossip table rides on an ADMM message to a neighbour only when it changed (a new row, a
         new step, or a pose moved by more than the ADMM tolerances) since it last went to that
         neighbour, or every this many rounds (repairs a lost copy).
+    aggregation : {"tree", "broadcast"}
+        How the forms of a window travel once the agent knows its place in the aggregation tree:
+        up a spanning tree of the view graph to the reference agent and back down
+        (:mod:`protocols.aggregation`, default), or broadcast by every agent (the cold start's way,
+        used by both whenever an agent has no route to the reference yet).
     """
 
     name: str
@@ -127,6 +150,7 @@ class AgentConfig:
     max_yaw_std: float = EstimatorConfig.max_yaw_std
     share_timeout: int = 24
     gossip_refresh: int = 10
+    aggregation: str = "tree"
 
     def __post_init__(self) -> None:
         if self.name not in self.assemblies or self.reference not in self.assemblies:
@@ -139,6 +163,8 @@ class AgentConfig:
             raise InputError("announce_every must be an integer >= 1", field="announce_every")
         if self.share_forms not in ("first", "every", "never"):
             raise InputError("share_forms must be 'first', 'every' or 'never'", field="share_forms")
+        if self.aggregation not in ("tree", "broadcast"):
+            raise InputError("aggregation must be 'tree' or 'broadcast'", field="aggregation")
 
 
 @dataclass(frozen=True)
@@ -214,7 +240,8 @@ class AssemblyAgent:
         self._round = 0
         self._converged = False
         self._last_ages: dict[str, int] = {}
-        self.counters = {"ignored": 0, "timeouts": 0, "retransmits": 0, "uncertified": 0, "unknown_nodes": 0}
+        self.counters = {"ignored": 0, "timeouts": 0, "retransmits": 0, "uncertified": 0, "unknown_nodes": 0,
+                         "tree_windows": 0, "broadcast_windows": 0, "late_seeds": 0}
         self._iter = 0  # consensus iterations done
         self._iter_before = 0
         self._step_rounds = 0
@@ -232,7 +259,14 @@ class AssemblyAgent:
         self._boot: dict | None = None  # cold-start state while sharing the first step's pair forms
         self._own_forms: tuple | None = None  # (step, keys, forms, pin) last shared (answers late askers)
         self._table_changed = 0  # last round the gossip table changed by more than the tolerances
-        self._booted = -1  # round whose pair phase finished the sharing of forms
+        self._hold = 0  # the ADMM of this window starts at this round (after the forms are shared)
+        self._tree: dict[str, tuple[int, int, int]] = {}  # neighbour -> (hop, parent index, round heard)
+        self._hop: int | None = 0 if config.name == config.reference else None
+        self._parent: int | None = None
+        self._tree_depth = 1  # depth of the aggregation tree in the last down bundle
+        self._down: dict | None = None  # the final set of forms of the last window (answers lost down bundles)
+        self._reannounced = -(10**9)  # step of the last re-announcement to the observers
+        self._late: dict | None = None  # a window's sharing that timed out without every agent's forms
         self._table_version = 0  # bumped on every material change of the gossip table
         self._expected: set[str] = set()  # observers whose first values a seeded start waits for
         self._table_sent: dict[str, tuple[int, int]] = {}  # neighbour -> (version, round) last sent
@@ -251,8 +285,14 @@ class AssemblyAgent:
         self._placeable = frozenset()
         self._expected = set()
         if cfg.share_forms == "every" or (cfg.share_forms == "first" and first):
-            self._boot = {"records": {}, "start": None, "sent": -(10**9), "waited": 0, "step": own.step,
-                          "pin": None}
+            self._parent, self._hop = self._tree_position()
+            me, fresh = self._index[self.name], self._tree_fresh()
+            agg = TreeAggregation(me, len(cfg.assemblies), root=self.name == cfg.reference, parent=self._parent,
+                                  children={self._index[a] for a, (_, p, r) in self._tree.items()
+                                            if p == me and self._round - r <= fresh},
+                                  start=self._round + 1, wait=cfg.patience, hop=self._hop or 0)
+            self._boot = {"records": agg.records, "agg": agg, "mode": None, "start": None, "sent": -(10**9),
+                          "waited": 0, "step": own.step, "pin": None, "start_at": 0}
             self._own_forms = None
         self._step, self._t = own.step, own.t
         self._own_config = {int(k): np.asarray(v, float) for k, v in own.config.items()}
@@ -261,9 +301,15 @@ class AssemblyAgent:
             self._odometry[own.step] = (np.asarray(own.odometry.dp, float), float(own.odometry.dtheta), w_p, w_R)
         self._seen[own.step] = self._measure(own)
         changed = self._announced is None or not _same_config(self._announced[1], self._own_config)
-        if changed or own.step - self._announced[0] >= cfg.announce_every:
+        if changed:  # a broadcast only when the configuration changes (rare: reconfiguration)
             self._outbox.append(self._announcement(BROADCAST))
             self._announced = (own.step, dict(self._own_config))
+            self._reannounced = own.step
+        elif own.step - self._reannounced >= cfg.announce_every:
+            # repairs a lost announcement: to the current observers only (others ask with a request)
+            for observer in sorted(self._observers):
+                self._outbox.append(self._announcement(observer))
+            self._reannounced = own.step
         first = max(0, own.step - cfg.window + 1)
         self._steps = list(range(first, own.step + 1))
         for store in (self._seen, self._odometry):
@@ -319,12 +365,22 @@ class AssemblyAgent:
             self._dirty = True
         elif isinstance(message, FactorShare):
             self._on_factors(message)
+        elif isinstance(message, FormBundle):
+            self._on_bundle(message)
+        elif isinstance(message, FormAck):
+            boot = self._boot
+            if boot is not None and boot["step"] == message.step and self._index.get(message.sender) == boot["agg"].parent:
+                boot["agg"].acknowledge(message.have.tolist(), self._round)
         elif isinstance(message, ConfigRequest):
             if self._step is not None and any(int(i) in self._own_config for i in message.ids):
                 self._outbox.append(self._announcement(message.sender))
         elif isinstance(message, (AdmmPrimal, AdmmDual)):
             self._merge_table(message.blocks.get("table"))
             b = message.blocks
+            tree = b.get("tree")
+            if tree is not None and tree.shape == (2,):
+                self._tree[message.sender] = (int(tree[0]), int(tree[1]), self._round)
+            self._ask(message.sender, int(message.window))
             x, meta = b.get("x"), b.get("meta")
             if x is None or meta is None or x.ndim != 2 or x.shape[1] != 8 or meta.shape != (4,):
                 self.counters["ignored"] += 1
@@ -403,11 +459,13 @@ class AssemblyAgent:
         if self._step is None:
             return
         self._round = round_index
-        if self._boot is not None or self._phase == 1 and self._booted == round_index:
-            if self._phase == 0:
-                self._bootstrap_phase()
-                if self._boot is None:
-                    self._booted = round_index  # the ADMM starts with the next round's pair phase
+        self._parent, self._hop = self._tree_position()
+        if self._phase == 0 and self._boot is None:
+            self._repair_down()
+            self._ask_down()
+        if self._boot is not None or round_index < self._hold:
+            if self._phase == 0 and self._boot is not None:
+                self._bootstrap_phase()  # when it finishes, the ADMM starts at round `_hold` (at least the next)
             self._phase = 1 - self._phase
             return
         if self._phase == 0:
@@ -426,9 +484,22 @@ class AssemblyAgent:
                                               ids=np.array(sorted(self._unknown), dtype=np.int64)))
             self._requested = self._round
 
+    def _tree_fresh(self) -> int:
+        """Rounds for which a neighbour's place in the tree is trusted (a window's sharing and ADMM fit in)."""
+        return 2 * self.config.share_timeout
+
+    def _tree_position(self) -> tuple[int | None, int | None]:
+        """(parent index, hop count to the reference) from the neighbours' recent hops (distance vector)."""
+        if self.name == self.config.reference:
+            return None, 0
+        fresh = self._tree_fresh()
+        hops = {self._index[a]: h for a, (h, _, r) in self._tree.items() if self._round - r <= fresh}
+        return choose_parent(hops, len(self.config.assemblies))
+
     def _bootstrap_phase(self) -> None:
-        """Share the window's cost forms; once every agent's are in (or on timeout) solve and seed."""
+        """Share the window's cost forms (up and down the tree, or by broadcast); then solve and seed."""
         boot, cfg = self._boot, self.config
+        agg = boot["agg"]
         if boot["start"] is None:
             boot["start"] = self._round
         if self._dirty:
@@ -447,14 +518,198 @@ class AssemblyAgent:
             if cons.pinned and cons.pin is not None:
                 pin = np.array([cons.pin[0], *cons.pin[2], cons.pin[1]])
             self._own_forms = (boot["step"], keys, flat, pin)
+            # the tree when this agent has a route to the reference (or, at the reference, children);
+            # otherwise (the cold start, a restarted agent, a side of a partition) the broadcast
+            tree = cfg.aggregation == "tree" and (agg.parent is not None or agg.root and bool(agg.children))
+            boot["mode"] = "tree" if tree else "broadcast"
+            self.counters["tree_windows" if tree else "broadcast_windows"] += 1
             # own forms go through the same packing as everyone else's, so all agents sum identical numbers
             self._on_factors(self._factor_share(self.name))
         boot["waited"] += 1
-        if self._own_forms is not None and self._round - boot["sent"] >= 3:
-            self._outbox.append(self._factor_share(BROADCAST))
-            boot["sent"] = self._round
-        if len(boot["records"]) == len(cfg.assemblies) or self._round - boot["start"] >= cfg.share_timeout:
+        elapsed = self._round - boot["start"]
+        if boot["mode"] == "tree":
+            self._tree_progress()
+            # the root finishes (partial) at the timeout; below it, agents wait longer: an agent that starts the ADMM
+            # without the set pulls its seeded neighbours off the fixed point (200+ rounds per window at 50 % loss)
+            limit = cfg.share_timeout * (1 if agg.root else 2) + (agg.hop or 0)
+        else:
+            if self._own_forms is not None and self._round - boot["sent"] >= 3:
+                self._outbox.append(self._factor_share(BROADCAST))
+                boot["sent"] = self._round
+            limit = cfg.share_timeout
+        if boot["mode"] == "broadcast" and agg.complete or agg.final or elapsed >= limit:
+            if not agg.final:
+                if boot["mode"] == "tree" and not agg.root and self._parent is not None:
+                    self._tree.pop(self.config.assemblies[self._parent], None)  # a silent parent: choose again
+                self._send_down()  # children that reported get what this agent ends with
             self._finish_bootstrap()
+
+    def _tree_progress(self) -> None:
+        """Send what the tree protocol owes now: the bundle up (or a resend), or at the root the bundle down."""
+        boot = self._boot
+        agg = boot["agg"]
+        if boot["mode"] != "tree" or agg.final:
+            return
+        if agg.root:
+            if agg.complete:
+                self._send_down()
+            return
+        if agg.up_due(self._round):
+            self._send_up(agg.take_up(self._round))
+        elif agg.resend_due(self._round, 3, max(self._tree_depth, agg.hop) + 3):
+            # (a parent that stays silent is dropped at the window's timeout; switching to the broadcast after
+            # a few unanswered resends instead cost 180-300 rounds per window at 50 % loss: it fired on loss alone)
+            self.counters["retransmits"] += 1
+            self._send_up(agg.take_resend(self._round))
+
+    def _bundle(self, receiver: str, indices, down: bool, start: int = 0, boot: dict | None = None) -> FormBundle:
+        boot = boot or self._boot
+        agg = boot["agg"]
+        records = {i: [(keys, prob.M, prob.b_z, prob.c_z) for keys, prob in agg.records[i]] for i in indices}
+        members, owners, keys, flat = pack_bundle(records)
+        ref = self._index[self.config.reference]
+        pin = boot["pin"] if boot["pin"] is not None and ref in records else np.zeros(0)
+        return FormBundle(sender=self.name, receiver=receiver, round=self._round, step=boot["step"], down=down,
+                          hop=agg.hop, parent=-1 if agg.parent is None else agg.parent, depth=agg.depth,
+                          start=start, members=members, owners=owners, keys=keys, forms=flat, pin=pin)
+
+    def _send_up(self, indices: list[int]) -> None:
+        agg = self._boot["agg"]
+        self._outbox.append(self._bundle(self.config.assemblies[agg.parent], indices, down=False))
+
+    def _send_down(self, exclude=(), start: int | None = None) -> None:
+        """The final set of this window to the children (the root: when complete or on timeout)."""
+        boot = self._boot
+        agg = boot["agg"]
+        agg.final = True
+        if start is None:  # the root: when the deepest agent will have it, everyone starts the ADMM at once
+            start = self._round + agg.depth // 2 + 2 if boot["mode"] == "tree" and agg.root else 0
+        boot["start_at"] = start
+        self._down = None
+        if self.config.aggregation != "tree":
+            return
+        targets = agg.down_targets(exclude)
+        # kept by every agent, so that any neighbour still waiting can be answered (packed when first asked)
+        self._down = {"step": boot["step"], "boot": boot, "bundle": None, "start": start, "tries": 0,
+                      "pending": {c: self._round for c in targets}}
+        for child in targets:
+            self._outbox.append(self._down_bundle(self.config.assemblies[child]))
+
+    def _down_bundle(self, receiver: str) -> FormBundle:
+        down = self._down
+        if down["bundle"] is None:
+            down["bundle"] = self._bundle(BROADCAST, sorted(down["boot"]["records"]), down=True, start=down["start"],
+                                          boot=down["boot"])
+        return self._readdressed(down["bundle"], receiver)
+
+    def _ask(self, neighbour: str, step: int) -> None:
+        """A neighbour sends ADMM values of this window, so it has finished the sharing: ask it for the set
+        (at most every other round) by sending it this agent's records, which it answers with the down bundle."""
+        wait = self._boot if self._boot is not None else self._late
+        if (wait is None or wait["step"] != step or wait["mode"] != "tree" or wait["agg"].parent is None
+                or self._round - wait.get("asked_at", -(10**9)) < 2):
+            return
+        wait["asked_at"] = self._round
+        self.counters["retransmits"] += 1
+        self._outbox.append(self._bundle(neighbour, sorted(wait["agg"].records), down=False, boot=wait))
+
+    def _ask_down(self) -> None:
+        """After a timeout without every agent's forms, keep asking the parent for the down bundle (every
+        3 rounds, at most 10 times this window): a late complete set re-seeds the window exactly."""
+        late = self._late
+        if (late is None or late["step"] != self._step or late["asked"] >= 10 or self._round - late["last"] < 3
+                or late["agg"].parent is None):
+            return
+        agg = late["agg"]
+        late["asked"] += 1
+        late["last"] = self._round
+        self.counters["retransmits"] += 1
+        self._outbox.append(self._bundle(self.config.assemblies[agg.parent], sorted(agg.records), down=False,
+                                         boot=late))
+
+    def _repair_down(self) -> None:
+        """Send the down bundle again to children not heard from in this window's ADMM (it was lost).
+
+        A child that has the down bundle starts the ADMM at its ``start`` round with everyone else, and its
+        first values reach this agent (a view-graph neighbour) a round later; a child still silent
+        2 rounds after that gets the bundle again, every 3 rounds, at most 4 times (it may no longer be a
+        neighbour; it also asks by itself)."""
+        down = self._down
+        if down is None or down["step"] != self._step or not down["pending"]:
+            return
+        for child, last in sorted(down["pending"].items()):
+            name = self.config.assemblies[child]
+            if any(store.get(name) is not None and store[name].window >= self._step
+                   for store in (self._targets_z, self._observers)):
+                del down["pending"][child]
+            elif self._round >= max(down["start"] + 2, last + 3) and down["tries"] < 4 * len(down["pending"]):
+                down["tries"] += 1
+                down["pending"][child] = self._round
+                self.counters["retransmits"] += 1
+                self._outbox.append(self._down_bundle(name))
+
+    def _readdressed(self, bundle: FormBundle, receiver: str) -> FormBundle:
+        return FormBundle(sender=self.name, receiver=receiver, round=self._round, step=bundle.step, down=True,
+                          hop=bundle.hop, parent=bundle.parent, depth=bundle.depth, start=bundle.start,
+                          members=bundle.members, owners=bundle.owners, keys=bundle.keys, forms=bundle.forms,
+                          pin=bundle.pin)
+
+    def _on_bundle(self, message: FormBundle) -> None:
+        """A bundle from a child (records up) or from the parent (the final set, down)."""
+        n = len(self.config.assemblies)
+        sender = self._index.get(message.sender)
+        if (sender is None or (len(message.keys) and message.keys[:, 1].max() >= n)
+                or (len(message.members) and message.members.max() >= n)):
+            self.counters["ignored"] += 1
+            return
+        self._tree[message.sender] = (message.hop, message.parent, self._round)
+        boot, late = self._boot, self._late
+        names = self.config.assemblies
+        records = {i: [(keys, LocalProblem(tuple((names[a], s) for a, s in keys), M, b_z, c_z))
+                       for keys, M, b_z, c_z in forms] for i, forms in message.records().items()}
+        if boot is None and late is not None and late["step"] == message.step == self._step:
+            # this window finished here without every agent's forms: what arrives late may complete it
+            agg = late["agg"]
+            if len(message.pin):
+                late["pin"] = np.array(message.pin)
+            new = agg.add(records, child=None if message.down else sender)
+            if not message.down and new and agg.parent is not None:  # the root missed them too: pass them on
+                self._outbox.append(self._bundle(names[agg.parent], sorted(new), down=False, boot=late))
+            if agg.complete:  # start again from the joint solution, and tell the children
+                self._late, self._boot = None, late
+                agg.final = False
+                self._send_down(exclude=(sender,) if message.down else (), start=0)
+                self.counters["late_seeds"] += 1
+                self._finish_bootstrap()
+            elif not message.down and self._down is not None and self._down["step"] == message.step:
+                self._outbox.append(self._down_bundle(message.sender))
+            return
+        if boot is None or message.step != boot["step"]:
+            # finished with this window: a bundle from below means the down bundle was lost: send it again
+            if not message.down and self._down is not None and self._down["step"] == message.step:
+                self._outbox.append(self._down_bundle(message.sender))
+            return
+        agg = boot["agg"]
+        if len(message.pin):
+            boot["pin"] = np.array(message.pin)
+        if message.down:
+            if agg.final:
+                return
+            agg.add(records, depth=message.depth)
+            self._tree_depth = max(1, message.depth)
+            lost = agg.missing_from(message.members.tolist())
+            if lost and agg.parent is not None:  # the root timed out without records from here: send them again
+                self._outbox.append(self._bundle(names[agg.parent], lost, down=False))
+            self._send_down(exclude=(sender,), start=message.start)  # forwarded at once: one hop per phase
+        else:
+            agg.add(records, child=sender, depth=message.depth)
+            if agg.final:  # already finished the window's sharing: the child missed the down bundle
+                if self._down is not None:
+                    self._outbox.append(self._down_bundle(message.sender))
+                return
+            self._outbox.append(FormAck(sender=self.name, receiver=message.sender, round=self._round,
+                                        step=boot["step"], have=np.array(sorted(agg.records), dtype=np.int64)))
+            self._tree_progress()
 
     def _factor_share(self, receiver: str) -> FactorShare:
         step, keys, flat, pin = self._own_forms
@@ -471,13 +726,17 @@ class AssemblyAgent:
             self.counters["ignored"] += 1
             return
         boot = self._boot
-        if boot is not None and message.step == boot["step"] and sender not in boot["records"]:
-            names = self.config.assemblies
-            boot["records"][sender] = [
-                (keys, LocalProblem(tuple((names[a], s) for a, s in keys), M, b_z, c_z))
-                for keys, M, b_z, c_z in message.unpack()]
-            if len(message.pin):
-                boot["pin"] = np.array(message.pin)
+        if boot is not None and message.step == boot["step"]:
+            names, agg = self.config.assemblies, boot["agg"]
+            if sender not in boot["records"]:
+                agg.add({sender: [(keys, LocalProblem(tuple((names[a], s) for a, s in keys), M, b_z, c_z))
+                                  for keys, M, b_z, c_z in message.unpack()]},
+                        forward=message.sender == self.name)
+                if len(message.pin):
+                    boot["pin"] = np.array(message.pin)
+            if (boot["mode"] == "tree" and message.receiver == BROADCAST and agg.parent == sender
+                    and not agg.final):
+                boot["mode"], boot["sent"] = "broadcast", -(10**9)  # the parent has no route: nor has this agent
         mine = self._own_forms
         # it lacks ours: answer directly (only broadcasts are answered, so answers never ping-pong)
         if (mine is not None and mine[0] == message.step and message.receiver == BROADCAST
@@ -488,6 +747,14 @@ class AssemblyAgent:
         """Solve the joint problem of the shared forms (:func:`decentral.admm.solve_joint`) and seed the ADMM."""
         boot = self._boot
         self._boot = None
+        self._hold = max(boot["start_at"], self._round + 1)  # the ADMM starts with a later round's pair phase
+        agg = boot["agg"]
+        self._late = None
+        if boot["mode"] == "tree" and not agg.complete:
+            self._late = dict(boot, asked=0, last=self._round)
+            # values from a partial solution would pull the neighbours that have the whole set off the exact
+            # fixed point (100-250 rounds per window at 50 % loss): stay silent while the rest may still come
+            self._hold = self._round + self.config.share_timeout
         problems = [prob for idx in sorted(boot["records"]) for _, prob in boot["records"][idx]]
         if not problems:
             return
@@ -507,6 +774,23 @@ class AssemblyAgent:
         if self._seeds_complete:
             limit = self.config.max_yaw_std if self.config.noise.weighting == "information" else np.inf
             self._placeable = joint.placeable((self.name, self._step), limit)
+            # the joint solution already gives every assembly's pose of this step: the gossip table need
+            # not cross the view graph before the convergence flag can settle (rounds flat in the diameter)
+            me = self._index[self.name]
+            for (name, step), (R, p) in seeds.items():
+                i = self._index.get(name)
+                if step == self._step and i is not None and i != me:
+                    self._table[i] = np.array([i, step, self._round, *p, np.arctan2(R[1, 0], R[0, 0])])
+            self._table_version += 1
+            self._table_changed = self._round
+            # they also reveal the whole view graph: the neighbours' places in the tree, without waiting for
+            # the distance vector to cross the graph (the next window's tree is ready at once)
+            edges = {(keys[0][0], keys[-1][0]) for idx in boot["records"] for keys, _ in boot["records"][idx]}
+            hops, parents = tree_from_edges(edges, len(self.config.assemblies), self._index[self.config.reference])
+            for a, b in edges:
+                other = b if a == me else a if b == me else None
+                if other is not None and other != me and other in hops:
+                    self._tree[self.config.assemblies[other]] = (hops[other], parents.get(other, -1), self._round)
         # the seeded duals balance only with every observer's contribution: wait for their first values
         names, me = self.config.assemblies, self._index[self.name]
         self._expected = {names[keys[0][0]] for idx in boot["records"] for keys, _ in boot["records"][idx]
@@ -593,10 +877,15 @@ class AssemblyAgent:
         self._last_ages = ages
         waited = self._waiting.get(("cons", ""), 0)
         lowest = min((it for it, _, _ in inputs), default=self._iter + 1)
+        patience = cfg.patience
         if any(a not in self._observers for a in self._expected):
             lowest = -1  # a seeded start without an observer's contribution would leave the fixed point
+            if self._seeds_complete:
+                # the observer is most likely still getting the window's forms (late under loss): leaving the
+                # exact fixed point without it cost 100-250 rounds per window at 50 % loss; wait longer
+                patience = cfg.share_timeout
         self._iter_before = self._iter
-        due = lowest >= self._iter + 1 or waited >= cfg.patience or cons.pinned and not inputs
+        due = lowest >= self._iter + 1 or waited >= patience or cons.pinned and not inputs
         if due:
             if lowest < self._iter + 1:
                 self.counters["timeouts"] += 1
@@ -636,9 +925,26 @@ class AssemblyAgent:
                 and cons.ready
                 and all(p.converged() for p in self._pairs.values())
                 and cons.change <= max(eps.eps_rot, eps.eps_pos)
-                and cons.remaining() <= eps.tail * max(eps.eps_rot, eps.eps_pos)
+                and (cons.remaining() <= eps.tail * max(eps.eps_rot, eps.eps_pos) or self._near_seeds())
                 and self._fresh_pairs
             )
+
+    def _near_seeds(self) -> bool:
+        """With every agent's forms, the window started at the joint solution (the fixed point): the
+        consensus staying within the ADMM tolerances of it is convergence, whatever the tail estimate
+        (which, on changes at the solver's precision, ~1e-7, can predict a long way still to go)."""
+        if not self._seeds_complete:
+            return False
+        eps = self.config.admm
+        for k, (R, p) in self._consensus.z.items():
+            seed = self._seeds.get((self.name, k))
+            if seed is None:
+                return False
+            R0, p0 = seed
+            dyaw = abs(wrap_angle(np.arctan2(R[1, 0], R[0, 0]) - np.arctan2(R0[1, 0], R0[0, 0])))
+            if dyaw > eps.eps_rot or np.abs(p - p0).max() > eps.eps_pos:
+                return False
+        return True
 
     def _remote_steps(self) -> set[int]:
         """Steps at which an observer holds copies of this assembly (factors it cannot see itself)."""
@@ -657,7 +963,10 @@ class AssemblyAgent:
         return blocks
 
     def _with_table(self, blocks: dict, receiver: str) -> dict:
-        """``blocks`` plus the gossip table if it changed since it last went to ``receiver`` (or is due)."""
+        """``blocks`` plus the sender's place in the aggregation tree (``tree``: hop to the reference, parent;
+        -1 for none) and the gossip table if it changed since it last went to ``receiver`` (or is due)."""
+        blocks = dict(blocks, tree=np.array([-1 if self._hop is None else self._hop,
+                                             -1 if self._parent is None else self._parent], float))
         if not self._table:
             return blocks
         version, when = self._table_sent.get(receiver, (-1, -(10**9)))

@@ -57,6 +57,9 @@ class AdmmRunConfig:
     share_forms : {"first", "every", "never"}
         When the agents share their cost forms and start the ADMM at the joint solution
         (:class:`agents.assembly.AgentConfig`): the cold start only, every step (default), or never.
+    aggregation : {"tree", "broadcast"}
+        How the forms travel once agents know their route to the reference: up and down a spanning
+        tree of the view graph (default) or broadcast by every agent (the cold start's way).
     """
 
     window: int = 5
@@ -74,6 +77,7 @@ class AdmmRunConfig:
     partitions: tuple[Partition, ...] = ()
     announce_every: int = 5
     share_forms: str = "every"
+    aggregation: str = "tree"
 
     def __post_init__(self) -> None:
         if not (isinstance(self.window, int) and self.window >= 1):
@@ -127,7 +131,8 @@ def _agent_config(log: ObservationLog, name: str, reference: str, config: AdmmRu
     cams = tuple(cam for cam in log.cameras.values() if cam.assembly == name)
     return AgentConfig(name=name, assemblies=tuple(log.assemblies), reference=reference, cameras=cams,
                        node_radius=log.node_radius, noise=config.noise, window=config.window, admm=config.admm,
-                       announce_every=config.announce_every, share_forms=config.share_forms)
+                       announce_every=config.announce_every, share_forms=config.share_forms,
+                       aggregation=config.aggregation)
 
 
 def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunConfig = AdmmRunConfig(),
@@ -163,8 +168,17 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
     rounds, converged, per_agent, est_steps = [], [], [], []
     restarts = {n: 0 for n in names}
     tick_seconds = 0.0
+    position = {n: i for i, n in enumerate(names)}
+    per_step: list[dict] = []  # per step: kind -> copies sent by each agent (names order)
+
+    def send(message, when, counts):
+        net.send(message, when)
+        row = counts.setdefault(message.KIND, [0] * len(names))
+        row[position[message.sender]] += len(names) - 1 if message.is_broadcast else 1
     for k in range(len(log.steps)):
         t = now()
+        counts: dict[str, list[int]] = {}
+        per_step.append(counts)
         for n in names:
             down = net.is_down(n, t)
             if was_down[n] and not down:
@@ -174,7 +188,7 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
             if not down:
                 agents[n].on_step(own_step(log, n, k))
                 for m in agents[n].outbox():
-                    net.send(m, t)
+                    send(m, t, counts)
         streak = r = 0
         while r < config.max_rounds:
             for _phase in (0, 1):
@@ -189,7 +203,7 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
                         agent.handle(delivery.message)
                     agent.tick(rounds_global)
                     for m in agent.outbox():
-                        net.send(m, t)
+                        send(m, t, counts)
                 tick_seconds += time.perf_counter() - t0
             r += 1
             rounds_global += 1
@@ -233,11 +247,13 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
             for n in names
         },
         "messages": transport,
+        "messages_per_step": [{kind: row for kind, row in sorted(c.items())} for c in per_step],
         "seconds": seconds,
         "seconds_per_round": tick_seconds / max(total_rounds, 1),
         "admm": {"rho0": config.admm.rho0, "mu": config.admm.mu, "tau": config.admm.tau,
                  "alpha": config.admm.alpha, "metric": config.admm.metric, "metric_floor": config.admm.metric_floor,
-                 "eps_rot": config.admm.eps_rot, "eps_pos": config.admm.eps_pos, "share_forms": config.share_forms},
+                 "eps_rot": config.admm.eps_rot, "eps_pos": config.admm.eps_pos, "share_forms": config.share_forms,
+                 "aggregation": config.aggregation},
     }
     estimate = Estimate(reference, tuple(est_steps), stats)
     return AdmmRun(estimate, tuple(rounds), tuple(converged), tuple(per_agent), stats)

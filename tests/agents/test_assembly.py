@@ -8,7 +8,7 @@ import pytest
 
 from agents.assembly import AgentConfig, AssemblyAgent
 from decentral.errors import InputError, ProtocolError
-from protocols.admm_messages import ConfigAnnounce, ConfigRequest, FactorShare, pack_forms
+from protocols.admm_messages import ConfigAnnounce, ConfigRequest, FactorShare, FormBundle, pack_forms
 from protocols.messages import BROADCAST, AdmmDual, AdmmPrimal, decode
 from sims.admm_run import own_step
 from sims.scenarios import get_scenario, simulate
@@ -207,3 +207,108 @@ def test_agents_do_not_import_the_simulator_or_ground_truth():
     code = "import sys, agents.assembly; print(any(m == 'sims' or m.startswith(('sims.', 'cv2', 'pettingzoo')) for m in sys.modules))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def _drive(agents, step, log, rounds):
+    """Run `agents` through log step `step` for `rounds` rounds, delivering every message by the next phase."""
+    names = list(agents)
+    sent = []
+    inbox = {n: [] for n in names}
+
+    def post(msgs):
+        for m in msgs:
+            sent.append(m)
+            for r in (names if m.receiver == BROADCAST else [m.receiver]):
+                if r != m.sender:
+                    inbox[r].append(m)
+
+    for a in agents.values():
+        a.on_step(own_step(log, a.name, step))
+        post(a.outbox())
+    start = 100 * step
+    for r in range(start, start + rounds):
+        for _phase in (0, 1):
+            now = {n: inbox[n] for n in names}
+            for n in names:
+                inbox[n] = []
+            for n in names:
+                for m in now[n]:
+                    agents[n].handle(m)
+                agents[n].tick(r)
+                post(agents[n].outbox())
+    return sent
+
+
+def _tree_agents(log):
+    agents = {n: _agent(log, n, share_forms="every") for n in log.assemblies}
+    cold = _drive(agents, 0, log, 12)
+    return agents, cold
+
+
+def test_after_a_complete_window_the_forms_go_up_the_tree_not_by_broadcast(log):
+    """Step 0 broadcasts (no routes yet); at step 1 each non-reference agent sends one admm.bundle up, to its
+    parent (the neighbour nearest the reference), nobody broadcasts, and all seed the same joint solution."""
+    agents, cold = _tree_agents(log)
+    assert any(isinstance(m, FactorShare) and m.receiver == BROADCAST for m in cold)
+    sent = _drive(agents, 1, log, 12)
+    assert not any(m.receiver == BROADCAST for m in sent)
+    ups = [m for m in sent if isinstance(m, FormBundle) and not m.down]
+    assert sorted(m.sender for m in ups) == sorted(n for n in log.assemblies if n != "A0")
+    for m in ups:
+        assert m.receiver == log.assemblies[agents[m.sender]._parent] and m.hop >= 1
+    seeds = [a._seeds for a in agents.values()]
+    assert seeds[0] and all(s.keys() == seeds[0].keys() for s in seeds)
+    for key in seeds[0]:
+        assert all(np.array_equal(s[key][1], seeds[0][key][1]) for s in seeds[1:])
+
+
+def test_a_bundle_from_below_after_the_window_is_answered_with_the_down_bundle(log):
+    """A child's resend that reaches a parent already done with the window (the down bundle was lost) gets
+    the down bundle again, directly."""
+    agents, _ = _tree_agents(log)
+    sent = _drive(agents, 1, log, 12)
+    up = next(m for m in sent if isinstance(m, FormBundle) and not m.down)
+    parent = agents[up.receiver]
+    parent.outbox()
+    parent.handle(up)
+    answer = parent.outbox()
+    assert len(answer) == 1 and isinstance(answer[0], FormBundle) and answer[0].down
+    assert answer[0].receiver == up.sender and len(answer[0].members) == len(log.assemblies)
+
+
+def test_a_broadcast_from_its_parent_turns_a_tree_agent_to_broadcasting(log):
+    """A parent that broadcasts its forms has no route: its child stops waiting for the tree and broadcasts too."""
+    agents, _ = _tree_agents(log)
+    child = next(a for a in agents.values() if a._parent is not None)
+    parent = log.assemblies[child._parent]
+    child.on_step(own_step(log, child.name, 1))
+    child.tick(200)
+    child.outbox()
+    assert child._boot["mode"] == "tree"
+    other = agents[parent]
+    other.on_step(own_step(log, parent, 1))
+    other._tree, other._parent, other._hop = {}, None, None  # as if restarted: no route
+    other._boot["agg"].parent = other._boot["agg"].root = None
+    other.tick(200)
+    share = next(m for m in other.outbox() if isinstance(m, FactorShare) and m.receiver == BROADCAST)
+    child.handle(share)
+    child.tick(201)
+    child.tick(202)
+    assert child._boot["mode"] == "broadcast"
+    assert any(isinstance(m, FactorShare) and m.receiver == BROADCAST for m in child.outbox())
+
+
+def test_configuration_is_re_announced_to_observers_only(log):
+    """An unchanged configuration is re-announced every `announce_every` steps to the current observers
+    by unicast, never broadcast again."""
+    agents, cold = _tree_agents(log)
+    assert sum(isinstance(m, ConfigAnnounce) and m.receiver == BROADCAST for m in cold) == len(log.assemblies)
+    a = agents["A1"]
+    observers = set(a._observers)
+    assert observers
+    a.on_step(own_step(log, "A1", 1))
+    assert not [m for m in a.outbox() if isinstance(m, ConfigAnnounce)]
+    a._reannounced -= a.config.announce_every
+    a.on_step(own_step(log, "A1", 1))
+    anns = [m for m in a.outbox() if isinstance(m, ConfigAnnounce)]
+    assert {m.receiver for m in anns} == observers

@@ -91,6 +91,36 @@ def test_a_view_graph_with_chords_matches_the_centralized_estimate():
     _check_matches(6, 4, sim=sim)
 
 
+#: steady-state bound: messages per agent per window <= C * degree + D, the same constants for every n
+C_PER_NEIGHBOUR, D_CONSTANT = 6, 2
+
+
+def _check_neighbour_local(n, steps=3):
+    """Exact, and after the cold start (step 0) every window's traffic per agent is within C * degree + D."""
+    run = _check_matches(n, steps, max_rounds=100)
+    names = list(run.stats["agents"])
+    degree = np.array([len(run.stats["agents"][a]["neighbours"]) for a in names])
+    assert degree.min() >= 1
+    for counts in run.stats["messages_per_step"][1:]:
+        assert "admm.factors" not in counts and "admm.config" not in counts  # nothing broadcast
+        sent = np.sum([row for row in counts.values()], axis=0)
+        assert np.all(sent <= C_PER_NEIGHBOUR * degree + D_CONSTANT), (sent, degree)
+    assert all(a["tree_windows"] == steps - 1 for a in run.stats["agents"].values())
+    return run
+
+
+@pytest.mark.parametrize("n", [4, 8])
+def test_steady_state_messages_per_agent_grow_with_its_degree_not_with_the_ring(n):
+    """4- and 8-ring, no loss: after the cold start each agent sends <= 6 * degree + 2 messages per window, exactly."""
+    _check_neighbour_local(n)
+
+
+@pytest.mark.slow
+def test_sixteen_ring_steady_state_messages_per_agent_stay_within_the_degree_bound():
+    """16 assemblies, 5 steps, no loss: the same bound (6 * degree + 2 per agent and window) and exact."""
+    _check_neighbour_local(16, steps=5)
+
+
 def test_runs_are_reproducible_from_the_seed():
     """Same seed, same lossy run: identical estimates and message counts."""
     sim = _sim(2, 2)
