@@ -590,8 +590,8 @@ class AssemblyAgent:
             return
         targets = agg.down_targets(exclude)
         # kept by every agent, so that any neighbour still waiting can be answered (packed when first asked)
-        self._down = {"step": boot["step"], "boot": boot, "bundle": None, "start": start, "tries": 0,
-                      "pending": {c: self._round for c in targets}}
+        self._down = {"step": boot["step"], "boot": boot, "bundle": None, "start": start,
+                      "pending": {c: (self._round, 0) for c in targets}}  # child -> (last sent, resends)
         for child in targets:
             self._outbox.append(self._down_bundle(self.config.assemblies[child]))
 
@@ -637,14 +637,13 @@ class AssemblyAgent:
         down = self._down
         if down is None or down["step"] != self._step or not down["pending"]:
             return
-        for child, last in sorted(down["pending"].items()):
+        for child, (last, tries) in sorted(down["pending"].items()):
             name = self.config.assemblies[child]
             if any(store.get(name) is not None and store[name].window >= self._step
                    for store in (self._targets_z, self._observers)):
                 del down["pending"][child]
-            elif self._round >= max(down["start"] + 2, last + 3) and down["tries"] < 4 * len(down["pending"]):
-                down["tries"] += 1
-                down["pending"][child] = self._round
+            elif self._round >= max(down["start"] + 2, last + 3) and tries < 4:
+                down["pending"][child] = (self._round, tries + 1)
                 self.counters["retransmits"] += 1
                 self._outbox.append(self._down_bundle(name))
 
@@ -965,8 +964,9 @@ class AssemblyAgent:
     def _with_table(self, blocks: dict, receiver: str) -> dict:
         """``blocks`` plus the sender's place in the aggregation tree (``tree``: hop to the reference, parent;
         -1 for none) and the gossip table if it changed since it last went to ``receiver`` (or is due)."""
-        blocks = dict(blocks, tree=np.array([-1 if self._hop is None else self._hop,
-                                             -1 if self._parent is None else self._parent], float))
+        if self.config.aggregation == "tree":
+            blocks = dict(blocks, tree=np.array([-1 if self._hop is None else self._hop,
+                                                 -1 if self._parent is None else self._parent], float))
         if not self._table:
             return blocks
         version, when = self._table_sent.get(receiver, (-1, -(10**9)))

@@ -92,7 +92,8 @@ def test_a_view_graph_with_chords_matches_the_centralized_estimate():
 
 
 #: steady-state bound: messages per agent per window <= C * degree + D, the same constants for every n
-C_PER_NEIGHBOUR, D_CONSTANT = 6, 2
+#: (measured on 2-64 assemblies: at most 6.1 per neighbour; 10 with one neighbour, both target and observer)
+C_PER_NEIGHBOUR, D_CONSTANT = 6, 4
 
 
 def _check_neighbour_local(n, steps=3):
@@ -109,16 +110,22 @@ def _check_neighbour_local(n, steps=3):
     return run
 
 
-@pytest.mark.parametrize("n", [4, 8])
+@pytest.mark.parametrize("n", [2, 4, 8])
 def test_steady_state_messages_per_agent_grow_with_its_degree_not_with_the_ring(n):
-    """4- and 8-ring, no loss: after the cold start each agent sends <= 6 * degree + 2 messages per window, exactly."""
+    """2-, 4- and 8-ring, no loss: after the cold start each agent sends <= 6 * degree + 4 messages per window, exactly."""
     _check_neighbour_local(n)
 
 
 @pytest.mark.slow
 def test_sixteen_ring_steady_state_messages_per_agent_stay_within_the_degree_bound():
-    """16 assemblies, 5 steps, no loss: the same bound (6 * degree + 2 per agent and window) and exact."""
+    """16 assemblies, 5 steps, no loss: the same bound (6 * degree + 4 per agent and window) and exact."""
     _check_neighbour_local(16, steps=5)
+
+
+def test_broadcast_aggregation_shares_the_forms_by_broadcast_every_window():
+    """aggregation='broadcast' (the previous default): admm.factors every window, no bundle, still exact."""
+    run = _check_matches(3, 3, aggregation="broadcast")
+    assert all("admm.factors" in c and "admm.bundle" not in c for c in run.stats["messages_per_step"])
 
 
 def test_runs_are_reproducible_from_the_seed():
