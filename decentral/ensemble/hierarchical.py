@@ -8,7 +8,9 @@ threshold the cut is computed on an abstraction of the graph (random leaders, ho
 order of the number of observations linking them to what is already merged.
 
 Subproblems are extracted from their parent's, never from the whole problem, so the work per level
-is linear in the observations and the total is O(E log n) plus the refinements.
+is linear in the observations and the total is O(E log n) plus the refinements. Below the top, a
+merge refines by default only its seam (the modules near the crossing observations, inside a held
+ring), so the refinement work per level follows the seams, not the level's size.
 """
 
 from __future__ import annotations
@@ -30,12 +32,18 @@ __all__ = [
     "HierarchyConfig",
     "HierarchyNode",
     "LocalizationResult",
+    "SeamBand",
+    "seam_band",
     "normcut_localize",
     "split",
     "merge_parts",
     "layout_components",
     "localize_components",
 ]
+
+
+#: refiners whose levels may be refined on the seam only (see ``HierarchyConfig.seam_hops``)
+SEAM_METHODS = ("lbfgs", "alternating")
 
 
 @dataclass(frozen=True)
@@ -54,16 +62,29 @@ class HierarchyConfig:
     abstract_size : int
         Number of leaders (abstract nodes) per abstraction (seed 003 Fig. 7: 20 or more suffice).
     level_refine : RefineConfig
-        Refinement after each merge below the top (Algorithm 1 line 11).
+        Refinement of each leaf and after each merge below the top (Algorithm 1 lines 2 and 11).
+        Default: L-BFGS on the centres (:func:`~decentral.ensemble.refine.refine`, ``"lbfgs"``)
+        to a largest gradient entry of 1e-3 radii.
     final_refine : RefineConfig
-        Refinement of the whole ensemble (the top merge).
+        Refinement of the whole ensemble (the top merge): L-BFGS to 1e-6 radii, at most 300
+        iterations.
+    seam_hops : int
+        Below the top, refine only the seam of each merge: the modules within this many hops of an
+        observation that crosses the cut, inside a ring of their neighbours held fixed (both parts
+        were refined at their own level; the likelihood changed only through the crossing
+        observations). ``0`` refines every module of the level, as the seed does. Applies to the
+        ``"lbfgs"`` and ``"alternating"`` refiners, whose Laplacian solves at the top carry any
+        correction left in the interiors across the whole ensemble in one step; ``"pcg"`` and
+        ``"lm"`` levels are always refined in full (the seed's protocol: PCG moves information one
+        contact per iteration).
     """
 
     leaf_size: int = 64
     cut: str = "abstract"
     abstract_size: int = 64
-    level_refine: RefineConfig = RefineConfig(max_iter=100, gtol=1e-3)
-    final_refine: RefineConfig = RefineConfig(max_iter=300, gtol=1e-6)
+    level_refine: RefineConfig = RefineConfig(max_iter=100, gtol=1e-3, method="lbfgs", history=30)
+    final_refine: RefineConfig = RefineConfig(max_iter=300, gtol=1e-6, method="lbfgs", history=30)
+    seam_hops: int = 2
 
 
 @dataclass(frozen=True)
@@ -172,6 +193,43 @@ def merge_parts(sub: EnsembleProblem, part: np.ndarray, poses: list[tuple[np.nda
     return pos, rot
 
 
+@dataclass(frozen=True)
+class SeamBand:
+    """Modules refined after a merge (``free``) and the ring around them held fixed (``ring``), bool (n,)."""
+
+    free: np.ndarray
+    ring: np.ndarray
+
+
+def seam_band(sub: EnsembleProblem, part: np.ndarray, hops: int) -> SeamBand | None:
+    """The modules within ``hops`` hops of an observation crossing between parts, and their outer ring.
+
+    Parameters
+    ----------
+    sub : EnsembleProblem
+    part : ndarray of int, shape (n,)
+        Part index of each module.
+    hops : int
+        Breadth of the band (0 = the crossing modules themselves).
+
+    Returns
+    -------
+    SeamBand, or None when the band and its ring cover every module (then the whole set is
+    refined, which is the same problem).
+    """
+    adj = sub.adjacency()
+    free = np.zeros(sub.n, dtype=bool)
+    cross = part[sub.i] != part[sub.j]
+    free[sub.i[cross]] = True
+    free[sub.j[cross]] = True
+    for _ in range(hops):  # breadth-first growth, one sparse product per hop
+        free |= (adj @ free.astype(np.float64)) > 0
+    ring = ((adj @ free.astype(np.float64)) > 0) & ~free
+    if (free | ring).all():
+        return None
+    return SeamBand(free, ring)
+
+
 def _reverse(sub: EnsembleProblem) -> np.ndarray:
     n = sub.n
     key = sub.i * n + sub.j
@@ -222,12 +280,23 @@ class _Run:
             kids.append(cid)
         pos, rot = merge_parts(sub, part, poses)
         # line 11: refine the union starting from the aligned parts
-        res = refine(sub, pos, rot, rcfg)
-        self.iters[nodes] += res.iterations
+        band = None
+        if not top and cfg.seam_hops > 0 and rcfg.method in SEAM_METHODS:
+            band = seam_band(sub, part, cfg.seam_hops)
+        if band is None:
+            res = refine(sub, pos, rot, rcfg)
+            pos, rot = res.position, res.rotation
+            self.iters[nodes] += res.iterations
+        else:
+            # only the seam moved out of its parts' optima: refine it inside a held ring
+            local = np.flatnonzero(band.free | band.ring)
+            res = refine(sub.subproblem(local), pos[local], rot[local], rcfg, fixed=band.ring[local])
+            pos[local], rot[local] = res.position, res.rotation
+            self.iters[nodes[band.free]] += res.iterations
         if res.status == "stalled":
             self.bad.append(f"merge of {sub.n} modules: {res.status}")
         self.tree.append(HierarchyNode(nodes, level, tuple(kids), value, res.iterations, res.status))
-        return res.position, res.rotation, len(self.tree) - 1
+        return pos, rot, len(self.tree) - 1
 
 
 def layout_components(positions: list[np.ndarray], radius: float) -> list[np.ndarray]:

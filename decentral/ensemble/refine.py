@@ -13,6 +13,15 @@ Three methods, all on the sparse structure of the contact graph and fully vector
     Levenberg-Marquardt on the full Jacobian (positions and orientation increments), one sparse LU
     per iteration: quadratic convergence, but the factorization of the coupled system fills in
     about 27 times more than the Laplacian's, so it is only used for small problems.
+``"lbfgs"``
+    The same reduced problem as ``"alternating"`` — the orientations are fitted in closed form to
+    the centres, so the likelihood becomes a function F(c) of the centres alone, whose gradient is
+    the position gradient at the fitted orientations — minimized by limited-memory BFGS whose
+    initial inverse Hessian is the exact one of the position block, 4 L^-1 (so its first step
+    is the plain alternating sweep), with a backtracking (Armijo) line search. Its curvature pairs
+    learn the soft collective modes (a 3D solid twisting about the thin rods that join its
+    chambers) that make Anderson-mixed sweeps advance in plateaus. One Laplacian solve and
+    usually one orientation fit per iteration.
 ``"pcg"``
     Preconditioned nonlinear conjugate gradient, the refiner of seed 003 §VI-B/E: O(E) per
     iteration, no factorization, so it undoes errors far from where they are corrected only slowly
@@ -45,7 +54,8 @@ class RefineConfig:
     ----------
     max_iter : int
         Maximum number of iterations: linear solves (accepted or rejected steps) for
-        ``"alternating"`` and ``"lm"``, conjugate-gradient steps for ``"pcg"``.
+        ``"alternating"`` and ``"lm"``, quasi-Newton steps for ``"lbfgs"``, conjugate-gradient
+        steps for ``"pcg"``.
     gtol : float
         Stop when the largest gradient entry (in module radii) is below this (seed 003 §VI-B stops
         each level at a fixed gradient norm).
@@ -54,9 +64,10 @@ class RefineConfig:
     damping : float
         Initial Levenberg-Marquardt damping (relative to the diagonal of J^T J), ``"lm"`` only.
     method : str
-        ``"alternating"``, ``"lm"`` or ``"pcg"``.
+        ``"alternating"``, ``"lbfgs"``, ``"lm"`` or ``"pcg"``.
     history : int
-        Anderson mixing depth (``"alternating"`` only; 0 disables acceleration).
+        Anderson mixing depth (``"alternating"``; 0 disables acceleration), or the number of
+        curvature pairs kept by ``"lbfgs"``.
     gnorm : str
         How ``gtol`` measures the gradient (in module radii): ``"max"``, its largest entry;
         ``"l2"``, its Euclidean norm, the "norm of the gradient" of seed 003 §VI-B. The gradient is
@@ -158,18 +169,27 @@ class LaplacianSolver:
     n : int
     i, j : ndarray of int, shape (E,)
         Directed observations.
+    adjacency : scipy.sparse matrix, shape (n, n), optional
+        The contact graph (built from ``i``, ``j`` when not given).
+    fixed : ndarray of bool, shape (n,), optional
+        Modules whose centres are held at ``current`` in :meth:`solve` (Dirichlet nodes); a
+        component with none of them still gets its first node held.
     """
 
-    def __init__(self, n: int, i: np.ndarray, j: np.ndarray, adjacency: sparse.csr_matrix | None = None):
+    def __init__(self, n: int, i: np.ndarray, j: np.ndarray, adjacency: sparse.csr_matrix | None = None,
+                 fixed: np.ndarray | None = None):
         from scipy.sparse.csgraph import connected_components
 
         self.n, self.i, self.j = n, i, j
         if adjacency is None:
             adjacency = sparse.csr_matrix((np.ones(i.size), (i, j)), shape=(n, n))
         _, labels = connected_components(adjacency, directed=False)
-        free = np.ones(n, dtype=bool)
+        free = np.ones(n, dtype=bool) if fixed is None else ~np.asarray(fixed, dtype=bool)
+        # a component without a held module gets one (the problem is translation invariant)
+        anchored = np.zeros(int(labels.max()) + 1 if n else 0, dtype=bool)
+        anchored[labels[~free]] = True
         _, idx = np.unique(labels, return_index=True)
-        free[idx] = False
+        free[idx[~anchored]] = False
         self.free = free
         index = np.cumsum(free) - 1
         deg = np.bincount(i, minlength=n) + np.bincount(j, minlength=n)
@@ -300,14 +320,29 @@ def _no_observations(x: np.ndarray, R: np.ndarray, s: float) -> RefineResult:
 
 
 def _refine_alternating(problem: EnsembleProblem, position: np.ndarray, rotation: np.ndarray,
-                        config: RefineConfig) -> RefineResult:
+                        config: RefineConfig, fixed: np.ndarray | None = None) -> RefineResult:
     n, d, s = problem.n, problem.dim, problem.radius
     i, j = problem.i, problem.j
     z, x, R0 = _in_radii(problem, position, rotation)
     if i.size == 0:
         return _no_observations(x, R0, s)
-    lap = LaplacianSolver(n, i, j, problem.adjacency())
+    lap = LaplacianSolver(n, i, j, problem.adjacency(), fixed)
     rots = (_Rotations2D if d == 2 else _Rotations3D)(i, z, n)
+    held = None if fixed is None else np.flatnonzero(fixed)
+    if held is not None:
+        held_state = rots.from_matrices(R0)[held].copy()
+
+    def fit(half):  # local step; held modules keep their given orientations
+        state = rots.fit(half)
+        if held is not None:
+            state[held] = held_state
+        return state
+
+    def gradient(r):  # position gradient of the free modules (held ones do not move)
+        g = _position_gradient(n, d, i, j, r)
+        if held is not None:
+            g[held] = 0.0
+        return g
 
     def evaluate(half, state):  # half = (c_j - c_i) / 2 per observation
         rz = rots.apply(state)
@@ -317,7 +352,7 @@ def _refine_alternating(problem: EnsembleProblem, position: np.ndarray, rotation
     def energy(c):  # best orientations for the centres c (local step) and the resulting cost
         half = c[j] - c[i]
         half *= 0.5
-        return evaluate(half, rots.fit(half))
+        return evaluate(half, fit(half))
 
     # start from the given orientations if they are better than the fitted ones
     R, rz, r, E = energy(x)
@@ -329,7 +364,7 @@ def _refine_alternating(problem: EnsembleProblem, position: np.ndarray, rotation
     f_prev = g_prev = None
     it = 0
     status = "max_iter"
-    gnorm = _norm(_position_gradient(n, d, i, j, r), config.gnorm)
+    gnorm = _norm(gradient(r), config.gnorm)
     while it < config.max_iter:
         if gnorm <= config.gtol or E <= 1e-30:
             status = "converged"
@@ -365,7 +400,7 @@ def _refine_alternating(problem: EnsembleProblem, position: np.ndarray, rotation
             R_new, rz_new, r_new, E_new = energy(g)
         decrease = (E - E_new) / max(E, 1e-300)
         x, R, rz, r, E = x_new, R_new, rz_new, r_new, E_new
-        gnorm = _norm(_position_gradient(n, d, i, j, r), config.gnorm)
+        gnorm = _norm(gradient(r), config.gnorm)
         if gnorm <= config.gtol or E <= 1e-30 or 0 <= decrease < config.ftol:
             status = "converged"
             break
@@ -373,7 +408,7 @@ def _refine_alternating(problem: EnsembleProblem, position: np.ndarray, rotation
 
 
 def refine(problem: EnsembleProblem, position: np.ndarray, rotation: np.ndarray,
-           config: RefineConfig = RefineConfig()) -> RefineResult:
+           config: RefineConfig = RefineConfig(), fixed: np.ndarray | None = None) -> RefineResult:
     """Maximize the likelihood (seed 003 eq. 3) starting from ``position`` (n, d), ``rotation`` (n, d, d).
 
     Parameters
@@ -384,22 +419,137 @@ def refine(problem: EnsembleProblem, position: np.ndarray, rotation: np.ndarray,
     rotation : ndarray, shape (n, dim, dim)
         Initial orientations.
     config : RefineConfig
+    fixed : ndarray of bool, shape (n,), optional
+        Modules held at their given pose (``"alternating"`` and ``"lbfgs"``): the likelihood is maximized over
+        the other modules, with every observation still counted. Used to refine the seam of a merge
+        inside a ring of already refined modules (:class:`~decentral.ensemble.HierarchyConfig`
+        ``seam_hops``).
 
     Returns
     -------
     RefineResult
         The best estimate found, never NaN; a numerical failure ends the iteration with status
-        ``"stalled"`` at the best point so far.
+        ``"stalled"`` at the best point so far. With ``fixed``, the gradient norm is over the free
+        modules.
     """
     if config.gnorm not in ("max", "l2"):
         raise ValueError(f"unknown gradient norm {config.gnorm!r} (max or l2)")
+    if fixed is not None:
+        fixed = np.asarray(fixed, dtype=bool)
+        if fixed.shape != (problem.n,):
+            raise ValueError(f"fixed has shape {fixed.shape}, expected ({problem.n},)")
+        if config.method == "alternating":
+            return _refine_alternating(problem, position, rotation, config, fixed)
+        if config.method == "lbfgs":
+            return _refine_lbfgs(problem, position, rotation, config, fixed)
+        raise ValueError(f"held modules need the alternating or lbfgs refiner, not {config.method!r}")
     if config.method == "lm":
         return _refine_lm(problem, position, rotation, config)
     if config.method == "alternating":
         return _refine_alternating(problem, position, rotation, config)
     if config.method == "pcg":
         return _refine_pcg(problem, position, rotation, config)
+    if config.method == "lbfgs":
+        return _refine_lbfgs(problem, position, rotation, config)
     raise ValueError(f"unknown refinement method {config.method!r}")
+
+
+def _refine_lbfgs(problem: EnsembleProblem, position: np.ndarray, rotation: np.ndarray,
+                  config: RefineConfig, fixed: np.ndarray | None = None) -> RefineResult:
+    """L-BFGS on the centres with the orientations fitted in closed form (variable projection).
+
+    F(c) = min_R cost(c, R); by the envelope theorem its gradient is the position gradient at the
+    fitted orientations. The initial inverse Hessian is 4 L^-1, the exact inverse of the position
+    block (cost = (1/8) |B c - 2 R z|^2 for fixed R, B the incidence matrix, L = B^T B), applied
+    with the factorized Laplacian; one module per component is held (translation gauge).
+    """
+    n, d, s = problem.n, problem.dim, problem.radius
+    i, j = problem.i, problem.j
+    z, x, R0 = _in_radii(problem, position, rotation)
+    if i.size == 0:
+        return _no_observations(x, R0, s)
+    lap = LaplacianSolver(n, i, j, problem.adjacency(), fixed)
+    rots = (_Rotations2D if d == 2 else _Rotations3D)(i, z, n)
+    free = lap.free
+    held = None if fixed is None else np.flatnonzero(fixed)
+    if held is not None:
+        held_state = rots.from_matrices(R0)[held].copy()
+
+    def reduced(c):  # F(c), its gradient (n, d) and the fitted orientations (held ones kept)
+        half = c[j] - c[i]
+        half *= 0.5
+        state = rots.fit(half)
+        if held is not None:
+            state[held] = held_state
+        r = rots.apply(state) - half
+        g = _position_gradient(n, d, i, j, r)
+        g[~free] = 0.0
+        return 0.5 * float(np.einsum("ea,ea->", r, r)), g, state
+
+    def h0(v):  # 4 L^-1 v on the free modules
+        out = np.zeros_like(v)
+        if lap.lu is not None:
+            out[free] = 4.0 * lap.lu.solve(np.ascontiguousarray(v[free]))
+        return out
+
+    E, g, state = reduced(x)  # the closed-form fit is never worse than the given orientations
+    S: list[np.ndarray] = []
+    Y: list[np.ndarray] = []
+    rho: list[float] = []
+    it = 0
+    status = "max_iter"
+    gnorm = _norm(g, config.gnorm)
+    while it < config.max_iter:
+        if gnorm <= config.gtol or E <= 1e-30:
+            status = "converged"
+            break
+        it += 1
+        # two-loop recursion: p = -H g
+        q = g.copy()
+        alphas = []
+        for sk, yk, rk in zip(reversed(S), reversed(Y), reversed(rho)):
+            a = rk * float(np.vdot(sk, q))
+            alphas.append(a)
+            q -= a * yk
+        p = h0(q)
+        for sk, yk, rk, a in zip(S, Y, rho, reversed(alphas)):
+            p += (a - rk * float(np.vdot(yk, p))) * sk
+        p = -p
+        slope = float(np.vdot(g, p))
+        if not slope < 0:  # the memory lost positive definiteness numerically: restart
+            S, Y, rho = [], [], []
+            p = -h0(g)
+            slope = float(np.vdot(g, p))
+            if not slope < 0:
+                status = "stalled"
+                break
+        t = 1.0
+        for _ in range(30):
+            x_new = x + t * p
+            E_new, g_new, state_new = reduced(x_new)
+            if E_new <= E + 1e-4 * t * slope:
+                break
+            t *= 0.5
+        else:
+            status = "stalled"
+            break
+        sk, yk = x_new - x, g_new - g
+        sy = float(np.vdot(sk, yk))
+        if sy > 1e-12 * float(np.vdot(yk, yk)):  # keep only pairs with positive curvature
+            S.append(sk)
+            Y.append(yk)
+            rho.append(1.0 / sy)
+            if len(S) > max(config.history, 1):
+                S.pop(0)
+                Y.pop(0)
+                rho.pop(0)
+        decrease = (E - E_new) / max(E, 1e-300)
+        x, E, g, state = x_new, E_new, g_new, state_new
+        gnorm = _norm(g, config.gnorm)
+        if gnorm <= config.gtol or E <= 1e-30 or 0 <= decrease < config.ftol:
+            status = "converged"
+            break
+    return RefineResult(x * s, rots.to_matrices(state), E * s * s, gnorm, it, status)
 
 
 def _refine_lm(problem: EnsembleProblem, position: np.ndarray, rotation: np.ndarray,

@@ -84,3 +84,36 @@ def test_isolated_module_is_placed_without_nan():
     est = normcut_localize(prob, np.random.default_rng(0)).estimate
     assert np.all(np.isfinite(est.position)) and np.all(np.isfinite(est.orientation))
     assert est.component[2] != est.component[0]
+
+
+@pytest.mark.parametrize("dim,shape", [(2, (22, 20)), (3, (8, 8, 7))])
+def test_seam_refinement_reaches_the_full_refinement_optimum(lattice, dim, shape):
+    """Refining only the seams below the top reaches the optimum that refining every level in full
+    reaches (same cost, same aligned positions), for fewer refinement iterations per module."""
+    prob, x, R = lattice(dim, shape, noise=0.2, seed=7)
+    base = dict(leaf_size=16, abstract_size=8, final_refine=RefineConfig(method="lbfgs", history=30, max_iter=1000,
+                                                                          gtol=1e-9))
+    full = normcut_localize(prob, np.random.default_rng(0), HierarchyConfig(seam_hops=0, **base))
+    seam = normcut_localize(prob, np.random.default_rng(0), HierarchyConfig(seam_hops=2, **base))
+    assert full.status == seam.status == "ok"
+    assert np.isclose(seam.cost, full.cost, rtol=1e-9)
+    assert _rms(seam.estimate.position, full.estimate.position, prob.radius) < 1e-5
+    assert seam.iterations_per_module.mean() < full.iterations_per_module.mean()
+
+
+def test_seam_band_is_the_neighbourhood_of_the_crossing_observations(lattice):
+    """The band holds both ends of every crossing observation and every module within the given hops
+    of one, nothing else; the ring is exactly the band's outside neighbours."""
+    from scipy.sparse.csgraph import shortest_path
+
+    from decentral.ensemble.hierarchical import seam_band
+
+    prob, _, _ = lattice(2, (16, 6))
+    x_index = np.arange(prob.n) // 6  # lattice rows of the (16, 6) grid
+    part = (x_index >= 8).astype(np.int64)
+    band = seam_band(prob, part, 2)
+    cross = np.unique(np.r_[prob.i, prob.j][np.r_[part[prob.i] != part[prob.j], part[prob.i] != part[prob.j]]])
+    hops = shortest_path(prob.adjacency(), unweighted=True, indices=cross).min(axis=0)
+    np.testing.assert_array_equal(band.free, hops <= 2)
+    np.testing.assert_array_equal(band.ring, hops == 3)
+    assert seam_band(prob, part, 20) is None  # the band would cover everything: refine the whole set

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from decentral.ensemble.model import negative_log_likelihood
-from decentral.ensemble.refine import RefineConfig, refine
+from decentral.ensemble.refine import LaplacianSolver, RefineConfig, refine
 from decentral.ensemble.rotation import angle_to_matrix, matrix_to_angle, matrix_to_quat, so3_exp
 
 
@@ -14,7 +14,7 @@ def _perturb(x, R, rng, dim, s=0.2):
 
 
 @pytest.mark.parametrize("dim,shape", [(2, (8, 7)), (3, (4, 4, 3))])
-@pytest.mark.parametrize("method", ["alternating", "lm", "pcg"])
+@pytest.mark.parametrize("method", ["alternating", "lbfgs", "lm", "pcg"])
 def test_noiseless_refinement_reaches_zero_cost(lattice, dim, shape, method):
     """From a perturbed truth on a noiseless lattice, refinement drives the likelihood cost to ~0."""
     prob, x, R = lattice(dim, shape)
@@ -80,7 +80,7 @@ def test_l2_gradient_norm_is_at_least_the_largest_entry(lattice):
     assert b.gradient_norm >= a.gradient_norm
 
 
-@pytest.mark.parametrize("method", ["alternating", "lm", "pcg"])
+@pytest.mark.parametrize("method", ["alternating", "lbfgs", "lm", "pcg"])
 def test_l2_tolerance_is_honoured_by_every_method(lattice, method):
     """With gnorm="l2" each method stops converged with a Euclidean gradient norm below gtol."""
     prob, x, R = lattice(2, (6, 6), noise=0.2, seed=4)
@@ -94,3 +94,82 @@ def test_unknown_gradient_norm_is_refused(lattice):
     prob, x, R = lattice(2, (3, 3))
     with pytest.raises(ValueError):
         refine(prob, x, R, RefineConfig(gnorm="L2"))
+
+
+@pytest.mark.parametrize("dim,shape", [(2, (9, 9)), (3, (4, 4, 3))])
+def test_lbfgs_reaches_the_alternating_optimum(lattice, dim, shape):
+    """L-BFGS on the centres (orientations fitted in closed form) reaches the alternating sweeps' optimum."""
+    prob, x, R = lattice(dim, shape, noise=0.2, seed=3)
+    x0, R0 = _perturb(x, R, np.random.default_rng(4), dim)
+    a = refine(prob, x0, R0, RefineConfig(method="alternating", gtol=1e-9, max_iter=2000))
+    b = refine(prob, x0, R0, RefineConfig(method="lbfgs", gtol=1e-9, max_iter=2000))
+    assert b.status == "converged"
+    assert np.isclose(a.cost, b.cost, rtol=1e-9)
+
+
+def test_lbfgs_never_increases_cost(lattice):
+    """Every accepted L-BFGS step lowers the cost (Armijo), whatever the iteration budget."""
+    prob, x, R = lattice(3, (4, 3, 3), noise=0.3, seed=5)
+    x0, R0 = _perturb(x, R, np.random.default_rng(1), 3, s=0.5)
+    costs = [refine(prob, x0, R0, RefineConfig(method="lbfgs", max_iter=k, gtol=0.0, ftol=0.0)).cost for k in (0, 1, 3, 10)]
+    assert all(b <= a for a, b in zip(costs, costs[1:]))
+    assert costs[-1] < costs[0]
+
+
+def _held_ring(prob, centre, hops):
+    """Modules within ``hops`` of module ``centre`` (free) and everything else (held)."""
+    adj = prob.adjacency()
+    free = np.zeros(prob.n, dtype=bool)
+    free[centre] = True
+    for _ in range(hops):
+        free |= (adj @ free.astype(float)) > 0
+    return ~free
+
+
+@pytest.mark.parametrize("method", ["alternating", "lbfgs"])
+@pytest.mark.parametrize("dim,shape,centre", [(2, (10, 9), 44), (3, (5, 5, 4), 62)])
+def test_held_modules_recover_the_optimum_around_them(lattice, method, dim, shape, centre):
+    """With the held modules at the full optimum, refining the others from a perturbed start
+    returns to that optimum, and the held modules do not move."""
+    prob, x, R = lattice(dim, shape, noise=0.2, seed=6)
+    opt = refine(prob, x, R, RefineConfig(method="lbfgs", gtol=1e-10, max_iter=3000))
+    held = _held_ring(prob, centre, 2)
+    x0, R0 = opt.position.copy(), opt.rotation.copy()
+    xp, Rp = _perturb(opt.position, opt.rotation, np.random.default_rng(2), dim)
+    x0[~held], R0[~held] = xp[~held], Rp[~held]
+    res = refine(prob, x0, R0, RefineConfig(method=method, gtol=1e-10, max_iter=3000), fixed=held)
+    assert res.status == "converged"
+    # held modules move by no more than the rounding of the unit and angle conversions
+    np.testing.assert_allclose(res.position[held], opt.position[held], rtol=0, atol=1e-14)
+    np.testing.assert_allclose(res.rotation[held], opt.rotation[held], rtol=0, atol=1e-14)
+    np.testing.assert_allclose(res.position, opt.position, atol=1e-5 * prob.radius)
+    assert np.isclose(res.cost, opt.cost, rtol=1e-9)
+
+
+def test_held_modules_need_a_refiner_that_supports_them(lattice):
+    """Holding modules with the LM or PCG refiner raises instead of silently moving them."""
+    prob, x, R = lattice(2, (3, 3))
+    held = np.zeros(prob.n, dtype=bool)
+    held[0] = True
+    for method in ("lm", "pcg"):
+        with pytest.raises(ValueError):
+            refine(prob, x, R, RefineConfig(method=method), fixed=held)
+
+
+def test_laplacian_solver_holds_the_given_centres(lattice):
+    """With held modules, the solve keeps them at the given centres and satisfies the normal equations
+    (L c = B^T t) on every other module."""
+    prob, x, R = lattice(2, (6, 5), noise=0.2, seed=1)
+    rng = np.random.default_rng(3)
+    held = np.zeros(prob.n, dtype=bool)
+    held[[0, 7, 29]] = True
+    t = rng.normal(size=(prob.num_observations, 2))
+    current = rng.normal(size=(prob.n, 2))
+    c = LaplacianSolver(prob.n, prob.i, prob.j, fixed=held).solve(t, current)
+    np.testing.assert_array_equal(c[held], current[held])
+    # gradient of sum_e |c_j - c_i - t_e|^2 vanishes at every free module
+    r = c[prob.j] - c[prob.i] - t
+    g = np.zeros_like(c)
+    np.add.at(g, prob.j, r)
+    np.add.at(g, prob.i, -r)
+    np.testing.assert_allclose(g[~held], 0.0, atol=1e-9)
