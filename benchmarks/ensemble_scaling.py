@@ -2,28 +2,38 @@
 
 Declared inputs: the ``triple`` 2D scenario of seed 003 §VI-B (part B's generator, settled under
 gravity, 12 IR transceivers) at 1,000 to 100,000 modules, and the ``triple3d`` 3D solid rasterized
-into an hcp lattice (50 sensors) at 1,000 to 20,000 modules; generator seed 0, localization seed 0,
-default :class:`HierarchyConfig` (abstracted cuts with 64 leaders, leaves of 64 modules).
+into an hcp lattice (50 sensors) at 1,000 to 20,000 modules; generator seed 0, localization seed 0.
+Two configurations, measured in the same run:
 
-For each size, a child process generates the ensemble and saves it; a fresh child then reads it
-(``sims.io.ensemble_npz.read_ensemble``) and measures, in the same run:
+- ``default``: :class:`HierarchyConfig` defaults (L-BFGS refiner, seam-only refinement below the
+  top, 2 hops);
+- ``full_levels`` (the defaults before session 3): every level refined in full by Anderson-mixed
+  alternating sweeps (``seam_hops=0``, ``method="alternating"``, history 6), same tolerances.
 
-- the floor: factorizing the contact graph's reduced Laplacian and one solve (the cheapest global
-  computation on the graph: centres for the true orientations);
-- Algorithm 1: wall and CPU time (median of 3 runs up to 10,000 modules, 1 run above), the
-  process's peak resident memory, the mean refinement iterations per module (seed 003 Fig. 6), the
-  depth of the hierarchy, and the global/local RMS error (module radii) against the truth.
+Every size is generated once by a child process. Then, for each 4x pair (2D 2,500 -> 10,000 and
+25,000 -> 100,000, 3D 5,000 -> 20,000) and each configuration, fresh child processes measure the
+two sizes one after the other, and the whole sweep is repeated (``--repeats``, 5 by default; the
+100,000-module pair ``--repeats-large``, 3), so that both sizes of a pair see the same machine
+load; medians are taken over the repeats. Each child measures, on the same graph:
 
-It prints and writes ``benchmarks/results/ensemble_scaling.json`` and ``ensemble_scaling.png``.
-Targets (issue 5): 10,000 modules <= 5 s, 100,000 <= 120 s under 4 GB, and 4x the modules for at
-most 4.6x the time. BLAS is pinned to one thread; the machine is shared, so the load average is
-recorded and CPU time is reported beside wall time.
+- the floor: factorizing the contact graph's reduced Laplacian and one solve (SuperLU, the solver
+  every refiner uses; the cheapest global computation on the graph: centres for the true
+  orientations);
+- after a warm-up call on a 300-module piece of the graph (so lazily imported code paths are not
+  timed), one run of Algorithm 1: CPU time (``time.process_time``) and wall time, the process's peak
+  resident memory, the mean refinement iterations per module (seed 003 Fig. 6), the depth of the
+  hierarchy, the top refinement's iterations, the final cost and the global/local RMS error (module
+  radii) against the truth, and the load average;
+- on the first repeat (up to 30,000 modules), the CPU time below the top level (cuts, leaves, lower
+  merges and their refinements), from a second run whose top refinement is skipped.
 
-Each row also splits the CPU time into the top-level refinement and everything below it, and
-records the top-level refinement iterations (they dominate in 3D).
+It prints and writes ``benchmarks/results/<name>.json`` and ``<name>.png``. Targets (issue 5):
+10,000 modules <= 5 s, 100,000 <= 120 s under 4 GB, and 4x the modules for at most 4.6x the time.
+BLAS is pinned to one thread; the machine is shared, so CPU time is the figure of merit and the load
+is recorded per run.
 
-Usage: ``python benchmarks/ensemble_scaling.py [--quick] [--sizes "2:2500,10000;3:5000,20000" --name STEM]``
-(``--sizes`` re-measures a few sizes, e.g. when the shared machine is quiet).
+Usage: ``python benchmarks/ensemble_scaling.py [--quick] [--sizes "2:2500,10000;3:5000,20000"]
+[--repeats 5] [--repeats-large 3] [--configs default,full_levels] [--name STEM]``.
 """
 
 from __future__ import annotations
@@ -47,7 +57,25 @@ from _common import RESULTS, machine, save
 SIZES_2D = [1000, 2500, 10000, 25000, 100000]
 SIZES_3D = [1000, 5000, 20000]
 SHAPE = {2: "triple", 3: "triple3d"}
+PAIRS = [(2, 2500, 10000), (2, 25000, 100000), (3, 5000, 20000)]
+CONFIGS = ("default", "full_levels")
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def make_config(name: str, skip_top: bool = False):
+    """The :class:`HierarchyConfig` called ``name`` (optionally without its top refinement)."""
+    from dataclasses import replace
+
+    from decentral.ensemble import HierarchyConfig, RefineConfig
+
+    if name == "default":
+        cfg = HierarchyConfig()
+    elif name == "full_levels":
+        cfg = HierarchyConfig(seam_hops=0, level_refine=RefineConfig(max_iter=100, gtol=1e-3),
+                              final_refine=RefineConfig(max_iter=300, gtol=1e-6))
+    else:
+        raise ValueError(f"unknown configuration {name!r}")
+    return replace(cfg, final_refine=replace(cfg.final_refine, max_iter=0)) if skip_top else cfg
 
 
 def _generate(dim: int, n: int, folder: str) -> dict:
@@ -61,18 +89,16 @@ def _generate(dim: int, n: int, folder: str) -> dict:
     return {"generated_modules": int(ens.n), "observations": int(len(ens.i)), "generate_s": gen}
 
 
-def _measure(folder: str, repeats: int) -> dict:
-    from decentral.ensemble import HierarchyConfig, evaluate, normcut_localize
+def _measure(folder: str, config: str, split: bool) -> dict:
+    from decentral.ensemble import evaluate, normcut_localize
+    from decentral.ensemble.problem import EnsembleEstimate
     from decentral.ensemble.refine import LaplacianSolver
     from sims.ensembles.generator import load_truth
     from sims.io.ensemble_npz import read_ensemble
 
     prob = read_ensemble(Path(folder) / "obs.npz")
     truth = load_truth(Path(folder) / "truth.npz")
-    true_pos, true_ori = truth["position"], truth["orientation"]
-    from decentral.ensemble.problem import EnsembleEstimate
-
-    R = EnsembleEstimate.orientation_to_matrix(np.asarray(true_ori), prob.dim)
+    R = EnsembleEstimate.orientation_to_matrix(np.asarray(truth["orientation"]), prob.dim)
     # floor: reduced Laplacian factorization + one solve on the same graph
     floor_wall, floor_cpu = [], []
     for _ in range(3):
@@ -81,38 +107,30 @@ def _measure(folder: str, repeats: int) -> dict:
         lap.solve(2.0 * np.einsum("eab,eb->ea", R[prob.i], prob.z), np.zeros((prob.n, prob.dim)))
         floor_wall.append(time.perf_counter() - w0)
         floor_cpu.append(time.process_time() - c0)
-    walls, cpus, res = [], [], None
-    for r in range(repeats):
-        w0, c0 = time.perf_counter(), time.process_time()
-        res = normcut_localize(prob, np.random.default_rng(0), HierarchyConfig())
-        walls.append(time.perf_counter() - w0)
-        cpus.append(time.process_time() - c0)
-    err = evaluate(res.estimate.position, np.asarray(true_pos), prob.pairs(), prob.radius)
-    # where the time goes: everything below the top level (cuts, leaves, lower merges and their
-    # refinements) measured by a run whose top refinement is skipped; the top refinement is the rest
-    split = {}
-    if prob.n <= 30000:
-        from decentral.ensemble.refine import RefineConfig
-
-        base = HierarchyConfig()
+    # warm-up on a 300-module piece: lazily imported code paths are loaded before the timed run
+    normcut_localize(prob.subproblem(np.arange(min(prob.n, 300))), np.random.default_rng(0), make_config(config))
+    load0 = os.getloadavg()[0]
+    w0, c0 = time.perf_counter(), time.process_time()
+    res = normcut_localize(prob, np.random.default_rng(0), make_config(config))
+    wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+    err = evaluate(res.estimate.position, np.asarray(truth["position"]), prob.pairs(), prob.radius)
+    row = {}
+    if split and prob.n <= 30000:
+        # where the time goes: everything below the top level, from a run without the top refinement
         c0 = time.process_time()
-        normcut_localize(prob, np.random.default_rng(0),
-                         HierarchyConfig(leaf_size=base.leaf_size, cut=base.cut, abstract_size=base.abstract_size,
-                                         level_refine=base.level_refine, final_refine=RefineConfig(max_iter=0)))
+        normcut_localize(prob, np.random.default_rng(0), make_config(config, skip_top=True))
         below = time.process_time() - c0
-        split = {"below_top_cpu_s": below, "top_refine_cpu_s": float(np.median(cpus)) - below}
+        row = {"below_top_cpu_s": below, "top_refine_cpu_s": cpu - below}
     top = res.hierarchy[-1]
-    return {**split, "top_refine_iterations": int(top.refine_iterations), "top_refine_status": top.refine_status,
-            "top_iterations_per_module_share": float(top.refine_iterations / max(res.iterations_per_module.mean(), 1e-12)),
-        "n": prob.n, "dim": prob.dim, "observations": prob.num_observations,
-        "wall_s": float(np.median(walls)), "cpu_s": float(np.median(cpus)), "wall_runs": walls, "cpu_runs": cpus,
-        "floor_wall_s": float(np.median(floor_wall)), "floor_cpu_s": float(np.median(floor_cpu)),
-        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
-        "iterations_per_module": float(res.iterations_per_module.mean()),
-        "depth": int(res.info["depth"]), "calls": int(res.info["calls"]), "status": res.status,
-        "cost": res.cost, "global_rms": err.global_rms, "local_rms": err.local_rms,
-        "loadavg": list(os.getloadavg()),
-    }
+    return {**row, "config": config, "n": prob.n, "dim": prob.dim, "observations": prob.num_observations,
+            "wall_s": wall, "cpu_s": cpu,
+            "floor_wall_s": float(np.median(floor_wall)), "floor_cpu_s": float(np.median(floor_cpu)),
+            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+            "iterations_per_module": float(res.iterations_per_module.mean()),
+            "top_refine_iterations": int(top.refine_iterations), "top_refine_status": top.refine_status,
+            "depth": int(res.info["depth"]), "calls": int(res.info["calls"]), "status": res.status,
+            "cost": res.cost, "global_rms": err.global_rms, "local_rms": err.local_rms,
+            "loadavg_start": load0, "loadavg": list(os.getloadavg())}
 
 
 def _child(args: list[str]) -> dict:
@@ -123,42 +141,82 @@ def _child(args: list[str]) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def _ratios(rows: list[dict], key: str) -> list[dict]:
+def summarize(runs: list[dict]) -> list[dict]:
+    """Median figures per (configuration, dimension, size) over the repeated runs."""
+    groups: dict[tuple, list[dict]] = {}
+    for r in runs:
+        groups.setdefault((r["config"], r["dim"], r["n"]), []).append(r)
     out = []
-    for a in rows:
-        for b in rows:
-            if 3.5 <= b["n"] / a["n"] <= 4.5:
-                out.append({"from": a["n"], "to": b["n"], "size_ratio": b["n"] / a["n"],
-                            "time_ratio": b[key] / a[key], "floor_ratio": b["floor_" + key] / a["floor_" + key]})
+    for (config, dim, n), rows in sorted(groups.items()):
+        med = {k: float(np.median([r[k] for r in rows])) for k in ("cpu_s", "wall_s", "floor_cpu_s", "floor_wall_s")}
+        first = rows[0]
+        out.append({"config": config, "dim": dim, "n": n, "observations": first["observations"], "repeats": len(rows),
+                    **med, "cpu_runs": [r["cpu_s"] for r in rows], "wall_runs": [r["wall_s"] for r in rows],
+                    "load_runs": [r["loadavg_start"] for r in rows],
+                    "peak_rss_mb": max(r["peak_rss_mb"] for r in rows),
+                    **{k: first[k] for k in ("iterations_per_module", "top_refine_iterations", "top_refine_status",
+                                             "depth", "cost", "global_rms", "local_rms", "status")},
+                    **{k: first[k] for k in ("below_top_cpu_s", "top_refine_cpu_s") if k in first}})
+    return out
+
+
+def ratios(summary: list[dict]) -> list[dict]:
+    """4x ratios (CPU and wall, medians) for each pair of sizes about 4x apart, with the floor's."""
+    out = []
+    for a in summary:
+        for b in summary:
+            if a["config"] == b["config"] and a["dim"] == b["dim"] and 3.5 <= b["n"] / a["n"] <= 4.5:
+                out.append({"config": a["config"], "dim": a["dim"], "from": a["n"], "to": b["n"],
+                            "size_ratio": b["n"] / a["n"],
+                            "cpu_ratio": b["cpu_s"] / a["cpu_s"], "wall_ratio": b["wall_s"] / a["wall_s"],
+                            "floor_cpu_ratio": b["floor_cpu_s"] / a["floor_cpu_s"],
+                            "floor_wall_ratio": b["floor_wall_s"] / a["floor_wall_s"],
+                            "met_cpu": b["cpu_s"] / a["cpu_s"] <= 4.6, "met_wall": b["wall_s"] / a["wall_s"] <= 4.6})
     return out
 
 
 def plot(payload: dict, path: Path) -> None:
-    """Time, memory and iterations per module against module count (from the saved results)."""
+    """CPU time, iterations per module and 4x ratios against module count (from the saved results)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(1, 3, figsize=(15, 4.5))
+    fig, ax = plt.subplots(1, 3, figsize=(16, 4.8))
+    styles = {"default": "-", "full_levels": ":"}
     for dim, marker in ((2, "o"), (3, "s")):
-        rows = [r for r in payload["runs"] if r["dim"] == dim]
-        if not rows:
-            continue
-        n = np.array([r["n"] for r in rows])
-        ax[0].loglog(n, [r["cpu_s"] for r in rows], marker + "-", label=f"{dim}D Algorithm 1 (CPU)")
-        ax[0].loglog(n, [r["wall_s"] for r in rows], marker + ":", alpha=0.6, label=f"{dim}D Algorithm 1 (wall)")
-        ax[0].loglog(n, [r["floor_cpu_s"] for r in rows], marker + "--", label=f"{dim}D Laplacian factor+solve (CPU)")
-        ax[1].loglog(n, [r["peak_rss_mb"] for r in rows], marker + "-", label=f"{dim}D")
-        ax[2].semilogx(n, [r["iterations_per_module"] for r in rows], marker + "-", label=f"{dim}D")
+        floor_done = False
+        for config, ls in styles.items():
+            rows = sorted((r for r in payload["summary"] if r["dim"] == dim and r["config"] == config),
+                          key=lambda r: r["n"])
+            if not rows:
+                continue
+            n = np.array([r["n"] for r in rows])
+            ax[0].loglog(n, [r["cpu_s"] for r in rows], marker + ls, label=f"{dim}D {config} (CPU, median)")
+            ax[1].semilogx(n, [r["iterations_per_module"] for r in rows], marker + ls, label=f"{dim}D {config}")
+            if not floor_done:
+                ax[0].loglog(n, [r["floor_cpu_s"] for r in rows], marker + "--", alpha=0.5,
+                             label=f"{dim}D Laplacian factor+solve (CPU)")
+                floor_done = True
     ax[0].axhline(5, color="gray", lw=0.8)
     ax[0].axhline(120, color="gray", lw=0.8)
-    ax[0].set(xlabel="modules", ylabel="seconds (one core)", title="time (targets: 5 s @10k, 120 s @100k)")
-    ax[1].axhline(4096, color="gray", lw=0.8)
-    ax[1].set(xlabel="modules", ylabel="peak RSS of the process (MB)", title="memory (target < 4 GB)")
-    ax[2].set(xlabel="modules", ylabel="refinement iterations per module", title="seed 003 Fig. 6 analogue")
+    ax[0].set(xlabel="modules", ylabel="CPU seconds (one core)", title="time (targets: 5 s @10k, 120 s @100k)")
+    ax[1].set(xlabel="modules", ylabel="refinement iterations per module", title="seed 003 Fig. 6 analogue")
+    labels, cpu, floor, colors = [], [], [], []
+    for r in payload["ratios"]:
+        labels.append(f"{r['dim']}D {r['from']}->{r['to']}\n{r['config']}")
+        cpu.append(r["cpu_ratio"])
+        floor.append(r["floor_cpu_ratio"])
+        colors.append("C0" if r["config"] == "default" else "C7")
+    x = np.arange(len(labels))
+    ax[2].bar(x - 0.2, cpu, 0.4, color=colors, label="Algorithm 1 (CPU, medians)")
+    ax[2].bar(x + 0.2, floor, 0.4, color="C1", alpha=0.6, label="floor: Laplacian factor+solve")
+    ax[2].axhline(4.6, color="red", lw=1, label="target 4.6")
+    ax[2].axhline(4.0, color="gray", lw=0.8, ls="--", label="linear (4.0)")
+    ax[2].set_xticks(x, labels, fontsize=7)
+    ax[2].set(ylabel="time ratio for 4x the modules", title="4x the modules")
     for a in ax:
-        a.legend(fontsize=8)
+        a.legend(fontsize=7)
         a.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -169,11 +227,14 @@ def main() -> None:
         print(json.dumps(_generate(int(sys.argv[2]), int(sys.argv[3]), sys.argv[4])))
         return
     if len(sys.argv) > 1 and sys.argv[1] == "--measure":
-        print(json.dumps(_measure(sys.argv[2], int(sys.argv[3]))))
+        print(json.dumps(_measure(sys.argv[2], sys.argv[3], sys.argv[4] == "1")))
         return
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="small sizes only (a smoke run)")
     ap.add_argument("--sizes", help='only these sizes, e.g. "2:2500,10000;3:5000,20000" (a spot check)')
+    ap.add_argument("--repeats", type=int, default=5, help="interleaved repeats of each size")
+    ap.add_argument("--repeats-large", type=int, default=3, help="repeats of sizes above 50,000 modules")
+    ap.add_argument("--configs", default=",".join(CONFIGS), help="configurations to measure")
     ap.add_argument("--name", default="ensemble_scaling", help="results file stem")
     args = ap.parse_args()
     sizes = {2: [1000, 4000], 3: [1000]} if args.quick else {2: SIZES_2D, 3: SIZES_3D}
@@ -182,39 +243,57 @@ def main() -> None:
         for part in args.sizes.split(";"):
             dim, ns = part.split(":")
             sizes[int(dim)] = [int(v) for v in ns.split(",")]
+    configs = [c for c in args.configs.split(",") if c]
+    for c in configs:
+        make_config(c)
     info = machine()
-    runs = []
-    for dim in (2, 3):
-        for n in sizes[dim]:
-            with tempfile.TemporaryDirectory() as folder:
-                gen = _child(["--gen", str(dim), str(n), folder])
-                row = _child(["--measure", folder, "3" if n <= 10000 else "1"])
-            row.update(requested=n, **gen)
-            runs.append(row)
-            print(f"{dim}D n={row['n']}: wall {row['wall_s']:.2f} s, cpu {row['cpu_s']:.2f} s, floor {row['floor_cpu_s']:.3f} s, "
-                  f"top {row['top_refine_iterations']} it ({row.get('top_refine_cpu_s', float('nan')):.2f} s cpu), "
-                  f"rss {row['peak_rss_mb']:.0f} MB, it/module {row['iterations_per_module']:.1f}, "
-                  f"global rms {row['global_rms']:.2f}, load {row['loadavg'][0]:.1f}", flush=True)
-    by = {(r["dim"], r["requested"]): r for r in runs}
-    targets = {}
-    if (2, 10000) in by:
-        targets["10k_2d_le_5s"] = {"wall_s": by[(2, 10000)]["wall_s"], "cpu_s": by[(2, 10000)]["cpu_s"],
-                                   "met_cpu": by[(2, 10000)]["cpu_s"] <= 5.0, "met_wall": by[(2, 10000)]["wall_s"] <= 5.0}
-    if (2, 100000) in by:
-        r = by[(2, 100000)]
-        targets["100k_2d_le_120s_4GB"] = {"wall_s": r["wall_s"], "cpu_s": r["cpu_s"], "peak_rss_mb": r["peak_rss_mb"],
-                                          "met_cpu": r["cpu_s"] <= 120 and r["peak_rss_mb"] < 4096,
-                                          "met_wall": r["wall_s"] <= 120 and r["peak_rss_mb"] < 4096}
-    for dim in (2, 3):
-        rows = sorted((r for r in runs if r["dim"] == dim), key=lambda r: r["n"])
-        targets[f"4x_{dim}d_cpu"] = _ratios(rows, "cpu_s")
-        targets[f"4x_{dim}d_wall"] = _ratios(rows, "wall_s")
+    # measurement groups: each 4x pair is measured back to back; other sizes on their own
+    groups = [[(d, a), (d, b)] for d, a, b in PAIRS if a in sizes[d] and b in sizes[d]]
+    paired = {s for g in groups for s in g}
+    groups += [[(d, n)] for d in (2, 3) for n in sizes[d] if (d, n) not in paired]
+    runs, gen = [], {}
+    with tempfile.TemporaryDirectory() as root:
+        for d in (2, 3):
+            for n in sizes[d]:
+                folder = os.path.join(root, f"{d}_{n}")
+                os.mkdir(folder)
+                gen[(d, n)] = _child(["--gen", str(d), str(n), folder])
+        for rep in range(max(args.repeats, args.repeats_large)):
+            for group in groups:
+                if rep >= (args.repeats_large if max(n for _, n in group) > 50000 else args.repeats):
+                    continue
+                for config in configs:
+                    for d, n in group:
+                        row = _child(["--measure", os.path.join(root, f"{d}_{n}"), config, "1" if rep == 0 else "0"])
+                        row.update(requested=n, repeat=rep, **gen[(d, n)])
+                        runs.append(row)
+                        print(f"[{rep}] {config:11s} {d}D n={row['n']}: cpu {row['cpu_s']:.2f} s, wall {row['wall_s']:.2f} s, "
+                              f"floor {row['floor_cpu_s']:.3f} s, top {row['top_refine_iterations']} it, "
+                              f"it/module {row['iterations_per_module']:.1f}, cost {row['cost']:.9g}, "
+                              f"global rms {row['global_rms']:.3f}, load {row['loadavg_start']:.1f}", flush=True)
+    summary = summarize(runs)
+    targets = {"4x": ratios(summary)}
+    for config in configs:
+        r10 = next((r for r in summary if r["config"] == config and r["dim"] == 2 and r["n"] == 10000), None)
+        if r10:
+            targets[f"10k_2d_le_5s_{config}"] = {"cpu_s": r10["cpu_s"], "wall_s": r10["wall_s"],
+                                                 "met_cpu": r10["cpu_s"] <= 5.0, "met_wall": r10["wall_s"] <= 5.0}
+        big = [r for r in summary if r["config"] == config and r["dim"] == 2 and r["n"] >= 99000]
+        if big:
+            r = big[0]
+            targets[f"100k_2d_le_120s_4GB_{config}"] = {
+                "cpu_s": r["cpu_s"], "wall_s": r["wall_s"], "peak_rss_mb": r["peak_rss_mb"],
+                "met_cpu": r["cpu_s"] <= 120 and r["peak_rss_mb"] < 4096,
+                "met_wall": r["wall_s"] <= 120 and r["peak_rss_mb"] < 4096}
     payload = {
         "benchmark": "ensemble_scaling",
-        "parameters": {"shapes": SHAPE, "sizes": sizes, "generator_seed": 0, "localize_seed": 0,
-                       "config": "HierarchyConfig() defaults", "repeats": "3 up to 10k modules, else 1"},
-        "runs": runs,
+        "parameters": {"shapes": SHAPE, "sizes": sizes, "pairs": PAIRS, "configs": configs,
+                       "generator_seed": 0, "localize_seed": 0, "repeats": args.repeats,
+                       "repeats_large": args.repeats_large,
+                       "timing": "CPU = time.process_time of the child process; medians over interleaved repeats"},
+        "summary": summary,
         "targets": targets,
+        "runs": runs,
         "machine": info,
     }
     save(args.name, payload)
