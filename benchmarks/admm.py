@@ -48,11 +48,11 @@ KINDS = {"admm": ("admm.primal", "admm.dual"), "forms": ("admm.factors", "admm.b
          "config": ("admm.config", "admm.config_request")}
 
 
-def _windows(st: dict, names: list[str], degree: np.ndarray, steps: list[int]) -> dict | None:
+def _windows(run, names: list[str], degree: np.ndarray, steps: list[int]) -> dict | None:
     """Messages per agent per window over the log steps ``steps``: by kind, and per neighbour (median, max)."""
     if not steps:
         return None
-    per_step = [st["messages_per_step"][k] for k in steps]
+    per_step = [run.messages_per_step[k] for k in steps]
     kinds = sorted({kind for c in per_step for kind in c})
     by_kind = {kind: float(np.mean([np.mean(c.get(kind, [0] * len(names))) for c in per_step])) for kind in kinds}
     sent = np.mean([np.sum([row for row in c.values()], axis=0) if c else np.zeros(len(names)) for c in per_step],
@@ -101,8 +101,8 @@ def one_run(n: int, steps: int, loss: float, share: str, max_rounds: int, seed: 
     return {
         "n": n, "steps": steps, "loss": loss, "share_forms": share, "aggregation": aggregation,
         "mode": share if share != "every" else f"every/{aggregation}", "max_rounds": max_rounds,
-        "cold_start_window": _windows(st, names, degree, [0]),
-        "steady_state_windows": _windows(st, names, degree, list(range(1, steps))),
+        "cold_start_window": _windows(run, names, degree, [0]),
+        "steady_state_windows": _windows(run, names, degree, list(range(1, steps))),
         "tree_windows": int(sum(a["tree_windows"] for a in st["agents"].values())),
         "broadcast_windows": int(sum(a["broadcast_windows"] for a in st["agents"].values())),
         "rounds_per_step": list(run.rounds), "converged_per_step": list(run.converged),

@@ -104,6 +104,10 @@ class AdmmRun:
         Per step, agent -> its own estimates (name -> PlanarPose, in that agent's frame).
     stats : dict
         JSON-ready counts (also inside ``estimate.stats``).
+    messages_per_step : tuple of dict
+        Per log step, message kind -> messages sent by each agent (list in the order of
+        ``log.assemblies``; a broadcast counts once per receiver, as in the network's counts). Kept out
+        of ``stats`` so that the estimate file stays small on long logs.
     """
 
     estimate: Estimate
@@ -111,6 +115,7 @@ class AdmmRun:
     converged: tuple[bool, ...]
     agent_estimates: tuple[dict, ...]
     stats: dict
+    messages_per_step: tuple[dict, ...] = ()
 
 
 def own_step(log: ObservationLog, name: str, k: int) -> OwnStep:
@@ -247,7 +252,6 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
             for n in names
         },
         "messages": transport,
-        "messages_per_step": [{kind: row for kind, row in sorted(c.items())} for c in per_step],
         "seconds": seconds,
         "seconds_per_round": tick_seconds / max(total_rounds, 1),
         "admm": {"rho0": config.admm.rho0, "mu": config.admm.mu, "tau": config.admm.tau,
@@ -256,4 +260,5 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
                  "aggregation": config.aggregation},
     }
     estimate = Estimate(reference, tuple(est_steps), stats)
-    return AdmmRun(estimate, tuple(rounds), tuple(converged), tuple(per_agent), stats)
+    return AdmmRun(estimate, tuple(rounds), tuple(converged), tuple(per_agent), stats,
+                   tuple({kind: row for kind, row in sorted(c.items())} for c in per_step))

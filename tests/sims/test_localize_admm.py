@@ -102,7 +102,7 @@ def _check_neighbour_local(n, steps=3):
     names = list(run.stats["agents"])
     degree = np.array([len(run.stats["agents"][a]["neighbours"]) for a in names])
     assert degree.min() >= 1
-    for counts in run.stats["messages_per_step"][1:]:
+    for counts in run.messages_per_step[1:]:
         assert "admm.factors" not in counts and "admm.config" not in counts  # nothing broadcast
         sent = np.sum([row for row in counts.values()], axis=0)
         assert np.all(sent <= C_PER_NEIGHBOUR * degree + D_CONSTANT), (sent, degree)
@@ -125,7 +125,7 @@ def test_sixteen_ring_steady_state_messages_per_agent_stay_within_the_degree_bou
 def test_broadcast_aggregation_shares_the_forms_by_broadcast_every_window():
     """aggregation='broadcast' (the previous default): admm.factors every window, no bundle, still exact."""
     run = _check_matches(3, 3, aggregation="broadcast")
-    assert all("admm.factors" in c and "admm.bundle" not in c for c in run.stats["messages_per_step"])
+    assert all("admm.factors" in c and "admm.bundle" not in c for c in run.messages_per_step)
 
 
 def test_runs_are_reproducible_from_the_seed():
