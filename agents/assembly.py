@@ -25,7 +25,10 @@ timeout). A neighbour silent for ``patience`` rounds (crashed, partitioned, or n
 watching) is not waited for: its newest value is reused with its age, counted as a timeout. Older
 rounds never overwrite newer values (reordering, duplicates), and a restarted agent jumps its
 iteration counter forward to its neighbours'. Ages in rounds are kept (:attr:`AssemblyAgent.ages`).
-An observer that detects nodes it cannot name asks their owners with ``admm.config_request``.
+An observer that detects nodes it cannot name asks their owners with ``admm.config_request`` (agents
+holding the owner's configuration relay it too), and does not report convergence while such nodes
+remain, for up to ``share_timeout`` rounds (they may be stray tags); with every agent's forms in hand,
+the joint solution only counts as the fixed point while its pairs are the ones its forms described.
 
 Both ADMM kinds also carry (when it changed, see ``gossip_refresh``) a small gossip table (``(assembly index, step, round, x, y, z, theta)`` rows, the newest consensus pose of every
 assembly at its latest step) so every agent learns the poses of assemblies it does not talk to;
@@ -267,6 +270,8 @@ class AssemblyAgent:
         self._down: dict | None = None  # the final set of forms of the last window (answers lost down bundles)
         self._reannounced = -(10**9)  # step of the last re-announcement to the observers
         self._late: dict | None = None  # a window's sharing that timed out without every agent's forms
+        self._pair_sig: dict[str, int] = {}  # target -> detections used by its pair, at the last rebuild
+        self._form_sig: dict[str, int] | None = None  # the same when this window's own forms were shared
         self._table_version = 0  # bumped on every material change of the gossip table
         self._expected: set[str] = set()  # observers whose first values a seeded start waits for
         self._table_sent: dict[str, tuple[int, int]] = {}  # neighbour -> (version, round) last sent
@@ -284,6 +289,7 @@ class AssemblyAgent:
         self._seeds_complete = False
         self._placeable = frozenset()
         self._expected = set()
+        self._form_sig = None
         if cfg.share_forms == "every" or (cfg.share_forms == "first" and first):
             self._parent, self._hop = self._tree_position()
             me, fresh = self._index[self.name], self._tree_fresh()
@@ -339,6 +345,20 @@ class AssemblyAgent:
         return ConfigAnnounce(sender=self.name, receiver=receiver, round=self._round, step=step, ids=ids,
                               centres=centres)
 
+    def _relay(self, request: ConfigRequest) -> None:
+        """Answer a request for other assemblies' nodes with their configurations held here (the owner's own
+        answer and the request each cross one lossy link; every relay is another chance)."""
+        ids = {int(i) for i in request.ids}
+        for owner, hist in sorted(self._configs.items()):
+            if owner == request.sender or not hist:
+                continue
+            step, conf = hist[-1]
+            if ids & set(conf):
+                keys = np.array(sorted(conf), dtype=np.int64)
+                self._outbox.append(ConfigAnnounce(
+                    sender=self.name, receiver=request.sender, round=self._round, step=step, ids=keys,
+                    centres=np.array([conf[int(i)] for i in keys]).reshape(-1, 3), owner=owner))
+
     def _measure(self, own: OwnStep) -> list[tuple[int, np.ndarray, float]]:
         """Own detections as (node, centre in own root frame (3,), weight), seed 000 eq. (1), (4)."""
         out = []
@@ -359,9 +379,14 @@ class AssemblyAgent:
     def handle(self, message: Message) -> None:
         """Route one received message by its type (anything else is counted and ignored)."""
         if isinstance(message, ConfigAnnounce):
+            owner = message.owner or message.sender
+            if owner == self.name or owner not in self._index:
+                return
             entry = (message.step, {int(i): np.array(c) for i, c in zip(message.ids, message.centres)})
-            hist = [h for h in self._configs.get(message.sender, []) if h[0] != message.step]
-            self._configs[message.sender] = sorted(hist + [entry], key=lambda h: h[0])
+            hist = self._configs.get(owner, [])
+            if message.owner and any(h[0] == message.step for h in hist):
+                return  # a relayed copy never replaces what the owner said itself
+            self._configs[owner] = sorted([h for h in hist if h[0] != message.step] + [entry], key=lambda h: h[0])
             self._dirty = True
         elif isinstance(message, FactorShare):
             self._on_factors(message)
@@ -374,6 +399,7 @@ class AssemblyAgent:
         elif isinstance(message, ConfigRequest):
             if self._step is not None and any(int(i) in self._own_config for i in message.ids):
                 self._outbox.append(self._announcement(message.sender))
+            self._relay(message)
         elif isinstance(message, (AdmmPrimal, AdmmDual)):
             self._merge_table(message.blocks.get("table"))
             b = message.blocks
@@ -433,6 +459,7 @@ class AssemblyAgent:
         self.counters["unknown_nodes"] = len(unknown)
         self._unknown = unknown
         self._pair_steps = {k for r in rows.values() for k, *_ in r}
+        self._pair_sig = {target: len(facts) for target, facts in rows.items()}
         for target in [t for t in self._pairs if t not in rows]:
             for store in (self._pairs, self._pair_out, self._last_dual, self._pair_iter):
                 store.pop(target, None)
@@ -518,6 +545,7 @@ class AssemblyAgent:
             if cons.pinned and cons.pin is not None:
                 pin = np.array([cons.pin[0], *cons.pin[2], cons.pin[1]])
             self._own_forms = (boot["step"], keys, flat, pin)
+            self._form_sig = dict(self._pair_sig)
             # the tree when this agent has a route to the reference (or, at the reference, children);
             # otherwise (the cold start, a restarted agent, a side of a partition) the broadcast
             tree = cfg.aggregation == "tree" and (agg.parent is not None or agg.root and bool(agg.children))
@@ -926,14 +954,17 @@ class AssemblyAgent:
                 and cons.change <= max(eps.eps_rot, eps.eps_pos)
                 and (cons.remaining() <= eps.tail * max(eps.eps_rot, eps.eps_pos) or self._near_seeds())
                 and self._fresh_pairs
+                # nodes it sees but cannot name yet (lost announcements): their pair is still to come, unless
+                # they are stray tags (never named): not converged for up to `share_timeout` rounds
+                and (not self._unknown or self._step_rounds >= cfg.share_timeout)
             )
 
     def _near_seeds(self) -> bool:
         """With every agent's forms, the window started at the joint solution (the fixed point): the
         consensus staying within the ADMM tolerances of it is convergence, whatever the tail estimate
         (which, on changes at the solver's precision, ~1e-7, can predict a long way still to go)."""
-        if not self._seeds_complete:
-            return False
+        if not self._seeds_complete or self._form_sig != self._pair_sig:
+            return False  # (a pair built or grown after the forms went out: the joint solution lacks it)
         eps = self.config.admm
         for k, (R, p) in self._consensus.z.items():
             seed = self._seeds.get((self.name, k))

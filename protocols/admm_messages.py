@@ -6,7 +6,8 @@ centre ``q`` in their visual factors (seed 000 eq. (4)). Broadcast only when the
 changes; re-announced every few steps by unicast to the agent's current observers, and unicast in
 answer to an ``admm.config_request``: an observer that detects node ids it cannot name broadcasts one
 (again every few rounds while they stay unknown), so a lost announcement is repaired without
-flooding the network.
+flooding the network. Agents holding the owner's configuration answer the request too, as a relay
+(``owner`` names the assembly), which never replaces what the owner said itself.
 
 ``admm.factors``: the cost forms of the pairs an agent observes over the window and of its own
 odometry chain, with the list of agents whose forms it already has; an agent that sees itself
@@ -36,7 +37,7 @@ __all__ = ["ConfigAnnounce", "ConfigRequest", "FactorShare", "FormAck", "FormBun
 @register
 @dataclass(frozen=True, slots=True, eq=False, kw_only=True)
 class ConfigAnnounce(Message):
-    """The sender's node configuration from step ``step`` on.
+    """An assembly's node configuration from step ``step`` on (the sender's own, or relayed).
 
     Attributes
     ----------
@@ -45,7 +46,10 @@ class ConfigAnnounce(Message):
     ids : ndarray, shape (n,), int64
         Node ids.
     centres : ndarray, shape (n, 3), float64
-        Node centres in the sender's root horizontal frame (metres).
+        Node centres in the owner's root horizontal frame (metres).
+    owner : str
+        The assembly whose configuration it is; empty: the sender's own. A relay answers an
+        ``admm.config_request`` on behalf of an owner whose own answer may be lost.
     """
 
     KIND: ClassVar[str] = "admm.config"
@@ -53,6 +57,7 @@ class ConfigAnnounce(Message):
     step: int
     ids: np.ndarray
     centres: np.ndarray
+    owner: str = ""
 
     def __post_init__(self) -> None:
         Message.__post_init__(self)
@@ -64,6 +69,8 @@ class ConfigAnnounce(Message):
         _set(self, "centres", _finite_array(self.centres, "centres", shape=(ids.shape[0], 3)))
         if len(np.unique(ids)) != len(ids):
             raise ProtocolError("field 'ids': duplicate node ids")
+        if not isinstance(self.owner, str):
+            raise ProtocolError("field 'owner': must be a str")
 
 
 @register

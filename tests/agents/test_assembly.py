@@ -312,3 +312,22 @@ def test_configuration_is_re_announced_to_observers_only(log):
     a.on_step(own_step(log, "A1", 1))
     anns = [m for m in a.outbox() if isinstance(m, ConfigAnnounce)]
     assert {m.receiver for m in anns} == observers
+
+
+def test_a_request_for_another_assemblys_nodes_is_relayed_and_never_overrides_the_owner(log):
+    """An agent holding A2's configuration answers a request for A2's nodes with a relay naming A2; the
+    requester uses it, but a relayed copy of a step it already has from A2 itself changes nothing."""
+    agents = _announced(log, log.assemblies)
+    node = next(iter(log.steps[0].config["A2"]))
+    agents["A1"].outbox()
+    agents["A1"].handle(ConfigRequest(sender="A0", receiver=BROADCAST, round=0, ids=np.array([node])))
+    relays = [m for m in agents["A1"].outbox() if isinstance(m, ConfigAnnounce)]
+    assert len(relays) == 1 and relays[0].owner == "A2" and relays[0].receiver == "A0" and node in relays[0].ids
+    fresh = _agent(log, "A0")
+    fresh.on_step(own_step(log, "A0", 0))
+    fresh.handle(relays[0])
+    assert node in fresh._configs["A2"][-1][1]
+    forged = ConfigAnnounce(sender="A1", receiver="A0", round=1, step=relays[0].step, ids=relays[0].ids,
+                            centres=relays[0].centres + 1.0, owner="A2")
+    agents["A0"].handle(forged)
+    assert np.array_equal(agents["A0"]._configs["A2"][-1][1][node], log.steps[0].config["A2"][node])

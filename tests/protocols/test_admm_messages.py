@@ -64,3 +64,16 @@ def test_an_acknowledgement_round_trips_and_refuses_an_unsorted_list():
     assert decode(ack.to_bytes()) == ack
     with pytest.raises(ProtocolError):
         FormAck(sender="A1", receiver="A3", round=8, step=3, have=np.array([1, 1]))
+
+
+def test_a_relayed_configuration_round_trips_with_its_owner():
+    """admm.config relayed by A2 on behalf of A1 decodes with the same owner; a non-str owner is refused."""
+    from protocols.admm_messages import ConfigAnnounce
+
+    msg = ConfigAnnounce(sender="A2", receiver="A0", round=4, step=1, ids=np.array([7, 8]),
+                         centres=np.zeros((2, 3)), owner="A1")
+    back = decode(msg.to_bytes())
+    assert back == msg and back.owner == "A1" and back.sender == "A2"
+    with pytest.raises(ProtocolError):
+        ConfigAnnounce(sender="A2", receiver="A0", round=4, step=1, ids=np.array([7]), centres=np.zeros((1, 3)),
+                       owner=3)
