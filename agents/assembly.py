@@ -250,6 +250,7 @@ class AssemblyAgent:
         self._step_rounds = 0
         self._fresh_pairs = True
         self._unknown: set[int] = set()
+        self._unknown_since: dict[int, int] = {}  # unnamed node -> round it was first seen unnamed
         self._requested = -(10**9)
         self._pair_iter: dict[str, int] = {}
         self._pair_out: dict[str, tuple] = {}
@@ -458,6 +459,7 @@ class AssemblyAgent:
                 rows.setdefault(hit[0], []).append((k, hit[1], t, w))
         self.counters["unknown_nodes"] = len(unknown)
         self._unknown = unknown
+        self._unknown_since = {i: self._unknown_since.get(i, self._round) for i in unknown}
         self._pair_steps = {k for r in rows.values() for k, *_ in r}
         self._pair_sig = {target: len(facts) for target, facts in rows.items()}
         for target in [t for t in self._pairs if t not in rows]:
@@ -533,7 +535,7 @@ class AssemblyAgent:
             self._rebuild()
         self._request_unknown()
         me = self._index[self.name]
-        if self._own_forms is None and (not self._unknown or boot["waited"] >= cfg.patience):
+        if self._own_forms is None and (not self._fresh_unknown() or boot["waited"] >= cfg.patience):
             forms = [tuple((self._index[a], k) for a, k in pair.problem.keys) + (pair.problem,)
                      for _, pair in sorted(self._pairs.items()) if pair.problem is not None and pair.problem.n]
             odo = self._consensus.odometry_problem()
@@ -955,9 +957,15 @@ class AssemblyAgent:
                 and (cons.remaining() <= eps.tail * max(eps.eps_rot, eps.eps_pos) or self._near_seeds())
                 and self._fresh_pairs
                 # nodes it sees but cannot name yet (lost announcements): their pair is still to come, unless
-                # they are stray tags (never named): not converged for up to `share_timeout` rounds
-                and (not self._unknown or self._step_rounds >= cfg.share_timeout)
+                # they are stray tags (never named): not converged for `share_timeout` rounds after one is
+                # first seen (once, not every window)
+                and not self._fresh_unknown()
             )
+
+    def _fresh_unknown(self) -> set[int]:
+        """Unnamed nodes first seen less than ``share_timeout`` rounds ago (older ones: stray tags, most likely)."""
+        limit = self.config.share_timeout
+        return {i for i in self._unknown if self._round - self._unknown_since.get(i, self._round) < limit}
 
     def _near_seeds(self) -> bool:
         """With every agent's forms, the window started at the joint solution (the fixed point): the

@@ -224,3 +224,21 @@ def test_cli_admm_mode_writes_the_contract_estimate_with_counts(tmp_path):
     assert stats["messages"]["per_sender"]["A1"]["bytes_sent"] > 0
     assert set(stats["agents"]) == {"A0", "A1"} and "converged" in stats["agents"]["A0"]
     assert len(doc["steps"]) == 2 and "A1" in doc["steps"][-1]["poses"]
+
+
+def test_a_stray_tag_holds_the_steps_only_once():
+    """A detection no assembly owns (a stray tag) every step: exact, and only the window in which it is first
+    seen waits (share_timeout rounds) for its name; later windows take the usual rounds."""
+    import dataclasses
+
+    from decentral.observations import Detection
+
+    sim = _sim(3, 4)
+    key = next(k for k in sim.log.steps[0].detections if k.startswith("A1/"))
+    steps = tuple(dataclasses.replace(s, detections={**s.detections, key: s.detections[key] + (Detection(9999, 500.0, 380.0, 20.0),)})
+                  for s in sim.log.steps)
+    log = dataclasses.replace(sim.log, steps=steps)
+    clean = run_admm(sim.log, config=AdmmRunConfig(), seed=0)
+    run = _check_matches(3, 4, sim=dataclasses.replace(sim, log=log))
+    assert run.rounds[0] > clean.rounds[0]
+    assert run.rounds[2:] == clean.rounds[2:]
