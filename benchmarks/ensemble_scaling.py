@@ -33,7 +33,7 @@ BLAS is pinned to one thread; the machine is shared, so CPU time is the figure o
 is recorded per run.
 
 Usage: ``python benchmarks/ensemble_scaling.py [--quick] [--sizes "2:2500,10000;3:5000,20000"]
-[--repeats 5] [--repeats-large 3] [--configs default,full_levels] [--name STEM]``.
+[--repeats 5] [--repeats-large 3] [--configs default,full_levels] [--name STEM] [--replot]``.
 """
 
 from __future__ import annotations
@@ -203,8 +203,8 @@ def plot(payload: dict, path: Path) -> None:
     ax[0].set(xlabel="modules", ylabel="CPU seconds (one core)", title="time (targets: 5 s @10k, 120 s @100k)")
     ax[1].set(xlabel="modules", ylabel="refinement iterations per module", title="seed 003 Fig. 6 analogue")
     labels, cpu, floor, colors = [], [], [], []
-    for r in payload["ratios"]:
-        labels.append(f"{r['dim']}D {r['from']}->{r['to']}\n{r['config']}")
+    for r in payload["targets"]["4x"]:
+        labels.append(f"{r['dim']}D {r['from'] / 1000:.3g}k-{r['to'] / 1000:.3g}k\n{r['config']}")
         cpu.append(r["cpu_ratio"])
         floor.append(r["floor_cpu_ratio"])
         colors.append("C0" if r["config"] == "default" else "C7")
@@ -236,7 +236,11 @@ def main() -> None:
     ap.add_argument("--repeats-large", type=int, default=3, help="repeats of sizes above 50,000 modules")
     ap.add_argument("--configs", default=",".join(CONFIGS), help="configurations to measure")
     ap.add_argument("--name", default="ensemble_scaling", help="results file stem")
+    ap.add_argument("--replot", action="store_true", help="only redraw the PNG from the saved JSON")
     args = ap.parse_args()
+    if args.replot:
+        plot(json.loads((RESULTS / f"{args.name}.json").read_text()), RESULTS / f"{args.name}.png")
+        return
     sizes = {2: [1000, 4000], 3: [1000]} if args.quick else {2: SIZES_2D, 3: SIZES_3D}
     if args.sizes:
         sizes = {2: [], 3: []}

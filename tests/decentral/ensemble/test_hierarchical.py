@@ -117,3 +117,12 @@ def test_seam_band_is_the_neighbourhood_of_the_crossing_observations(lattice):
     np.testing.assert_array_equal(band.free, hops <= 2)
     np.testing.assert_array_equal(band.ring, hops == 3)
     assert seam_band(prob, part, 20) is None  # the band would cover everything: refine the whole set
+
+
+def test_seam_fraction_zero_is_full_level_refinement(lattice):
+    """With seam_fraction 0 no merge is small enough for the seam rule: the run equals seam_hops 0."""
+    prob, _, _ = lattice(2, (16, 14), noise=0.2, seed=8)
+    a = normcut_localize(prob, np.random.default_rng(0), HierarchyConfig(leaf_size=16, abstract_size=8, seam_fraction=0.0))
+    b = normcut_localize(prob, np.random.default_rng(0), HierarchyConfig(leaf_size=16, abstract_size=8, seam_hops=0))
+    np.testing.assert_array_equal(a.estimate.position, b.estimate.position)
+    np.testing.assert_array_equal(a.iterations_per_module, b.iterations_per_module)
