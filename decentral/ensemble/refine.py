@@ -1,8 +1,8 @@
 """Refinement of an ensemble estimate to the maximum likelihood (seed 003 eq. 3, Algorithm 1 line 11).
 
-Three methods, all on the sparse structure of the contact graph and fully vectorized:
+Four methods, all on the sparse structure of the contact graph and fully vectorized:
 
-``"alternating"`` (default)
+``"alternating"`` (the default of :class:`RefineConfig`)
     Exact block-coordinate descent: for fixed centres the best orientations are a closed-form
     Kabsch fit per module; for fixed orientations the best centres solve one linear system whose
     matrix is the graph Laplacian, which does not depend on the orientations, so it is factorized
@@ -21,7 +21,8 @@ Three methods, all on the sparse structure of the contact graph and fully vector
     is the plain alternating sweep), with a backtracking (Armijo) line search. Its curvature pairs
     learn the soft collective modes (a 3D solid twisting about the thin rods that join its
     chambers) that make Anderson-mixed sweeps advance in plateaus. One Laplacian solve and
-    usually one orientation fit per iteration.
+    usually one orientation fit per iteration. The default of Algorithm 1's
+    :class:`~decentral.ensemble.HierarchyConfig`.
 ``"pcg"``
     Preconditioned nonlinear conjugate gradient, the refiner of seed 003 §VI-B/E: O(E) per
     iteration, no factorization, so it undoes errors far from where they are corrected only slowly
@@ -482,8 +483,9 @@ def _refine_lbfgs(problem: EnsembleProblem, position: np.ndarray, rotation: np.n
         if held is not None:
             state[held] = held_state
         r = rots.apply(state) - half
-        g = _position_gradient(n, d, i, j, r)
+        g = _position_gradient(n, d, i, j, r)  # envelope theorem: the orientations are optimal
         g[~free] = 0.0
+        # seed 003 eq. (3): negative log-likelihood 1/2 sum_e |R_i z_e - (c_j - c_i)/2|^2
         return 0.5 * float(np.einsum("ea,ea->", r, r)), g, state
 
     def h0(v):  # 4 L^-1 v on the free modules
