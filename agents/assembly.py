@@ -25,9 +25,10 @@ timeout). A neighbour silent for ``patience`` rounds (crashed, partitioned, or n
 watching) is not waited for: its newest value is reused with its age, counted as a timeout. Older
 rounds never overwrite newer values (reordering, duplicates), and a restarted agent jumps its
 iteration counter forward to its neighbours'. Ages in rounds are kept (:attr:`AssemblyAgent.ages`).
-An observer that detects nodes it cannot name asks their owners with ``admm.config_request`` (agents
-holding the owner's configuration relay it too), and does not report convergence while such nodes
-remain, for up to ``share_timeout`` rounds (they may be stray tags); with every agent's forms in hand,
+An observer that detects nodes it cannot name asks with ``admm.config_request``: every agent answers
+with its own configuration and agents holding the owner's relay that too. It does not report
+convergence while such nodes remain and some assembly's configuration is still missing; once it
+holds every configuration, nodes none of them lists are stray tags and are skipped. With every agent's forms in hand,
 the joint solution only counts as the fixed point while its pairs are the ones its forms described.
 
 Both ADMM kinds also carry (when it changed, see ``gossip_refresh``) a small gossip table (``(assembly index, step, round, x, y, z, theta)`` rows, the newest consensus pose of every
@@ -250,7 +251,6 @@ class AssemblyAgent:
         self._step_rounds = 0
         self._fresh_pairs = True
         self._unknown: set[int] = set()
-        self._unknown_since: dict[int, int] = {}  # unnamed node -> round it was first seen unnamed
         self._requested = -(10**9)
         self._pair_iter: dict[str, int] = {}
         self._pair_out: dict[str, tuple] = {}
@@ -398,7 +398,9 @@ class AssemblyAgent:
             if boot is not None and boot["step"] == message.step and self._index.get(message.sender) == boot["agg"].parent:
                 boot["agg"].acknowledge(message.have.tolist(), self._round)
         elif isinstance(message, ConfigRequest):
-            if self._step is not None and any(int(i) in self._own_config for i in message.ids):
+            # every agent answers with its own configuration, owner or not: a requester that holds every
+            # assembly's configuration knows that the ids none of them lists are stray tags
+            if self._step is not None and message.sender != self.name:
                 self._outbox.append(self._announcement(message.sender))
             self._relay(message)
         elif isinstance(message, (AdmmPrimal, AdmmDual)):
@@ -459,7 +461,6 @@ class AssemblyAgent:
                 rows.setdefault(hit[0], []).append((k, hit[1], t, w))
         self.counters["unknown_nodes"] = len(unknown)
         self._unknown = unknown
-        self._unknown_since = {i: self._unknown_since.get(i, self._round) for i in unknown}
         self._pair_steps = {k for r in rows.values() for k, *_ in r}
         self._pair_sig = {target: len(facts) for target, facts in rows.items()}
         for target in [t for t in self._pairs if t not in rows]:
@@ -508,7 +509,7 @@ class AssemblyAgent:
 
     # ------------------------------------------------------------------ cold start
     def _request_unknown(self) -> None:
-        if self._unknown and self._round - self._requested >= 3:
+        if self._unresolved() and self._round - self._requested >= 3:
             self._outbox.append(ConfigRequest(sender=self.name, receiver=BROADCAST, round=self._round,
                                               ids=np.array(sorted(self._unknown), dtype=np.int64)))
             self._requested = self._round
@@ -535,7 +536,7 @@ class AssemblyAgent:
             self._rebuild()
         self._request_unknown()
         me = self._index[self.name]
-        if self._own_forms is None and (not self._fresh_unknown() or boot["waited"] >= cfg.patience):
+        if self._own_forms is None and (not self._unresolved() or boot["waited"] >= cfg.patience):
             forms = [tuple((self._index[a], k) for a, k in pair.problem.keys) + (pair.problem,)
                      for _, pair in sorted(self._pairs.items()) if pair.problem is not None and pair.problem.n]
             odo = self._consensus.odometry_problem()
@@ -946,7 +947,7 @@ class AssemblyAgent:
             eps = cfg.admm
             # nobody to agree with after `patience` rounds of this step and no unnamed detections:
             # nothing left to do (counting it converged earlier ended lossy steps before discovery)
-            alone = (not self._pairs and not inputs and not self._unknown
+            alone = (not self._pairs and not inputs and not self._unresolved()
                      and self._step_rounds >= cfg.patience)
             self._converged = alone or bool(
                 lowest >= self._iter_before + 1
@@ -956,16 +957,22 @@ class AssemblyAgent:
                 and cons.change <= max(eps.eps_rot, eps.eps_pos)
                 and (cons.remaining() <= eps.tail * max(eps.eps_rot, eps.eps_pos) or self._near_seeds())
                 and self._fresh_pairs
-                # nodes it sees but cannot name yet (lost announcements): their pair is still to come, unless
-                # they are stray tags (never named): not converged for `share_timeout` rounds after one is
-                # first seen (once, not every window)
-                and not self._fresh_unknown()
+                # nodes it sees but cannot name yet (lost announcements): their pair is still to come
+                and not self._unresolved()
             )
 
-    def _fresh_unknown(self) -> set[int]:
-        """Unnamed nodes first seen less than ``share_timeout`` rounds ago (older ones: stray tags, most likely)."""
-        limit = self.config.share_timeout
-        return {i for i in self._unknown if self._round - self._unknown_since.get(i, self._round) < limit}
+    def _unresolved(self) -> set[int]:
+        """Unnamed nodes that an assembly whose configuration has not arrived here may still own.
+
+        Once every other assembly's configuration is in (announcements, answers to ``config_request``,
+        relays), a node none of them lists is a stray tag (CONTRACT §1: skipped): it neither holds the
+        convergence flag nor triggers requests. Until then an unnamed node may be a pair still to
+        come, and an agent that reported convergence without it would report the joint solution of
+        a view graph that lacks the pair (4-ring at 50 % loss: 20 mm off, flagged converged).
+        """
+        if len(self._configs) >= len(self.config.assemblies) - 1:
+            return set()
+        return set(self._unknown)
 
     def _near_seeds(self) -> bool:
         """With every agent's forms, the window started at the joint solution (the fixed point): the

@@ -321,8 +321,11 @@ def test_a_request_for_another_assemblys_nodes_is_relayed_and_never_overrides_th
     node = next(iter(log.steps[0].config["A2"]))
     agents["A1"].outbox()
     agents["A1"].handle(ConfigRequest(sender="A0", receiver=BROADCAST, round=0, ids=np.array([node])))
-    relays = [m for m in agents["A1"].outbox() if isinstance(m, ConfigAnnounce)]
+    answers = [m for m in agents["A1"].outbox() if isinstance(m, ConfigAnnounce)]
+    relays = [m for m in answers if m.owner]
     assert len(relays) == 1 and relays[0].owner == "A2" and relays[0].receiver == "A0" and node in relays[0].ids
+    # and its own configuration, so that a requester holding every one can tell a stray tag
+    assert [m.receiver for m in answers if not m.owner] == ["A0"]
     fresh = _agent(log, "A0")
     fresh.on_step(own_step(log, "A0", 0))
     fresh.handle(relays[0])
@@ -331,3 +334,53 @@ def test_a_request_for_another_assemblys_nodes_is_relayed_and_never_overrides_th
                             centres=relays[0].centres + 1.0, owner="A2")
     agents["A0"].handle(forged)
     assert np.array_equal(agents["A0"]._configs["A2"][-1][1][node], log.steps[0].config["A2"][node])
+
+
+def test_an_agent_that_cannot_name_a_node_does_not_report_convergence_until_every_configuration_is_in(log):
+    """While the configuration of an assembly it sees never reaches it (every copy lost), an observer keeps
+    asking for it and never reports convergence (the joint solution it would report lacks that pair); once
+    the configuration arrives it names the node and converges."""
+    observer = "A0"
+    target = _observed(log, observer)
+    agents = {n: _agent(log, n, share_forms="every") for n in log.assemblies}
+    withheld = []
+
+    def lost(m):
+        return (isinstance(m, ConfigAnnounce) and m.receiver in (observer, BROADCAST)
+                and (m.owner or m.sender) == target)
+
+    def deliver(messages, hold):
+        for m in messages:
+            if hold and lost(m):
+                withheld.append(m)
+                continue
+            for a in agents.values():
+                if a.name != m.sender and m.receiver in (a.name, BROADCAST):
+                    a.handle(m)
+
+    for a in agents.values():
+        a.on_step(own_step(log, a.name, 0))
+    deliver([m for a in agents.values() for m in a.outbox()], hold=True)
+    requests = 0
+    for r in range(60):
+        for _phase in (0, 1):
+            out = []
+            for a in agents.values():
+                a.tick(r)
+                out += a.outbox()
+            requests += sum(isinstance(m, ConfigRequest) and m.sender == observer for m in out)
+            deliver(out, hold=True)
+        assert not agents[observer].converged
+    assert requests >= 10 and agents[observer]._unresolved()
+    deliver([m for m in withheld if m.sender == target][:1], hold=False)
+    for r in range(60, 400):
+        for _phase in (0, 1):
+            out = []
+            for a in agents.values():
+                a.tick(r)
+                out += a.outbox()
+            deliver(out, hold=False)
+        if all(a.converged for a in agents.values()):
+            break
+    assert not agents[observer]._unresolved() and target in agents[observer]._pairs
+    assert all(a.converged for a in agents.values())
