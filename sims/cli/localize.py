@@ -29,10 +29,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--loss", type=float, default=0.0, help="admm: probability that a message is dropped")
     parser.add_argument("--seed", type=int, default=0, help="admm: seed of the simulated network")
     parser.add_argument("--share-forms", choices=("every", "first", "never"), default="every",
-                        help="admm: when agents broadcast their pairs' cost forms and start at the joint solution: "
-                             "every step (default: each window starts at the joint solution, fewest rounds and "
-                             "bytes; form messages grow with the number of assemblies), the first step only, "
+                        help="admm: when agents share their pairs' cost forms and start at the joint solution: "
+                             "every step (default: each window starts at the joint solution), the first step only, "
                              "or never (plain consensus-ADMM)")
+    parser.add_argument("--aggregation", choices=("tree", "broadcast"), default="tree",
+                        help="admm: how the shared forms travel once agents know their route to the reference: "
+                             "up and down a spanning tree of the view graph (default: messages per agent per "
+                             "window bounded by its number of neighbours) or one broadcast per agent (fewer "
+                             "rounds, messages grow with the number of assemblies)")
     parser.add_argument("--max-rounds", type=int, default=300, help="admm: round budget per step (default 300)")
     parser.add_argument("--estimator", choices=tuple(ESTIMATORS), default="windowed",
                         help="; ".join(f"{k}: {v}" for k, v in ESTIMATORS.items()))
@@ -85,5 +89,5 @@ def _run_admm(log, args, noise, reference):
     from sims.admm_run import AdmmRunConfig, run_admm
 
     config = AdmmRunConfig(window=args.window, noise=noise, loss=args.loss, share_forms=args.share_forms,
-                           max_rounds=args.max_rounds)
+                           aggregation=args.aggregation, max_rounds=args.max_rounds)
     return run_admm(log, reference, config, seed=args.seed).estimate

@@ -115,6 +115,17 @@ def test_admm_share_forms_every_matches_the_centralized_estimate(tmp_path, good_
     assert mismatched == 0 and dp < 1e-3 and np.degrees(dth) < 0.05
 
 
+@pytest.mark.parametrize("aggregation", ["tree", "broadcast"])
+def test_admm_aggregation_is_selectable_and_recorded(tmp_path, good_doc, aggregation):
+    """`--aggregation tree|broadcast` reaches the agents (recorded in stats) and both give the centralized answer."""
+    log, central, admm = write(tmp_path, good_doc), tmp_path / "c.json", tmp_path / "a.json"
+    assert main(["localize", str(log), "-o", str(central)]) == 0
+    assert main(["localize", str(log), "-o", str(admm), "--mode", "admm", "--aggregation", aggregation]) == 0
+    assert json.loads(admm.read_text())["stats"]["admm"]["aggregation"] == aggregation
+    dp, dth, mismatched = estimate_gap(read_estimate(central), read_estimate(admm))
+    assert mismatched == 0 and dp < 1e-3 and np.degrees(dth) < 0.05
+
+
 def test_missing_file_and_bad_options_exit_2(tmp_path, good_doc, capsys):
     """A missing log, an unknown reference or a bad window exit 2 with one line."""
     out = tmp_path / "est.json"
