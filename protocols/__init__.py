@@ -1,6 +1,7 @@
 """protocols: messages and their wire encoding, the simulated lossy network, transports, and the
 consensus and aggregation protocols that agents run over them. Depends only on ``decentral``."""
 
+from protocols.aggregation import TreeAggregation, choose_parent, tree_from_edges
 from protocols.consensus import GatherResult, RoundGather, exchange_round
 from protocols.messages import (
     BROADCAST,
@@ -40,4 +41,7 @@ __all__ = [
     "RoundGather",
     "GatherResult",
     "exchange_round",
+    "TreeAggregation",
+    "choose_parent",
+    "tree_from_edges",
 ]
