@@ -320,6 +320,25 @@ def _no_observations(x: np.ndarray, R: np.ndarray, s: float) -> RefineResult:
     return RefineResult(x * s, R, 0.0, 0.0, 0, "converged")
 
 
+def _block_setup(problem: EnsembleProblem, z: np.ndarray, R0: np.ndarray, fixed: np.ndarray | None):
+    """What the block refiners share: the Laplacian solver of the contact graph (held modules as
+    Dirichlet nodes), the orientation model, the held indices, and the closed-form orientation fit
+    ``fit(half) -> state`` (``half`` = (c_j - c_i) / 2 per observation, (E, dim), in radii) that keeps
+    held modules at their orientations in ``R0``."""
+    lap = LaplacianSolver(problem.n, problem.i, problem.j, problem.adjacency(), fixed)
+    rots = (_Rotations2D if problem.dim == 2 else _Rotations3D)(problem.i, z, problem.n)
+    held = None if fixed is None else np.flatnonzero(fixed)
+    held_state = None if held is None else rots.from_matrices(R0)[held].copy()
+
+    def fit(half):
+        state = rots.fit(half)
+        if held is not None:
+            state[held] = held_state
+        return state
+
+    return lap, rots, held, fit
+
+
 def _refine_alternating(problem: EnsembleProblem, position: np.ndarray, rotation: np.ndarray,
                         config: RefineConfig, fixed: np.ndarray | None = None) -> RefineResult:
     n, d, s = problem.n, problem.dim, problem.radius
@@ -327,17 +346,7 @@ def _refine_alternating(problem: EnsembleProblem, position: np.ndarray, rotation
     z, x, R0 = _in_radii(problem, position, rotation)
     if i.size == 0:
         return _no_observations(x, R0, s)
-    lap = LaplacianSolver(n, i, j, problem.adjacency(), fixed)
-    rots = (_Rotations2D if d == 2 else _Rotations3D)(i, z, n)
-    held = None if fixed is None else np.flatnonzero(fixed)
-    if held is not None:
-        held_state = rots.from_matrices(R0)[held].copy()
-
-    def fit(half):  # local step; held modules keep their given orientations
-        state = rots.fit(half)
-        if held is not None:
-            state[held] = held_state
-        return state
+    lap, rots, held, fit = _block_setup(problem, z, R0, fixed)
 
     def gradient(r):  # position gradient of the free modules (held ones do not move)
         g = _position_gradient(n, d, i, j, r)
@@ -469,19 +478,13 @@ def _refine_lbfgs(problem: EnsembleProblem, position: np.ndarray, rotation: np.n
     z, x, R0 = _in_radii(problem, position, rotation)
     if i.size == 0:
         return _no_observations(x, R0, s)
-    lap = LaplacianSolver(n, i, j, problem.adjacency(), fixed)
-    rots = (_Rotations2D if d == 2 else _Rotations3D)(i, z, n)
+    lap, rots, _, fit = _block_setup(problem, z, R0, fixed)
     free = lap.free
-    held = None if fixed is None else np.flatnonzero(fixed)
-    if held is not None:
-        held_state = rots.from_matrices(R0)[held].copy()
 
     def reduced(c):  # F(c), its gradient (n, d) and the fitted orientations (held ones kept)
         half = c[j] - c[i]
         half *= 0.5
-        state = rots.fit(half)
-        if held is not None:
-            state[held] = held_state
+        state = fit(half)
         r = rots.apply(state) - half
         g = _position_gradient(n, d, i, j, r)  # envelope theorem: the orientations are optimal
         g[~free] = 0.0
