@@ -277,27 +277,21 @@ def _plot(result: dict, path: Path) -> None:
         ax[3].plot([r["n"] for r in central], [r["central_wall_seconds_per_window"] * 1e3 for r in central], "k:",
                    label="centralized ms/window (reference)")
     ax[0].axhline(100, color="grey", lw=0.8, ls=":")
-    ax[0].set_xscale("log", base=2)
-    ax[0].set_yscale("log")
-    ax[0].set_xlabel("assemblies (ring)")
-    ax[0].set_ylabel("ADMM rounds to converge")
-    ax[0].set_title("rounds vs assemblies (loss 0; dotted: target 100)")
-    ax[0].legend(fontsize=6)
-    ax[1].set_xlabel("loss probability")
-    ax[1].set_yscale("log")
-    ax[1].set_title("vs loss (4 assemblies)")
-    ax[1].legend(fontsize=6)
-    ax[2].set_xscale("log", base=2)
-    ax[2].set_yscale("log")
-    ax[2].set_xlabel("assemblies (ring)")
-    ax[2].set_ylabel("messages / agent / window / degree")
-    ax[2].set_title("messages per window per neighbour (loss 0)")
-    ax[2].legend(fontsize=6)
-    ax[3].set_xscale("log", base=2)
-    ax[3].set_yscale("log")
-    ax[3].set_xlabel("assemblies (ring)")
-    ax[3].set_title("traffic and time")
-    ax[3].legend(fontsize=6)
+    panels = [  # (x label, y label, title); every panel but the loss one has n on a log2 axis
+        ("assemblies (ring)", "ADMM rounds to converge", "rounds vs assemblies (loss 0; dotted: target 100)"),
+        ("loss probability", None, "vs loss (4 assemblies)"),
+        ("assemblies (ring)", "messages / agent / window / degree", "messages per window per neighbour (loss 0)"),
+        ("assemblies (ring)", None, "traffic and time"),
+    ]
+    for a, (xlabel, ylabel, title) in zip(ax, panels):
+        if xlabel.startswith("assemblies"):
+            a.set_xscale("log", base=2)
+        a.set_yscale("log")
+        a.set_xlabel(xlabel)
+        if ylabel:
+            a.set_ylabel(ylabel)
+        a.set_title(title)
+        a.legend(fontsize=6)
     fig.tight_layout()
     write_atomic(path, lambda fh: fig.savefig(fh, format="png", dpi=100), binary=True)
     plt.close(fig)
