@@ -9,6 +9,14 @@ The seed's scenarios (seed 003 §VI-A, Fig. 5) are mimicked by ``triple`` (three
 by low bridges), ``sparse`` (the same chambers joined by bridges about one module wide: weak regions)
 and ``open`` (a long U-shaped channel, an open loop); ``twin`` is Fig. 3's two clusters joined by a
 pair of thin bridges (a loop through two weak regions); ``funnel``, ``ring`` and ``blobs`` add variety.
+
+``capture-triple``, ``capture-sparse`` and ``capture-open`` read Fig. 5 as §VI-A describes it,
+"planar slices of a 3D shape capture scenario": a box packed with modules around fixed objects
+(discs) that become holes of the container. ``capture-triple`` has three discs in a row, enclosed
+(a loop of modules around each, passages about 4 module diameters wide at 1,000 modules);
+``capture-sparse`` the same discs with passages about 2 diameters wide (weak regions on loops);
+``capture-open`` one large disc wrapped in a U up to 80 % of its height (an open loop). The
+reasoning is in docs/ensemble.md, "Reading of Fig. 5".
 """
 
 from __future__ import annotations
@@ -154,6 +162,68 @@ def _blobs(x, y, rng, m):
     return m
 
 
+def _capture(discs: np.ndarray, neck: float, floor: float, level: float, min_gap: float):
+    """A box packed with modules around fixed discs ("objects"): a planar slice of shape capture.
+
+    seed 003 §VI-A: the 2D scenarios "mimic planar slices of a 3D shape capture scenario [4]", in
+    which modules fill a container around an object. The objects are held in place (pressed into the
+    ensemble), so they are holes in the container, not loads on the floor; modules settle around
+    them under gravity up to the fill ``level`` (unit coordinates), 0.3 below the box's open top.
+
+    Parameters
+    ----------
+    discs : ndarray, shape (k, 3)
+        Centre x, centre y and radius of each object (unit coordinates).
+    neck, floor : float
+        Gap between the outermost discs and the side walls, and between the discs and the floor
+        (the box is sized from them).
+    level : float
+        Fill level the modules are meant to settle to (sets the shape's fill fraction).
+    min_gap : float
+        Smallest gap, in module radii, between a disc and a wall, the floor or another disc: at
+        small module counts the discs shrink (centres fixed) so every passage stays passable.
+
+    Returns
+    -------
+    inside, bounding box, fill fraction
+        The ``SHAPES_2D`` entry.
+    """
+    x1 = float(discs[:, 0].max() + discs[:, 2].max() + neck)
+    y1 = level + 0.3
+
+    def radii(m):
+        g = min_gap * m
+        r = np.minimum(discs[:, 2], np.minimum(discs[:, 0], x1 - discs[:, 0]) - g)
+        r = np.minimum(r, discs[:, 1] - g)
+        if len(discs) > 1:
+            pitch = np.diff(discs[:, 0])
+            half = 0.5 * (pitch - g)
+            r = np.minimum(r, np.minimum(np.r_[half, np.inf], np.r_[np.inf, half]))
+        return r
+
+    def inside(x, y, rng, m):
+        box = _rect(x, y, 0.0, x1, 0.0, y1)
+        for (cx, cy, _), r in zip(discs, radii(m)):
+            box &= np.hypot(x - cx, y - cy) > r
+        return box
+
+    # fill fraction: the share of the container's area below the fill level (fine raster, unit scale)
+    ys, xs = np.mgrid[0.0:y1:1000j, 0.0:x1:1000j]
+    mask = inside(xs, ys, None, 0.0)
+    fill = float(mask[ys <= level].sum() / mask.sum())
+    return inside, (0.0, x1, 0.0, y1), fill
+
+
+def _capture_row(radius: float, gap: float, cover: float, min_gap: float):
+    """Three equal discs in a row, ``gap`` from each other, the side walls and the floor, covered
+    by ``cover`` of modules above their tops (seed 003 Fig. 5(b) "structured triple", read as shape
+    capture of three objects)."""
+    pitch = 2.0 * radius + gap
+    cx = gap + radius + pitch * np.arange(3)
+    discs = np.column_stack([cx, np.full(3, gap + radius), np.full(3, radius)])
+    return _capture(discs, gap, gap, gap + 2.0 * radius + cover, min_gap)
+
+
 #: name -> (inside(x, y, rng), bounding box on unit coordinates, fill fraction)
 SHAPES_2D: dict[str, tuple[Callable, tuple[float, float, float, float], float]] = {
     "triple": (_chambers(0.22, 6.0), (0.0, 3.6, 0.0, 1.0), 0.92),
@@ -163,6 +233,12 @@ SHAPES_2D: dict[str, tuple[Callable, tuple[float, float, float, float], float]] 
     "funnel": (_funnel, (0.0, 1.4, 0.0, 1.6), 0.85),
     "ring": (_ring, (0.0, 2.0, 0.0, 2.0), 1.0),
     "blobs": (_blobs, (0.0, 8.0, -3.0, 5.0), 0.92),
+    # shape capture (see docs/ensemble.md "Reading of Fig. 5"): passages ~4 module diameters wide
+    # at 1,000 modules in capture-triple, ~2 in capture-sparse; capture-open wraps one large object
+    # in a U up to 80 % of its height (an open loop)
+    "capture-triple": _capture_row(0.4, 0.25, 0.45, 6.0),
+    "capture-sparse": _capture_row(0.4, 0.10, 0.45, 3.6),
+    "capture-open": _capture(np.array([[1.5, 1.45, 1.2]]), 0.3, 0.25, 0.25 + 1.6 * 1.2, 6.0),
 }
 
 

@@ -8,7 +8,7 @@ from sims.ensembles.lattices import lattice_sites
 from sims.ensembles.sensors import observe_contacts, rotation_matrices, sensor_layout
 from decentral.errors import InputError
 
-SHAPES_2D = ["triple", "sparse", "open", "twin", "funnel", "ring", "blobs"]
+SHAPES_2D = ["triple", "sparse", "open", "twin", "funnel", "ring", "blobs", "capture-triple", "capture-sparse", "capture-open"]
 SHAPES_3D = ["sphere", "box", "torus", "dumbbell", "triple3d"]
 
 
