@@ -173,3 +173,50 @@ def test_laplacian_solver_holds_the_given_centres(lattice):
     np.add.at(g, prob.j, r)
     np.add.at(g, prob.i, -r)
     np.testing.assert_allclose(g[~held], 0.0, atol=1e-9)
+
+
+@pytest.mark.parametrize("dim,shape", [(2, (9, 8)), (3, (5, 4, 4))])
+def test_nested_dissection_solve_equals_minimum_degree_solve(lattice, dim, shape):
+    """The Laplacian solve gives the same centres (to rounding) whichever fill-reducing ordering
+    factorizes it, with and without held modules."""
+    prob, x, R = lattice(dim, shape, noise=0.2, seed=2)
+    rng = np.random.default_rng(4)
+    t = rng.normal(size=(prob.num_observations, dim))
+    current = rng.normal(size=(prob.n, dim))
+    held = np.zeros(prob.n, dtype=bool)
+    held[[1, 17]] = True
+    for fixed in (None, held):
+        nd = LaplacianSolver(prob.n, prob.i, prob.j, fixed=fixed, ordering="nd")
+        mmd = LaplacianSolver(prob.n, prob.i, prob.j, fixed=fixed, ordering="mmd")
+        assert nd.perm is not None and mmd.perm is None
+        np.testing.assert_allclose(nd.solve(t, current), mmd.solve(t, current), atol=1e-10)
+
+
+def test_nested_dissection_is_a_reproducible_permutation(lattice):
+    """The METIS ordering is a permutation of the free modules and the same on every call."""
+    from decentral.ensemble.ordering import nested_dissection
+
+    prob, _, _ = lattice(3, (6, 5, 4))
+    first = LaplacianSolver(prob.n, prob.i, prob.j, ordering="nd").perm
+    np.testing.assert_array_equal(np.sort(first), np.arange(prob.n - 1))
+    np.testing.assert_array_equal(first, LaplacianSolver(prob.n, prob.i, prob.j, ordering="nd").perm)
+    lap = prob.adjacency()
+    np.testing.assert_array_equal(np.sort(nested_dissection(lap)), np.arange(prob.n))
+
+
+def test_lbfgs_refinement_does_not_depend_on_the_ordering(lattice):
+    """L-BFGS reaches the same optimum in the same number of iterations with either ordering."""
+    prob, x, R = lattice(3, (5, 5, 4), noise=0.2, seed=5)
+    x0, R0 = _perturb(x, R, np.random.default_rng(6), 3)
+    a = refine(prob, x0, R0, RefineConfig(method="lbfgs", ordering="nd", max_iter=60, history=30))
+    b = refine(prob, x0, R0, RefineConfig(method="lbfgs", ordering="mmd", max_iter=60, history=30))
+    assert a.iterations == b.iterations
+    np.testing.assert_allclose(a.position, b.position, atol=1e-9)
+    assert abs(a.cost - b.cost) <= 1e-9 * max(b.cost, 1e-12)
+
+
+def test_unknown_ordering_is_rejected(lattice):
+    """An unknown ordering name raises ValueError instead of silently falling back."""
+    prob, _, _ = lattice(2, (3, 3))
+    with pytest.raises(ValueError):
+        LaplacianSolver(prob.n, prob.i, prob.j, ordering="metis")
