@@ -3,10 +3,12 @@
 Declared inputs: the ``triple`` 2D scenario of seed 003 §VI-B (part B's generator, settled under
 gravity, 12 IR transceivers) at 1,000 to 100,000 modules, and the ``triple3d`` 3D solid rasterized
 into an hcp lattice (50 sensors) at 1,000 to 20,000 modules; generator seed 0, localization seed 0.
-Two configurations, measured in the same run:
+Configurations, measured in the same run (``--configs``):
 
 - ``default``: :class:`HierarchyConfig` defaults (L-BFGS refiner, seam-only refinement below the
-  top, 2 hops);
+  top, 2 hops; 3D Laplacians of 4,000 modules or more ordered by METIS nested dissection);
+- ``mmd_order`` (the defaults of session 3): the same with every Laplacian ordered by SuperLU's
+  minimum degree (``RefineConfig(ordering="mmd")``);
 - ``full_levels`` (the defaults before session 3): every level refined in full by Anderson-mixed
   alternating sweeps (``seam_hops=0``, ``method="alternating"``, history 6), same tolerances.
 
@@ -14,11 +16,12 @@ Every size is generated once by a child process. Then, for each 4x pair (2D 2,50
 25,000 -> 100,000, 3D 5,000 -> 20,000) and each configuration, fresh child processes measure the
 two sizes one after the other, and the whole sweep is repeated (``--repeats``, 5 by default; the
 100,000-module pair ``--repeats-large``, 3), so that both sizes of a pair see the same machine
-load; medians are taken over the repeats. Each child measures, on the same graph:
+load; medians are taken over the repeats, and each 4x ratio is given both as the ratio of the two
+sizes' medians and as the median (and range) of the per-repeat ratios of back-to-back runs. Each child measures, on the same graph:
 
-- the floor: factorizing the contact graph's reduced Laplacian and one solve (SuperLU, the solver
-  every refiner uses; the cheapest global computation on the graph: centres for the true
-  orientations);
+- the floor: factorizing the contact graph's reduced Laplacian and one solve (SuperLU in the
+  ordering the default refiner picks for the whole graph; the cheapest global computation on the
+  graph: centres for the true orientations);
 - after a warm-up call on a 300-module piece of the graph (so lazily imported code paths are not
   timed), one run of Algorithm 1: CPU time (``time.process_time``) and wall time, the process's peak
   resident memory, the mean refinement iterations per module (seed 003 Fig. 6), the depth of the
@@ -58,7 +61,7 @@ SIZES_2D = [1000, 2500, 10000, 25000, 100000]
 SIZES_3D = [1000, 5000, 20000]
 SHAPE = {2: "triple", 3: "triple3d"}
 PAIRS = [(2, 2500, 10000), (2, 25000, 100000), (3, 5000, 20000)]
-CONFIGS = ("default", "full_levels")
+CONFIGS = ("default", "mmd_order", "full_levels")
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -70,6 +73,10 @@ def make_config(name: str, skip_top: bool = False):
 
     if name == "default":
         cfg = HierarchyConfig()
+    elif name == "mmd_order":
+        base = HierarchyConfig()
+        cfg = replace(base, level_refine=replace(base.level_refine, ordering="mmd"),
+                      final_refine=replace(base.final_refine, ordering="mmd"))
     elif name == "full_levels":
         cfg = HierarchyConfig(seam_hops=0, level_refine=RefineConfig(max_iter=100, gtol=1e-3),
                               final_refine=RefineConfig(max_iter=300, gtol=1e-6))
@@ -92,6 +99,7 @@ def _generate(dim: int, n: int, folder: str) -> dict:
 def _measure(folder: str, config: str, split: bool) -> dict:
     from decentral.ensemble import evaluate, normcut_localize
     from decentral.ensemble.problem import EnsembleEstimate
+    from decentral.ensemble.ordering import choose_ordering
     from decentral.ensemble.refine import LaplacianSolver
     from sims.ensembles.generator import load_truth
     from sims.io.ensemble_npz import read_ensemble
@@ -103,7 +111,7 @@ def _measure(folder: str, config: str, split: bool) -> dict:
     floor_wall, floor_cpu = [], []
     for _ in range(3):
         w0, c0 = time.perf_counter(), time.process_time()
-        lap = LaplacianSolver(prob.n, prob.i, prob.j)
+        lap = LaplacianSolver(prob.n, prob.i, prob.j, ordering=choose_ordering("auto", prob.dim, prob.n))
         lap.solve(2.0 * np.einsum("eab,eb->ea", R[prob.i], prob.z), np.zeros((prob.n, prob.dim)))
         floor_wall.append(time.perf_counter() - w0)
         floor_cpu.append(time.process_time() - c0)
@@ -160,14 +168,24 @@ def summarize(runs: list[dict]) -> list[dict]:
     return out
 
 
-def ratios(summary: list[dict]) -> list[dict]:
-    """4x ratios (CPU and wall, medians) for each pair of sizes about 4x apart, with the floor's."""
+def paired_ratios(runs: list[dict], config: str, dim: int, small: int, large: int) -> list[float]:
+    """CPU-time ratios large / small of the runs made back to back in the same repeat."""
+    by = {(r["repeat"], r["n"]): r["cpu_s"] for r in runs if r["config"] == config and r["dim"] == dim}
+    return [by[(rep, large)] / by[(rep, small)] for rep, n in sorted(by) if n == small and (rep, large) in by]
+
+
+def ratios(summary: list[dict], runs: list[dict]) -> list[dict]:
+    """4x ratios for each pair of sizes about 4x apart: of the medians (CPU, wall, floor) and the
+    median and range of the per-repeat CPU ratios."""
     out = []
     for a in summary:
         for b in summary:
             if a["config"] == b["config"] and a["dim"] == b["dim"] and 3.5 <= b["n"] / a["n"] <= 4.5:
+                per = paired_ratios(runs, a["config"], a["dim"], a["n"], b["n"])
                 out.append({"config": a["config"], "dim": a["dim"], "from": a["n"], "to": b["n"],
                             "size_ratio": b["n"] / a["n"],
+                            "paired_cpu_ratios": per,
+                            "paired_cpu_ratio_median": float(np.median(per)) if per else None,
                             "cpu_ratio": b["cpu_s"] / a["cpu_s"], "wall_ratio": b["wall_s"] / a["wall_s"],
                             "floor_cpu_ratio": b["floor_cpu_s"] / a["floor_cpu_s"],
                             "floor_wall_ratio": b["floor_wall_s"] / a["floor_wall_s"],
@@ -183,7 +201,7 @@ def plot(payload: dict, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(1, 3, figsize=(16, 4.8))
-    styles = {"default": "-", "full_levels": ":"}
+    styles = {"default": "-", "mmd_order": "-.", "full_levels": ":"}
     for dim, marker in ((2, "o"), (3, "s")):
         floor_done = False
         for config, ls in styles.items():
@@ -276,7 +294,7 @@ def main() -> None:
                               f"it/module {row['iterations_per_module']:.1f}, cost {row['cost']:.9g}, "
                               f"global rms {row['global_rms']:.3f}, load {row['loadavg_start']:.1f}", flush=True)
     summary = summarize(runs)
-    targets = {"4x": ratios(summary)}
+    targets = {"4x": ratios(summary, runs)}
     for config in configs:
         r10 = next((r for r in summary if r["config"] == config and r["dim"] == 2 and r["n"] == 10000), None)
         if r10:
@@ -302,6 +320,11 @@ def main() -> None:
     }
     save(args.name, payload)
     plot(payload, RESULTS / f"{args.name}.png")
+    for r in targets["4x"]:
+        per = r["paired_cpu_ratios"]
+        print(f"{r['config']:11s} {r['dim']}D {r['from']} -> {r['to']}: CPU ratio of medians {r['cpu_ratio']:.2f}, "
+              f"per repeat median {r['paired_cpu_ratio_median']:.2f} (range {min(per):.2f}-{max(per):.2f}), "
+              f"floor {r['floor_cpu_ratio']:.2f}")
 
 
 if __name__ == "__main__":

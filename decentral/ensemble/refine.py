@@ -41,7 +41,7 @@ import numpy as np
 from scipy import sparse
 from scipy.sparse.linalg import splu
 
-from decentral.ensemble.ordering import ND_MIN_SIZE, nested_dissection
+from decentral.ensemble.ordering import ORDERINGS, choose_ordering, nested_dissection
 from decentral.ensemble.problem import EnsembleProblem
 from decentral.ensemble.rotation import angle_to_matrix, project_to_rotation, so3_exp, skew
 
@@ -78,9 +78,9 @@ class RefineConfig:
         orientation increments) for ``"lm"`` and ``"pcg"``.
     ordering : str
         Fill-reducing ordering of the Laplacian factorization (``"alternating"`` and ``"lbfgs"``):
-        ``"auto"``, METIS nested dissection from ``ND_MIN_SIZE`` free modules and minimum degree
-        below; ``"nd"`` or ``"mmd"`` always. Changes the cost per iteration, not the iterates
-        (up to rounding).
+        ``"auto"`` (:func:`~decentral.ensemble.ordering.choose_ordering`: METIS nested dissection
+        for 3D ensembles from 4,000 modules, SuperLU's minimum degree otherwise), ``"nd"`` or
+        ``"mmd"``. Changes the cost per iteration, not the iterates (up to rounding).
     """
 
     max_iter: int = 200
@@ -170,8 +170,8 @@ class LaplacianSolver:
     For fixed orientations the negative log-likelihood is (1/8) sum_e |c_j - c_i - 2 R_i z_e|^2, whose
     normal matrix is the Laplacian of the directed observation multigraph. One node per connected
     component is held fixed (the problem is translation invariant), the rest solved by a sparse LU of
-    the reduced Laplacian (SuperLU, symmetric mode, no pivoting) in a fill-reducing order: METIS
-    nested dissection above ``ND_MIN_SIZE`` free modules, SuperLU's minimum degree below.
+    the reduced Laplacian (SuperLU, symmetric mode, no pivoting) in a fill-reducing order: SuperLU's
+    minimum degree or METIS nested dissection (:mod:`decentral.ensemble.ordering`).
 
     Parameters
     ----------
@@ -184,15 +184,15 @@ class LaplacianSolver:
         Modules whose centres are held at ``current`` in :meth:`solve` (Dirichlet nodes); a
         component with none of them still gets its first node held.
     ordering : str
-        ``"auto"`` (nested dissection from ``ND_MIN_SIZE`` free modules), ``"nd"`` or ``"mmd"``.
+        ``"mmd"`` (minimum degree) or ``"nd"`` (nested dissection).
     """
 
     def __init__(self, n: int, i: np.ndarray, j: np.ndarray, adjacency: sparse.csr_matrix | None = None,
-                 fixed: np.ndarray | None = None, ordering: str = "auto"):
+                 fixed: np.ndarray | None = None, ordering: str = "mmd"):
         from scipy.sparse.csgraph import connected_components
 
-        if ordering not in ("auto", "nd", "mmd"):
-            raise ValueError(f"unknown ordering {ordering!r} (auto, nd or mmd)")
+        if ordering not in ("nd", "mmd"):
+            raise ValueError(f"unknown ordering {ordering!r} (nd or mmd)")
         self.n, self.i, self.j = n, i, j
         if adjacency is None:
             adjacency = sparse.csr_matrix((np.ones(i.size), (i, j)), shape=(n, n))
@@ -232,8 +232,7 @@ class LaplacianSolver:
         indices = rows[order][starts].astype(np.int32)
         indptr = np.searchsorted(cols[order][starts], np.arange(m + 1)).astype(np.int32)
         Lr = sparse.csc_matrix((data, indices, indptr), shape=(m, m))
-        use_nd = ordering == "nd" or (ordering == "auto" and m >= ND_MIN_SIZE)
-        self.perm = nested_dissection(Lr) if use_nd and m > 1 else None
+        self.perm = nested_dissection(Lr) if ordering == "nd" and m > 1 else None
         if self.perm is None:
             self.lu = splu(Lr, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                            options={"SymmetricMode": True})
@@ -355,7 +354,9 @@ def _block_setup(problem: EnsembleProblem, z: np.ndarray, R0: np.ndarray, fixed:
     Dirichlet nodes), the orientation model, the held indices, and the closed-form orientation fit
     ``fit(half) -> state`` (``half`` = (c_j - c_i) / 2 per observation, (E, dim), in radii) that keeps
     held modules at their orientations in ``R0``."""
-    lap = LaplacianSolver(problem.n, problem.i, problem.j, problem.adjacency(), fixed, ordering)
+    free = problem.n if fixed is None else problem.n - int(np.count_nonzero(fixed))
+    lap = LaplacianSolver(problem.n, problem.i, problem.j, problem.adjacency(), fixed,
+                          choose_ordering(ordering, problem.dim, free))
     rots = (_Rotations2D if problem.dim == 2 else _Rotations3D)(problem.i, z, problem.n)
     held = None if fixed is None else np.flatnonzero(fixed)
     held_state = None if held is None else rots.from_matrices(R0)[held].copy()
@@ -474,6 +475,8 @@ def refine(problem: EnsembleProblem, position: np.ndarray, rotation: np.ndarray,
     """
     if config.gnorm not in ("max", "l2"):
         raise ValueError(f"unknown gradient norm {config.gnorm!r} (max or l2)")
+    if config.ordering not in ORDERINGS:
+        raise ValueError(f"unknown ordering {config.ordering!r} ({', '.join(ORDERINGS)})")
     if fixed is not None:
         fixed = np.asarray(fixed, dtype=bool)
         if fixed.shape != (problem.n,):

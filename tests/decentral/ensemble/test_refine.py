@@ -217,6 +217,20 @@ def test_lbfgs_refinement_does_not_depend_on_the_ordering(lattice):
 
 def test_unknown_ordering_is_rejected(lattice):
     """An unknown ordering name raises ValueError instead of silently falling back."""
-    prob, _, _ = lattice(2, (3, 3))
+    prob, x, R = lattice(2, (3, 3))
     with pytest.raises(ValueError):
         LaplacianSolver(prob.n, prob.i, prob.j, ordering="metis")
+    with pytest.raises(ValueError):
+        refine(prob, x, R, RefineConfig(method="lbfgs", ordering="metis"))
+
+
+def test_auto_ordering_dissects_only_large_3d_laplacians():
+    """"auto" picks nested dissection for 3D ensembles from ND_MIN_SIZE modules and minimum degree
+    for planar ones and small 3D ones; an explicit choice is kept."""
+    from decentral.ensemble.ordering import ND_MIN_SIZE, choose_ordering
+
+    assert choose_ordering("auto", 3, ND_MIN_SIZE) == "nd"
+    assert choose_ordering("auto", 3, ND_MIN_SIZE - 1) == "mmd"
+    assert choose_ordering("auto", 2, 100 * ND_MIN_SIZE) == "mmd"
+    assert choose_ordering("nd", 2, 10) == "nd"
+    assert choose_ordering("mmd", 3, 100 * ND_MIN_SIZE) == "mmd"
