@@ -270,11 +270,60 @@ class LaplacianSolver:
         return c
 
 
-class _Rotations2D:
-    """Orientation state as angles (cheaper than matrices for the planar sweeps)."""
+def _row_matrix(columns: np.ndarray, values: np.ndarray, n_cols: int) -> sparse.csr_matrix:
+    """CSR matrix (E, n_cols) whose row e holds ``values[e]`` at ``columns[e]`` (both (E, k), k per row)."""
+    rows, k = columns.shape
+    return sparse.csr_matrix((values.ravel(), columns.ravel(), np.arange(0, rows * k + 1, k)),
+                             shape=(rows, n_cols))
+
+
+class _Incidence:
+    """The observation graph as sparse operators on centres (n, d) and per-observation arrays (E, d).
+
+    ``half(c)`` = (c_j - c_i) / 2 per observation, B c with B the (E, n) incidence matrix scaled by
+    1/2; ``gradient(r)`` = (sum_{e: i_e = k} r_e - sum_{e: j_e = k} r_e) / 2 per module, -B^T r: the
+    position gradient of (1/2) sum_e |r_e|^2 with r_e = R_i z_e - (c_j - c_i) / 2. One sparse product
+    each instead of one scatter per coordinate and end (3-5x faster on 5,000-20,000-module 3D ensembles).
+    """
+
+    def __init__(self, n: int, i: np.ndarray, j: np.ndarray):
+        self.B = _row_matrix(np.stack([i, j], 1), np.tile([-0.5, 0.5], (i.size, 1)), n)
+        self.BT = self.B.T.tocsr()
+
+    def half(self, c: np.ndarray) -> np.ndarray:
+        return self.B @ c
+
+    def gradient(self, r: np.ndarray) -> np.ndarray:
+        g = self.BT @ r
+        np.negative(g, out=g)
+        return g
+
+
+class _Rotations:
+    """Orientation model shared by 2D and 3D: observations as a sparse operator on stacked matrices.
+
+    ``Z`` (E, d n) holds z_e at the columns (i_e, 0..d-1), so ``Z @ Rt`` with ``Rt[(i, b), a] =
+    R_i[a, b]`` gives R_i z_e for every observation, and ``Z^T @ h`` gives the per-module sums
+    M_i[a, b] = sum_e h_e[a] z_e[b] that the closed-form fit needs (seed 003 eq. (1) per module).
+    """
 
     def __init__(self, i, z, n):
-        self.i, self.z, self.n = i, z, n
+        d = z.shape[1]
+        self.i, self.z, self.n, self.d = i, z, n, d
+        self.Z = _row_matrix(d * i[:, None] + np.arange(d), z, d * n)
+        self.ZT = self.Z.T.tocsr()
+
+    def rotate(self, R: np.ndarray) -> np.ndarray:
+        """R_i z_e for every observation (E, d) from matrices R (n, d, d)."""
+        return self.Z @ np.ascontiguousarray(R.transpose(0, 2, 1)).reshape(-1, self.d)
+
+    def moments(self, dvec: np.ndarray) -> np.ndarray:
+        """M (n, d, d), M_i[a, b] = sum_{e: i_e = i} dvec_e[a] z_e[b]."""
+        return (self.ZT @ dvec).reshape(self.n, self.d, self.d).transpose(0, 2, 1)
+
+
+class _Rotations2D(_Rotations):
+    """Orientation state as angles (cheaper than matrices for the planar sweeps)."""
 
     def from_matrices(self, R):
         return np.arctan2(R[:, 1, 0], R[:, 0, 0])
@@ -283,26 +332,19 @@ class _Rotations2D:
         return angle_to_matrix(theta)
 
     def apply(self, theta):
-        c, s = np.cos(theta)[self.i], np.sin(theta)[self.i]
-        zx, zy = self.z[:, 0], self.z[:, 1]
-        out = np.empty((self.i.size, 2))
-        np.subtract(c * zx, s * zy, out=out[:, 0])
-        np.add(s * zx, c * zy, out=out[:, 1])
-        return out
+        return self.rotate(angle_to_matrix(theta))
 
     def fit(self, dvec):
         # seed 003 eq. (1) per module, closed form: theta = atan2(sum z x d, sum z . d)
-        zx, zy = self.z[:, 0], self.z[:, 1]
-        sn = np.bincount(self.i, zx * dvec[:, 1] - zy * dvec[:, 0], self.n)
-        cs = np.bincount(self.i, zx * dvec[:, 0] + zy * dvec[:, 1], self.n)
-        return np.arctan2(sn, cs)
+        M = self.moments(dvec)
+        return np.arctan2(M[:, 1, 0] - M[:, 0, 1], M[:, 0, 0] + M[:, 1, 1])
 
 
-class _Rotations3D:
+class _Rotations3D(_Rotations):
     """Orientation state as matrices (n, 3, 3)."""
 
     def __init__(self, i, z, n):
-        self.i, self.z, self.n = i, z, n
+        super().__init__(i, z, n)
         self.lonely = np.bincount(i, minlength=n) == 0
 
     def from_matrices(self, R):
@@ -312,24 +354,13 @@ class _Rotations3D:
         return R
 
     def apply(self, R):
-        Ri, z = R[self.i], self.z
-        return Ri[:, :, 0] * z[:, 0:1] + Ri[:, :, 1] * z[:, 1:2] + Ri[:, :, 2] * z[:, 2:3]
+        return self.rotate(R)
 
     def fit(self, dvec):
         # per-module Kabsch fit of R z_ij onto (c_j - c_i)/2
-        M = np.empty((self.n, 3, 3))
-        for a in range(3):
-            for b in range(3):
-                M[:, a, b] = np.bincount(self.i, dvec[:, a] * self.z[:, b], self.n)
+        M = self.moments(dvec)
         M[self.lonely] = np.eye(3)
         return project_to_rotation(M)
-
-
-def _position_gradient(n, d, i, j, r):
-    g = np.empty((n, d))
-    for a in range(d):
-        g[:, a] = 0.5 * (np.bincount(i, r[:, a], n) - np.bincount(j, r[:, a], n))
-    return g
 
 
 def _norm(g: np.ndarray, kind: str) -> float:
@@ -353,7 +384,7 @@ def _block_setup(problem: EnsembleProblem, z: np.ndarray, R0: np.ndarray, fixed:
     """What the block refiners share: the Laplacian solver of the contact graph (held modules as
     Dirichlet nodes), the orientation model, the held indices, and the closed-form orientation fit
     ``fit(half) -> state`` (``half`` = (c_j - c_i) / 2 per observation, (E, dim), in radii) that keeps
-    held modules at their orientations in ``R0``."""
+    held modules at their orientations in ``R0``, and the incidence operators (:class:`_Incidence`)."""
     free = problem.n if fixed is None else problem.n - int(np.count_nonzero(fixed))
     lap = LaplacianSolver(problem.n, problem.i, problem.j, problem.adjacency(), fixed,
                           choose_ordering(ordering, problem.dim, free))
@@ -367,20 +398,19 @@ def _block_setup(problem: EnsembleProblem, z: np.ndarray, R0: np.ndarray, fixed:
             state[held] = held_state
         return state
 
-    return lap, rots, held, fit
+    return lap, rots, held, fit, _Incidence(problem.n, problem.i, problem.j)
 
 
 def _refine_alternating(problem: EnsembleProblem, position: np.ndarray, rotation: np.ndarray,
                         config: RefineConfig, fixed: np.ndarray | None = None) -> RefineResult:
     n, d, s = problem.n, problem.dim, problem.radius
-    i, j = problem.i, problem.j
     z, x, R0 = _in_radii(problem, position, rotation)
-    if i.size == 0:
+    if problem.num_observations == 0:
         return _no_observations(x, R0, s)
-    lap, rots, held, fit = _block_setup(problem, z, R0, fixed, config.ordering)
+    lap, rots, held, fit, inc = _block_setup(problem, z, R0, fixed, config.ordering)
 
     def gradient(r):  # position gradient of the free modules (held ones do not move)
-        g = _position_gradient(n, d, i, j, r)
+        g = inc.gradient(r)
         if held is not None:
             g[held] = 0.0
         return g
@@ -391,13 +421,12 @@ def _refine_alternating(problem: EnsembleProblem, position: np.ndarray, rotation
         return state, rz, r, 0.5 * float(np.einsum("ea,ea->", r, r))
 
     def energy(c):  # best orientations for the centres c (local step) and the resulting cost
-        half = c[j] - c[i]
-        half *= 0.5
+        half = inc.half(c)
         return evaluate(half, fit(half))
 
     # start from the given orientations if they are better than the fitted ones
     R, rz, r, E = energy(x)
-    given = evaluate(0.5 * (x[j] - x[i]), rots.from_matrices(rotation))
+    given = evaluate(inc.half(x), rots.from_matrices(rotation))
     if given[3] < E:
         R, rz, r, E = given
     dF: list[np.ndarray] = []
@@ -506,20 +535,18 @@ def _refine_lbfgs(problem: EnsembleProblem, position: np.ndarray, rotation: np.n
     block (cost = (1/8) |B c - 2 R z|^2 for fixed R, B the incidence matrix, L = B^T B), applied
     with the factorized Laplacian; one module per component is held (translation gauge).
     """
-    n, d, s = problem.n, problem.dim, problem.radius
-    i, j = problem.i, problem.j
+    s = problem.radius
     z, x, R0 = _in_radii(problem, position, rotation)
-    if i.size == 0:
+    if problem.num_observations == 0:
         return _no_observations(x, R0, s)
-    lap, rots, _, fit = _block_setup(problem, z, R0, fixed, config.ordering)
+    lap, rots, _, fit, inc = _block_setup(problem, z, R0, fixed, config.ordering)
     free = lap.free
 
     def reduced(c):  # F(c), its gradient (n, d) and the fitted orientations (held ones kept)
-        half = c[j] - c[i]
-        half *= 0.5
+        half = inc.half(c)
         state = fit(half)
         r = rots.apply(state) - half
-        g = _position_gradient(n, d, i, j, r)  # envelope theorem: the orientations are optimal
+        g = inc.gradient(r)  # envelope theorem: the orientations are optimal
         g[~free] = 0.0
         # seed 003 eq. (3): negative log-likelihood 1/2 sum_e |R_i z_e - (c_j - c_i)/2|^2
         return 0.5 * float(np.einsum("ea,ea->", r, r)), g, state
