@@ -24,6 +24,7 @@ from scipy.sparse.csgraph import connected_components
 from decentral.ensemble.abstraction import abstract_graph, choose_leaders, hop_clusters
 from decentral.ensemble.alignment import AlignmentStats, merge_point_pairs
 from decentral.ensemble.ncut import normalized_cut
+from decentral.ensemble.ordering import hierarchy_order
 from decentral.ensemble.placement import place_breadth_first
 from decentral.ensemble.problem import EnsembleEstimate, EnsembleProblem
 from decentral.ensemble.refine import RefineConfig, refine
@@ -254,7 +255,11 @@ class _Run:
         self.bad: list[str] = []
         self.max_level = 0
 
-    def solve(self, sub: EnsembleProblem, nodes: np.ndarray, level: int, top: bool) -> tuple[np.ndarray, np.ndarray, int]:
+    def solve(self, sub: EnsembleProblem, nodes: np.ndarray, level: int,
+              top: bool) -> tuple[np.ndarray, np.ndarray, int, np.ndarray]:
+        """Algorithm 1 on ``sub`` (whose modules are ``nodes`` globally): centres (n, d), rotations
+        (n, d, d), the index of its node in ``self.tree``, and the cuts below it as an elimination
+        order of its modules (:func:`~decentral.ensemble.ordering.hierarchy_order`)."""
         cfg = self.config
         if top:
             self.root_n = sub.n
@@ -268,7 +273,7 @@ class _Run:
             self.tree.append(HierarchyNode(nodes, level, (), float("nan"), res.iterations, res.status))
             if res.status == "stalled":
                 self.bad.append(f"leaf of {sub.n} modules: {res.status}")
-            return res.position, res.rotation, len(self.tree) - 1
+            return res.position, res.rotation, len(self.tree) - 1, np.arange(sub.n)
         in_a, value = split(sub, cfg, self.rng)
         # lines 5-6: each connected piece of A and of B is localized on its own
         side = in_a.astype(np.int64)
@@ -282,21 +287,23 @@ class _Run:
         if P == 1:  # degenerate cut (cannot happen for a connected graph with n >= 2); split in order
             part = (np.arange(sub.n) >= sub.n // 2).astype(np.int64)
             P = 2
-        poses, kids = [], []
+        poses, kids, orders = [], [], []
         for p in range(P):
             loc = np.flatnonzero(part == p)
             child = sub.subproblem(loc)
-            cpos, crot, cid = self.solve(child, nodes[loc], level + 1, False)
+            cpos, crot, cid, corder = self.solve(child, nodes[loc], level + 1, False)
             poses.append((cpos, crot))
             kids.append(cid)
+            orders.append(loc[corder])
         pos, rot = merge_parts(sub, part, poses)
+        order = hierarchy_order(sub.i, sub.j, part, orders)
         # line 11: refine the union starting from the aligned parts
         band = None
         if (not top and cfg.seam_hops > 0 and rcfg.method in SEAM_METHODS
                 and sub.n <= cfg.seam_fraction * self.root_n):
             band = seam_band(sub, part, cfg.seam_hops)
         if band is None:
-            res = refine(sub, pos, rot, rcfg)
+            res = refine(sub, pos, rot, rcfg, elimination=order)
             pos, rot = res.position, res.rotation
             self.iters[nodes] += res.iterations
         else:
@@ -308,7 +315,7 @@ class _Run:
         if res.status == "stalled":
             self.bad.append(f"merge of {sub.n} modules: {res.status}")
         self.tree.append(HierarchyNode(nodes, level, tuple(kids), value, res.iterations, res.status))
-        return pos, rot, len(self.tree) - 1
+        return pos, rot, len(self.tree) - 1, order
 
 
 def layout_components(positions: list[np.ndarray], radius: float) -> list[np.ndarray]:
@@ -370,7 +377,7 @@ def normcut_localize(problem: EnsembleProblem, rng: np.random.Generator,
     sys.setrecursionlimit(max(limit, 10_000))
     try:
         def solve_component(sub, nodes):
-            p, r, _ = run.solve(sub, nodes, 0, True)
+            p, r, _, _ = run.solve(sub, nodes, 0, True)
             return p, r, 0.0
 
         est, _, _ = localize_components(problem, solve_component)

@@ -12,6 +12,14 @@ fill (0.97 M against 1.03 M at 25,000 modules) and solves slower up to 25,000 mo
 2.8 ms), and below about 4,000 free modules it costs more than it saves in 3D too. So ``"auto"``
 orders 3D Laplacians of at least ``ND_MIN_SIZE`` modules by nested dissection and everything else
 by minimum degree.
+
+Algorithm 1 itself is a nested dissection: each normalized cut separates its set into parts joined by
+few observations, so the hierarchy of cuts gives an elimination order for free
+(:func:`hierarchy_order`: the parts first, recursively, then the modules at the cut). On the 2D
+``triple`` at 100,000 modules it fills more than minimum degree (7.2 M against 5.4 M) but needs no
+ordering step, so the factorization takes 0.28 s instead of 0.66 s and a solve 20 instead of 26 ms;
+in 3D METIS's separators are smaller (a solve of 15 against 23 ms at 20,000 modules), so ``"auto"``
+uses the hierarchy's order only where it does not use METIS.
 """
 
 from __future__ import annotations
@@ -19,10 +27,11 @@ from __future__ import annotations
 import numpy as np
 from scipy import sparse
 
-__all__ = ["ND_MIN_SIZE", "ORDERINGS", "choose_ordering", "nested_dissection"]
+__all__ = ["ND_MIN_SIZE", "ORDERINGS", "choose_ordering", "hierarchy_order", "nested_dissection"]
 
-#: accepted names: ``"auto"`` (the rule above), ``"nd"`` (nested dissection), ``"mmd"`` (minimum degree)
-ORDERINGS = ("auto", "nd", "mmd")
+#: accepted names: ``"auto"`` (the rule above), ``"nd"`` (METIS nested dissection), ``"mmd"`` (minimum
+#: degree), ``"given"`` (the caller's elimination order)
+ORDERINGS = ("auto", "nd", "mmd", "given")
 
 #: modules from which a 3D Laplacian is ordered by nested dissection (measured break-even between
 #: 3,000 and 5,000 free modules on triple3d)
@@ -32,8 +41,9 @@ ND_MIN_SIZE = 4000
 _METIS_SEED = 0
 
 
-def choose_ordering(requested: str, dim: int, size: int) -> str:
-    """The ordering (``"nd"`` or ``"mmd"``) for a Laplacian of ``size`` modules of a ``dim``-D ensemble.
+def choose_ordering(requested: str, dim: int, size: int, given: bool = False) -> str:
+    """The ordering for a Laplacian of ``size`` modules of a ``dim``-D ensemble: ``"nd"`` (METIS),
+    ``"given"`` (the caller's elimination order, when ``given``) or ``"mmd"``.
 
     Raises
     ------
@@ -44,7 +54,38 @@ def choose_ordering(requested: str, dim: int, size: int) -> str:
         raise ValueError(f"unknown ordering {requested!r} ({', '.join(ORDERINGS)})")
     if requested != "auto":
         return requested
-    return "nd" if dim == 3 and size >= ND_MIN_SIZE else "mmd"
+    if dim == 3 and size >= ND_MIN_SIZE:
+        return "nd"
+    return "given" if given else "mmd"
+
+
+def hierarchy_order(i: np.ndarray, j: np.ndarray, part: np.ndarray, part_orders: list[np.ndarray]) -> np.ndarray:
+    """Elimination order of a set cut into parts: the parts' own orders, then the cut's separator.
+
+    Parameters
+    ----------
+    i, j : ndarray of int, shape (E,)
+        Observations of the set (local ids).
+    part : ndarray of int, shape (n,)
+        Part of each module (0..P-1).
+    part_orders : list of ndarray of int
+        For each part p, an elimination order of its modules as local ids of the set (a permutation of
+        ``np.flatnonzero(part == p)``).
+
+    Returns
+    -------
+    order : ndarray of int, shape (n,)
+        Every module once: the parts' orders concatenated with the separator moved to the end. The
+        separator is, for each observation crossing the cut, its end in the later part, so removing it
+        disconnects the parts (George's nested dissection, with Algorithm 1's cuts as separators).
+    """
+    full = np.concatenate(part_orders)
+    crossing = part[i] != part[j]
+    a, b = i[crossing], j[crossing]
+    separator = np.zeros(part.size, dtype=bool)
+    separator[np.where(part[a] > part[b], a, b)] = True
+    last = separator[full]
+    return np.concatenate([full[~last], full[last]])
 
 
 def nested_dissection(matrix: sparse.spmatrix) -> np.ndarray:

@@ -79,8 +79,9 @@ class RefineConfig:
     ordering : str
         Fill-reducing ordering of the Laplacian factorization (``"alternating"`` and ``"lbfgs"``):
         ``"auto"`` (:func:`~decentral.ensemble.ordering.choose_ordering`: METIS nested dissection
-        for 3D ensembles from 4,000 modules, SuperLU's minimum degree otherwise), ``"nd"`` or
-        ``"mmd"``. Changes the cost per iteration, not the iterates (up to rounding).
+        for 3D ensembles from 4,000 modules, else the caller's elimination order if it gives one,
+        else SuperLU's minimum degree), ``"nd"``, ``"mmd"`` or ``"given"``. Changes the cost per
+        iteration, not the iterates (up to rounding).
     """
 
     max_iter: int = 200
@@ -184,15 +185,19 @@ class LaplacianSolver:
         Modules whose centres are held at ``current`` in :meth:`solve` (Dirichlet nodes); a
         component with none of them still gets its first node held.
     ordering : str
-        ``"mmd"`` (minimum degree) or ``"nd"`` (nested dissection).
+        ``"mmd"`` (minimum degree), ``"nd"`` (METIS nested dissection) or ``"given"`` (``elimination``).
+    elimination : ndarray of int, shape (n,), optional
+        An elimination order of the modules (a permutation of 0..n-1), for ``ordering="given"``.
     """
 
     def __init__(self, n: int, i: np.ndarray, j: np.ndarray, adjacency: sparse.csr_matrix | None = None,
-                 fixed: np.ndarray | None = None, ordering: str = "mmd"):
+                 fixed: np.ndarray | None = None, ordering: str = "mmd", elimination: np.ndarray | None = None):
         from scipy.sparse.csgraph import connected_components
 
-        if ordering not in ("nd", "mmd"):
-            raise ValueError(f"unknown ordering {ordering!r} (nd or mmd)")
+        if ordering not in ("nd", "mmd", "given"):
+            raise ValueError(f"unknown ordering {ordering!r} (nd, mmd or given)")
+        if ordering == "given" and (elimination is None or np.shape(elimination) != (n,)):
+            raise ValueError(f"ordering 'given' needs an elimination order of shape ({n},)")
         self.n, self.i, self.j = n, i, j
         if adjacency is None:
             adjacency = sparse.csr_matrix((np.ones(i.size), (i, j)), shape=(n, n))
@@ -232,7 +237,11 @@ class LaplacianSolver:
         indices = rows[order][starts].astype(np.int32)
         indptr = np.searchsorted(cols[order][starts], np.arange(m + 1)).astype(np.int32)
         Lr = sparse.csc_matrix((data, indices, indptr), shape=(m, m))
-        self.perm = nested_dissection(Lr) if ordering == "nd" and m > 1 else None
+        if ordering == "nd" and m > 1:
+            self.perm = nested_dissection(Lr)
+        elif ordering == "given":
+            order = np.asarray(elimination)
+            self.perm = index[order[free[order]]]
         if self.perm is None:
             self.lu = splu(Lr, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                            options={"SymmetricMode": True})
@@ -380,14 +389,14 @@ def _no_observations(x: np.ndarray, R: np.ndarray, s: float) -> RefineResult:
 
 
 def _block_setup(problem: EnsembleProblem, z: np.ndarray, R0: np.ndarray, fixed: np.ndarray | None,
-                 ordering: str = "auto"):
+                 ordering: str = "auto", elimination: np.ndarray | None = None):
     """What the block refiners share: the Laplacian solver of the contact graph (held modules as
     Dirichlet nodes), the orientation model, the held indices, and the closed-form orientation fit
     ``fit(half) -> state`` (``half`` = (c_j - c_i) / 2 per observation, (E, dim), in radii) that keeps
     held modules at their orientations in ``R0``, and the incidence operators (:class:`_Incidence`)."""
     free = problem.n if fixed is None else problem.n - int(np.count_nonzero(fixed))
     lap = LaplacianSolver(problem.n, problem.i, problem.j, problem.adjacency(), fixed,
-                          choose_ordering(ordering, problem.dim, free))
+                          choose_ordering(ordering, problem.dim, free, elimination is not None), elimination)
     rots = (_Rotations2D if problem.dim == 2 else _Rotations3D)(problem.i, z, problem.n)
     held = None if fixed is None else np.flatnonzero(fixed)
     held_state = None if held is None else rots.from_matrices(R0)[held].copy()
@@ -402,12 +411,13 @@ def _block_setup(problem: EnsembleProblem, z: np.ndarray, R0: np.ndarray, fixed:
 
 
 def _refine_alternating(problem: EnsembleProblem, position: np.ndarray, rotation: np.ndarray,
-                        config: RefineConfig, fixed: np.ndarray | None = None) -> RefineResult:
+                        config: RefineConfig, fixed: np.ndarray | None = None,
+                        elimination: np.ndarray | None = None) -> RefineResult:
     n, d, s = problem.n, problem.dim, problem.radius
     z, x, R0 = _in_radii(problem, position, rotation)
     if problem.num_observations == 0:
         return _no_observations(x, R0, s)
-    lap, rots, held, fit, inc = _block_setup(problem, z, R0, fixed, config.ordering)
+    lap, rots, held, fit, inc = _block_setup(problem, z, R0, fixed, config.ordering, elimination)
 
     def gradient(r):  # position gradient of the free modules (held ones do not move)
         g = inc.gradient(r)
@@ -478,7 +488,8 @@ def _refine_alternating(problem: EnsembleProblem, position: np.ndarray, rotation
 
 
 def refine(problem: EnsembleProblem, position: np.ndarray, rotation: np.ndarray,
-           config: RefineConfig = RefineConfig(), fixed: np.ndarray | None = None) -> RefineResult:
+           config: RefineConfig = RefineConfig(), fixed: np.ndarray | None = None,
+           elimination: np.ndarray | None = None) -> RefineResult:
     """Maximize the likelihood (seed 003 eq. 3) starting from ``position`` (n, d), ``rotation`` (n, d, d).
 
     Parameters
@@ -494,6 +505,10 @@ def refine(problem: EnsembleProblem, position: np.ndarray, rotation: np.ndarray,
         the other modules, with every observation still counted. Used to refine the seam of a merge
         inside a ring of already refined modules (:class:`~decentral.ensemble.HierarchyConfig`
         ``seam_hops``).
+    elimination : ndarray of int, shape (n,), optional
+        An elimination order of the modules for the Laplacian factorization (``"alternating"`` and
+        ``"lbfgs"``; used as ``config.ordering`` says, see :class:`RefineConfig`), e.g. Algorithm 1's
+        cuts as a nested dissection (:func:`~decentral.ensemble.ordering.hierarchy_order`).
 
     Returns
     -------
@@ -506,28 +521,35 @@ def refine(problem: EnsembleProblem, position: np.ndarray, rotation: np.ndarray,
         raise ValueError(f"unknown gradient norm {config.gnorm!r} (max or l2)")
     if config.ordering not in ORDERINGS:
         raise ValueError(f"unknown ordering {config.ordering!r} ({', '.join(ORDERINGS)})")
+    if elimination is not None:
+        elimination = np.asarray(elimination, dtype=np.int64)
+        if elimination.shape != (problem.n,) or not np.array_equal(np.sort(elimination), np.arange(problem.n)):
+            raise ValueError(f"elimination must be a permutation of 0..{problem.n - 1}")
+    if config.ordering == "given" and elimination is None:
+        raise ValueError("ordering 'given' needs an elimination order")
     if fixed is not None:
         fixed = np.asarray(fixed, dtype=bool)
         if fixed.shape != (problem.n,):
             raise ValueError(f"fixed has shape {fixed.shape}, expected ({problem.n},)")
         if config.method == "alternating":
-            return _refine_alternating(problem, position, rotation, config, fixed)
+            return _refine_alternating(problem, position, rotation, config, fixed, elimination)
         if config.method == "lbfgs":
-            return _refine_lbfgs(problem, position, rotation, config, fixed)
+            return _refine_lbfgs(problem, position, rotation, config, fixed, elimination)
         raise ValueError(f"held modules need the alternating or lbfgs refiner, not {config.method!r}")
     if config.method == "lm":
         return _refine_lm(problem, position, rotation, config)
     if config.method == "alternating":
-        return _refine_alternating(problem, position, rotation, config)
+        return _refine_alternating(problem, position, rotation, config, None, elimination)
     if config.method == "pcg":
         return _refine_pcg(problem, position, rotation, config)
     if config.method == "lbfgs":
-        return _refine_lbfgs(problem, position, rotation, config)
+        return _refine_lbfgs(problem, position, rotation, config, None, elimination)
     raise ValueError(f"unknown refinement method {config.method!r}")
 
 
 def _refine_lbfgs(problem: EnsembleProblem, position: np.ndarray, rotation: np.ndarray,
-                  config: RefineConfig, fixed: np.ndarray | None = None) -> RefineResult:
+                  config: RefineConfig, fixed: np.ndarray | None = None,
+                  elimination: np.ndarray | None = None) -> RefineResult:
     """L-BFGS on the centres with the orientations fitted in closed form (variable projection).
 
     F(c) = min_R cost(c, R); by the envelope theorem its gradient is the position gradient at the
@@ -539,7 +561,7 @@ def _refine_lbfgs(problem: EnsembleProblem, position: np.ndarray, rotation: np.n
     z, x, R0 = _in_radii(problem, position, rotation)
     if problem.num_observations == 0:
         return _no_observations(x, R0, s)
-    lap, rots, _, fit, inc = _block_setup(problem, z, R0, fixed, config.ordering)
+    lap, rots, _, fit, inc = _block_setup(problem, z, R0, fixed, config.ordering, elimination)
     free = lap.free
 
     def reduced(c):  # F(c), its gradient (n, d) and the fitted orientations (held ones kept)

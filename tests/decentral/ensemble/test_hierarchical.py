@@ -126,3 +126,50 @@ def test_seam_fraction_zero_is_full_level_refinement(lattice):
     b = normcut_localize(prob, np.random.default_rng(0), HierarchyConfig(leaf_size=16, abstract_size=8, seam_hops=0))
     np.testing.assert_array_equal(a.estimate.position, b.estimate.position)
     np.testing.assert_array_equal(a.iterations_per_module, b.iterations_per_module)
+
+
+def test_hierarchy_order_puts_each_cut_separator_after_its_parts(lattice):
+    """The elimination order built from a cut lists every module once, the parts' own orders first and
+    the later-part ends of the crossing observations last, so eliminating in that order never couples
+    the two parts before the separator."""
+    from decentral.ensemble.ordering import hierarchy_order
+
+    prob, _, _ = lattice(2, (12, 6))
+    part = (np.arange(prob.n) // 6 >= 6).astype(np.int64)  # left and right halves of the grid
+    orders = [np.flatnonzero(part == p)[::-1] for p in (0, 1)]  # any order within each part
+    order = hierarchy_order(prob.i, prob.j, part, orders)
+    np.testing.assert_array_equal(np.sort(order), np.arange(prob.n))
+    crossing = part[prob.i] != part[prob.j]
+    separator = np.unique(np.where(part[prob.i] > part[prob.j], prob.i, prob.j)[crossing])
+    np.testing.assert_array_equal(np.sort(order[-separator.size:]), separator)
+    rest = order[: -separator.size]
+    np.testing.assert_array_equal(rest, np.concatenate([o[~np.isin(o, separator)] for o in orders]))
+
+
+@pytest.mark.parametrize("dim,shape", [(2, (20, 18)), (3, (8, 7, 7))])
+def test_hierarchy_elimination_order_leaves_algorithm_1_unchanged(lattice, dim, shape):
+    """Factorizing the full-level Laplacians in the hierarchy's order instead of minimum degree changes
+    nothing but rounding: same cost, same estimate, about the same iterations (rounding can move a
+    stopping test by an iteration)."""
+    prob, _, _ = lattice(dim, shape, noise=0.2, seed=9)
+
+    def config(ordering):
+        r = RefineConfig(method="lbfgs", history=30, max_iter=100, gtol=1e-3, ordering=ordering)
+        return HierarchyConfig(leaf_size=16, abstract_size=8, seam_hops=0, level_refine=r,
+                               final_refine=RefineConfig(method="lbfgs", history=30, max_iter=300,
+                                                         gtol=1e-6, ordering=ordering))
+
+    auto = normcut_localize(prob, np.random.default_rng(0), config("auto"))
+    mmd = normcut_localize(prob, np.random.default_rng(0), config("mmd"))
+    assert np.isclose(auto.cost, mmd.cost, rtol=1e-9)
+    assert _rms(auto.estimate.position, mmd.estimate.position, prob.radius) < 1e-6
+    assert abs(auto.iterations_per_module.mean() / mmd.iterations_per_module.mean() - 1) < 0.1
+
+
+def test_refine_rejects_an_elimination_order_that_is_not_a_permutation(lattice):
+    """An elimination order with a repeated or missing module is refused (ValueError), not used."""
+    prob, x, R = lattice(2, (4, 4))
+    bad = np.arange(prob.n)
+    bad[3] = 2
+    with pytest.raises(ValueError):
+        refine(prob, x, R, RefineConfig(method="lbfgs"), elimination=bad)
