@@ -14,6 +14,8 @@ import time  # noqa: E402
 from importlib import metadata  # noqa: E402
 from pathlib import Path  # noqa: E402
 
+from sims.io.atomic import write_atomic  # noqa: E402
+
 RESULTS = Path(__file__).resolve().parent / "results"
 
 __all__ = ["RESULTS", "machine", "save", "timed"]
@@ -52,6 +54,7 @@ def save(name: str, payload: dict) -> Path:
     payload["machine"]["loadavg_end"] = list(os.getloadavg())
     RESULTS.mkdir(parents=True, exist_ok=True)
     path = RESULTS / f"{name}.json"
-    path.write_text(json.dumps(payload, indent=1) + "\n")
-    print(json.dumps(payload, indent=1))
+    text = json.dumps(payload, indent=1) + "\n"
+    write_atomic(path, lambda fh: fh.write(text))  # an interrupted run never leaves half a result
+    print(text, end="")
     return path
