@@ -62,7 +62,13 @@ class RefineConfig:
         Stop when the largest gradient entry (in module radii) is below this (seed 003 §VI-B stops
         each level at a fixed gradient norm).
     ftol : float
-        Stop when an accepted step lowers the cost by less than this fraction.
+        Stop when an accepted step lowers the cost by less than this fraction (for ``"lbfgs"`` and
+        ``"alternating"``: when the last ``ftol_window`` accepted steps together do).
+    ftol_window : int
+        Number of accepted steps the ``ftol`` test looks back over (``"lbfgs"`` and
+        ``"alternating"``). With one, a single small step in a plateau stops the run, so that the
+        stopping point can move by a hundred iterations with rounding-level changes of the start;
+        Algorithm 1's top refinement uses 20 steps and ``ftol`` 1e-10.
     damping : float
         Initial Levenberg-Marquardt damping (relative to the diagonal of J^T J), ``"lm"`` only.
     method : str
@@ -87,6 +93,7 @@ class RefineConfig:
     max_iter: int = 200
     gtol: float = 1e-6
     ftol: float = 1e-12
+    ftol_window: int = 1
     damping: float = 1e-6
     method: str = "alternating"
     history: int = 6
@@ -372,6 +379,24 @@ class _Rotations3D(_Rotations):
         return project_to_rotation(M)
 
 
+class _DecreaseTest:
+    """The relative-decrease stopping test of the block refiners: called with the cost after each
+    accepted step, true when the last ``ftol_window`` steps together lowered it by less than ``ftol``
+    (relative to the cost before them). A window of one is the plain per-step test; a longer window
+    does not fire on one small step in a plateau, so where a run stops no longer hangs on rounding."""
+
+    def __init__(self, config: "RefineConfig", start: float):
+        self.ftol, self.window = config.ftol, max(int(config.ftol_window), 1)
+        self.costs: list[float] = [start]
+
+    def __call__(self, cost: float) -> bool:
+        self.costs.append(cost)
+        if len(self.costs) <= self.window:
+            return False
+        before = self.costs.pop(0)
+        return 0 <= (before - cost) / max(before, 1e-300) < self.ftol
+
+
 def _norm(g: np.ndarray, kind: str) -> float:
     """Largest entry (``"max"``) or Euclidean norm (``"l2"``) of a gradient array."""
     return float(np.sqrt(np.vdot(g, g))) if kind == "l2" else float(np.abs(g).max())
@@ -439,6 +464,7 @@ def _refine_alternating(problem: EnsembleProblem, position: np.ndarray, rotation
     given = evaluate(inc.half(x), rots.from_matrices(rotation))
     if given[3] < E:
         R, rz, r, E = given
+    stalled = _DecreaseTest(config, E)
     dF: list[np.ndarray] = []
     dG: list[np.ndarray] = []
     f_prev = g_prev = None
@@ -478,10 +504,9 @@ def _refine_alternating(problem: EnsembleProblem, position: np.ndarray, rotation
             # threw away the slow modes it had learned, and the plain sweeps crawl along them.
             x_new = g
             R_new, rz_new, r_new, E_new = energy(g)
-        decrease = (E - E_new) / max(E, 1e-300)
         x, R, rz, r, E = x_new, R_new, rz_new, r_new, E_new
         gnorm = _norm(gradient(r), config.gnorm)
-        if gnorm <= config.gtol or E <= 1e-30 or 0 <= decrease < config.ftol:
+        if gnorm <= config.gtol or E <= 1e-30 or stalled(E):
             status = "converged"
             break
     return RefineResult(x * s, rots.to_matrices(R), E * s * s, gnorm, it, status)
@@ -579,6 +604,7 @@ def _refine_lbfgs(problem: EnsembleProblem, position: np.ndarray, rotation: np.n
         return out
 
     E, g, state = reduced(x)  # the closed-form fit is never worse than the given orientations
+    stalled = _DecreaseTest(config, E)
     S: list[np.ndarray] = []
     Y: list[np.ndarray] = []
     rho: list[float] = []
@@ -629,10 +655,9 @@ def _refine_lbfgs(problem: EnsembleProblem, position: np.ndarray, rotation: np.n
                 S.pop(0)
                 Y.pop(0)
                 rho.pop(0)
-        decrease = (E - E_new) / max(E, 1e-300)
         x, E, g, state = x_new, E_new, g_new, state_new
         gnorm = _norm(g, config.gnorm)
-        if gnorm <= config.gtol or E <= 1e-30 or 0 <= decrease < config.ftol:
+        if gnorm <= config.gtol or E <= 1e-30 or stalled(E):
             status = "converged"
             break
     return RefineResult(x * s, rots.to_matrices(state), E * s * s, gnorm, it, status)
