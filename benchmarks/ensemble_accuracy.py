@@ -44,6 +44,8 @@ reading of Fig. 5 (docs/ensemble.md, "Reading of Fig. 5") is
 ``--shapes capture-triple,capture-sparse,capture-open --instances 10 --name ensemble_accuracy_capture``
 (and ``--gtol 1.0 --sdp-modules 0 --name ensemble_accuracy_capture_gtol1``). The JSON's ``mle``
 gives, per instance, the lowest-cost estimate refined to convergence from any start.
+``--bottom-up-cluster K`` starts bottom-up from hop clusters of K modules instead of 32 (both
+protocols; the seed does not say what its clusters start as).
 """
 
 from __future__ import annotations
@@ -71,6 +73,9 @@ PCG_CAP = 2000
 #: cap (Clarabel's own time limit is not checked while it sets up its factorization); a capped solve
 #: is recorded as failed, never as a result
 SDP_TIME_LIMIT = 180.0
+#: modules per starting cluster of the bottom-up baseline (hop clusters, each placed and refined
+#: before the merges); the seed does not say what its clusters start as, 1 = single modules
+BOTTOM_UP_CLUSTER = 32
 
 
 def _sdp_child(prob, queue):
@@ -113,7 +118,7 @@ def refiners(protocol: str, gtol: float = GTOL):
     return None, RefineConfig(max_iter=BUDGET, history=0, gtol=0.0, ftol=0.0)
 
 
-def _initial(method: str, protocol: str, prob, rng, gtol: float):
+def _initial(method: str, protocol: str, prob, rng, gtol: float, bu_cluster: int = BOTTOM_UP_CLUSTER):
     from decentral.ensemble.baselines.bottom_up import MERGE_REFINE, bottom_up_initial
     from decentral.ensemble.baselines.incremental import STEP_REFINE, incremental_initial
     from decentral.ensemble.baselines.mds import mds_positions
@@ -131,7 +136,7 @@ def _initial(method: str, protocol: str, prob, rng, gtol: float):
         p, r, it = incremental_initial(prob, step or STEP_REFINE)
         return p, r, float(it.mean())
     if method == "bottom-up":
-        p, r, it = bottom_up_initial(prob, rng, merge_refine=step or MERGE_REFINE)
+        p, r, it = bottom_up_initial(prob, rng, cluster_size=bu_cluster, merge_refine=step or MERGE_REFINE)
         return p, r, float(it.mean())
     if method == "mds":
         p = mds_positions(prob)
@@ -159,7 +164,8 @@ def difficulty(prob, ens) -> dict:
             "mean_degree": float(prob.num_observations / prob.n)}
 
 
-def run_instance(shape: str, seed: int, n: int, with_sdp: bool, protocols=PROTOCOLS, gtol: float = GTOL) -> list[dict]:
+def run_instance(shape: str, seed: int, n: int, with_sdp: bool, protocols=PROTOCOLS, gtol: float = GTOL,
+                 bu_cluster: int = BOTTOM_UP_CLUSTER) -> list[dict]:
     from decentral.ensemble import EnsembleProblem, evaluate
     from decentral.ensemble.refine import RefineConfig, refine
     from decentral.errors import SolverError
@@ -184,7 +190,7 @@ def run_instance(shape: str, seed: int, n: int, with_sdp: bool, protocols=PROTOC
                         raise cache[method]
                     pos, rot, its = cache[method]
                 else:
-                    pos, rot, its = _initial(method, protocol, prob, np.random.default_rng(seed), gtol)
+                    pos, rot, its = _initial(method, protocol, prob, np.random.default_rng(seed), gtol, bu_cluster)
                     cache[method] = (pos, rot, its)
             except SolverError as err:
                 if method in ("mds", "sdp"):
@@ -351,6 +357,8 @@ def main() -> None:
     ap.add_argument("--gtol", type=float, default=GTOL, help="gradient-norm threshold of the seed protocol")
     ap.add_argument("--name", default="ensemble_accuracy", help="results file stem (default: ensemble_accuracy)")
     ap.add_argument("--shapes", default=",".join(SHAPES), help="comma-separated 2D shapes (default: triple,sparse,open)")
+    ap.add_argument("--bottom-up-cluster", type=int, default=BOTTOM_UP_CLUSTER, metavar="K",
+                    help="modules per starting cluster of bottom-up, both protocols (default: 32; 1: single modules)")
     args = ap.parse_args()
     SHAPES = tuple(args.shapes.split(","))
     info = machine()
@@ -358,12 +366,13 @@ def main() -> None:
     rows = []
     for shape in SHAPES:
         for seed in range(args.instances):
-            rows += run_instance(shape, seed, args.modules, False, gtol=args.gtol)
+            rows += run_instance(shape, seed, args.modules, False, gtol=args.gtol, bu_cluster=args.bottom_up_cluster)
     sdp_rows = []
     if args.sdp_modules:
         for shape in SHAPES:
             for seed in range(args.sdp_instances):
-                sdp_rows += run_instance(shape, seed, args.sdp_modules, True, gtol=args.gtol)
+                sdp_rows += run_instance(shape, seed, args.sdp_modules, True, gtol=args.gtol,
+                                         bu_cluster=args.bottom_up_cluster)
     summary = summarize(rows)
     payload = {
         "benchmark": "ensemble_accuracy",
@@ -371,6 +380,7 @@ def main() -> None:
                        "sdp_modules": args.sdp_modules, "sdp_instances": args.sdp_instances,
                        "budget_iterations": BUDGET, "protocols": PROTOCOLS, "seed_gtol_l2": args.gtol,
                        "pcg_cap_per_refinement": PCG_CAP, "sdp_time_limit_s": SDP_TIME_LIMIT,
+                       "bottom_up_cluster": args.bottom_up_cluster,
                        "ncut": "Algorithm 1, exact normalized cut"},
         "summary": summary,
         "ncut_lowest_global_rms": {k: ncut_wins(summary, k) for k in ("refined300", "initial", "converged")},
