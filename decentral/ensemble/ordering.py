@@ -10,8 +10,8 @@ instead of 0.73 s and 23 ms (1.3 instead of 1.9 ms per solve at 5,000). Planar c
 small separators that minimum degree already finds: on the 2D ``triple`` the dissection saves no
 fill (0.97 M against 1.03 M at 25,000 modules) and solves slower up to 25,000 modules (4.2 against
 2.8 ms), and below about 4,000 free modules it costs more than it saves in 3D too. So ``"auto"``
-orders 3D Laplacians of at least ``ND_MIN_SIZE`` modules by nested dissection and everything else
-by minimum degree.
+orders 3D Laplacians of at least ``ND_MIN_SIZE`` modules by nested dissection, the others by the
+caller's elimination order when it gives one (below), else by minimum degree.
 
 Algorithm 1 itself is a nested dissection: each normalized cut separates its set into parts joined by
 few observations, so the hierarchy of cuts gives an elimination order for free
