@@ -464,7 +464,7 @@ def _refine_alternating(problem: EnsembleProblem, position: np.ndarray, rotation
     given = evaluate(inc.half(x), rots.from_matrices(rotation))
     if given[3] < E:
         R, rz, r, E = given
-    stalled = _DecreaseTest(config, E)
+    levelled_off = _DecreaseTest(config, E)
     dF: list[np.ndarray] = []
     dG: list[np.ndarray] = []
     f_prev = g_prev = None
@@ -506,7 +506,7 @@ def _refine_alternating(problem: EnsembleProblem, position: np.ndarray, rotation
             R_new, rz_new, r_new, E_new = energy(g)
         x, R, rz, r, E = x_new, R_new, rz_new, r_new, E_new
         gnorm = _norm(gradient(r), config.gnorm)
-        if gnorm <= config.gtol or E <= 1e-30 or stalled(E):
+        if gnorm <= config.gtol or E <= 1e-30 or levelled_off(E):
             status = "converged"
             break
     return RefineResult(x * s, rots.to_matrices(R), E * s * s, gnorm, it, status)
@@ -604,7 +604,7 @@ def _refine_lbfgs(problem: EnsembleProblem, position: np.ndarray, rotation: np.n
         return out
 
     E, g, state = reduced(x)  # the closed-form fit is never worse than the given orientations
-    stalled = _DecreaseTest(config, E)
+    levelled_off = _DecreaseTest(config, E)
     S: list[np.ndarray] = []
     Y: list[np.ndarray] = []
     rho: list[float] = []
@@ -657,7 +657,7 @@ def _refine_lbfgs(problem: EnsembleProblem, position: np.ndarray, rotation: np.n
                 rho.pop(0)
         x, E, g, state = x_new, E_new, g_new, state_new
         gnorm = _norm(g, config.gnorm)
-        if gnorm <= config.gtol or E <= 1e-30 or stalled(E):
+        if gnorm <= config.gtol or E <= 1e-30 or levelled_off(E):
             status = "converged"
             break
     return RefineResult(x * s, rots.to_matrices(state), E * s * s, gnorm, it, status)
