@@ -18,7 +18,7 @@ from sims.io.atomic import write_atomic  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
-__all__ = ["RESULTS", "machine", "save", "timed"]
+__all__ = ["RESULTS", "machine", "save", "save_figure", "timed"]
 
 
 def machine() -> dict:
@@ -46,6 +46,15 @@ def timed(fn, *args, **kwargs):
     start = time.perf_counter()
     out = fn(*args, **kwargs)
     return out, time.perf_counter() - start
+
+
+def save_figure(fig, path: Path, dpi: int = 110) -> None:
+    """Write a matplotlib figure as PNG to ``path`` atomically and close it (like :func:`save`, an
+    interrupted run leaves the previous plot, never half a file)."""
+    import matplotlib.pyplot as plt
+
+    write_atomic(path, lambda fh: fig.savefig(fh, format="png", dpi=dpi), binary=True)
+    plt.close(fig)
 
 
 def save(name: str, payload: dict) -> Path:

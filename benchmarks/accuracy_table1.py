@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import argparse
 
-from _common import RESULTS, machine, save, timed  # noqa: I001  (pins threads before numpy)
+from _common import RESULTS, machine, save, save_figure, timed  # noqa: I001  (pins threads before numpy)
 
 import numpy as np
 
@@ -78,7 +78,7 @@ def plot(result: dict, path) -> None:
         ax.set_title(label, fontsize=9)
     fig.suptitle("Table I on the geometry simulator (mean over seeds)", fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path)
 
 
 def main() -> None:

@@ -38,10 +38,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from _common import save_figure  # noqa: E402
 from decentral.estimator import EstimatorConfig, estimate_log  # noqa: E402
 from decentral.metrics import estimate_gap  # noqa: E402
 from sims.admm_run import AdmmRunConfig, run_admm  # noqa: E402
-from sims.io.atomic import write_atomic, write_json_atomic  # noqa: E402
+from sims.io.atomic import write_json_atomic  # noqa: E402
 from sims.scenarios import get_scenario, simulate  # noqa: E402
 
 KINDS = {"admm": ("admm.primal", "admm.dual"), "forms": ("admm.factors", "admm.bundle", "admm.bundle_ack"),
@@ -293,8 +294,7 @@ def _plot(result: dict, path: Path) -> None:
         a.set_title(title)
         a.legend(fontsize=6)
     fig.tight_layout()
-    write_atomic(path, lambda fh: fig.savefig(fh, format="png", dpi=100), binary=True)
-    plt.close(fig)
+    save_figure(fig, path, dpi=100)
 
 
 if __name__ == "__main__":

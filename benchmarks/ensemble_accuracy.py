@@ -59,7 +59,7 @@ import time
 
 import numpy as np
 
-from _common import RESULTS, machine, save
+from _common import RESULTS, machine, save, save_figure
 
 SHAPES = ("triple", "sparse", "open")
 METHODS = ("mds", "sdp", "incremental", "bottom-up", "ncut")
@@ -344,7 +344,7 @@ def plot(payload: dict, path) -> None:
         ax.legend(fontsize=7)
     fig.suptitle("seed 003 Fig. 10 on part B's generator (mean +- std over instances)")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path, dpi=100)
 
 
 def main() -> None:

@@ -44,10 +44,11 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from _common import save_figure  # noqa: E402
 from decentral.ensemble import EnsembleProblem, HierarchyConfig, RefineConfig, normcut_localize  # noqa: E402
 from sims.ensembles import EnsembleSpec, generate  # noqa: E402
 from sims.ensembles.distributed import DistributedConfig, run_distributed  # noqa: E402
-from sims.io.atomic import write_atomic, write_json_atomic  # noqa: E402
+from sims.io.atomic import write_json_atomic  # noqa: E402
 
 
 def fit_log(n: np.ndarray, y: np.ndarray) -> dict:
@@ -227,12 +228,7 @@ def plot(result: dict, path: Path) -> None:
         _split_bars(axes[2], cubes, [r["case"] for r in cubes], "Fig. 12: split by phase (3D cubic)")
     axes[-1].legend(fontsize=7, loc="center left", bbox_to_anchor=(1.0, 0.5))
     fig.tight_layout()
-    import io
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
-    plt.close(fig)
-    write_atomic(path, lambda fh: fh.write(buf.getvalue()), binary=True)
+    save_figure(fig, path)
 
 
 def main(argv=None) -> int:

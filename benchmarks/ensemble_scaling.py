@@ -39,7 +39,7 @@ BLAS is pinned to one thread; the machine is shared, so CPU time is the figure o
 is recorded per run.
 
 Usage: ``python benchmarks/ensemble_scaling.py [--quick] [--sizes "2:2500,10000;3:5000,20000"]
-[--repeats 5] [--repeats-large 3] [--configs default,full_levels] [--name STEM] [--replot]``.
+[--repeats 5] [--repeats-large 3] [--configs default,mmd_order,full_levels] [--name STEM] [--replot]``.
 """
 
 from __future__ import annotations
@@ -58,7 +58,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _common import RESULTS, machine, save
+from _common import RESULTS, machine, save, save_figure
 
 SIZES_2D = [1000, 2500, 10000, 25000, 100000]
 SIZES_3D = [1000, 5000, 20000]
@@ -251,7 +251,7 @@ def plot(payload: dict, path: Path) -> None:
         a.legend(fontsize=7)
         a.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path)
 
 
 def main() -> None:

@@ -27,7 +27,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from _common import RESULTS, machine, save  # noqa: I001  (pins threads before numpy)
+from _common import RESULTS, machine, save, save_figure  # noqa: I001  (pins threads before numpy)
 
 import cv2
 import numpy as np
@@ -240,8 +240,7 @@ def plot(result: dict, path) -> None:
         ax.set_xticks(np.arange(len(names)) + width / 2, names)
     axes[0].legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 if __name__ == "__main__":

@@ -18,7 +18,7 @@ import json
 import time
 from dataclasses import replace
 
-from _common import RESULTS, machine, save  # noqa: I001  (pins threads before numpy)
+from _common import RESULTS, machine, save, save_figure  # noqa: I001  (pins threads before numpy)
 
 import numpy as np
 
@@ -89,7 +89,7 @@ def plot(path_json, path_png) -> None:
     ax[2].set(xlabel="message loss [%]", ylabel="mean NEES (3 = consistent)", title="filter consistency")
     fig.suptitle(f"seed 004 swarm: {data['parameters']['n_robots']} robots, {len(data['parameters']['seeds'])} seeds")
     fig.tight_layout()
-    fig.savefig(path_png, dpi=110)
+    save_figure(fig, path_png)
 
 
 def main() -> None:
