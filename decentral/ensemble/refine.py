@@ -325,7 +325,7 @@ class _Rotations:
 
     def __init__(self, i, z, n):
         d = z.shape[1]
-        self.i, self.z, self.n, self.d = i, z, n, d
+        self.n, self.d = n, d
         self.Z = _row_matrix(d * i[:, None] + np.arange(d), z, d * n)
         self.ZT = self.Z.T.tocsr()
 
