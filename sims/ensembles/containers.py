@@ -21,6 +21,7 @@ reasoning is in docs/ensemble.md, "Reading of Fig. 5".
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Callable
 
@@ -186,7 +187,8 @@ def _capture(discs: np.ndarray, neck: float, floor: float, level: float, min_gap
     Returns
     -------
     inside, bounding box, fill fraction
-        The ``SHAPES_2D`` entry.
+        The ``SHAPES_2D`` entry; the fill fraction is a cached function, measured on a fine raster
+        only when a container of this shape is first made (not when the module is imported).
     """
     x1 = float(discs[:, 0].max() + discs[:, 2].max() + neck)
     y1 = level + 0.3
@@ -207,10 +209,13 @@ def _capture(discs: np.ndarray, neck: float, floor: float, level: float, min_gap
             box &= np.hypot(x - cx, y - cy) > r
         return box
 
-    # fill fraction: the share of the container's area below the fill level (fine raster, unit scale)
-    ys, xs = np.mgrid[0.0:y1:1000j, 0.0:x1:1000j]
-    mask = inside(xs, ys, None, 0.0)
-    fill = float(mask[ys <= level].sum() / mask.sum())
+    @functools.cache
+    def fill() -> float:
+        # the share of the container's area below the fill level (fine raster, unit scale)
+        ys, xs = np.mgrid[0.0:y1:1000j, 0.0:x1:1000j]
+        mask = inside(xs, ys, None, 0.0)
+        return float(mask[ys <= level].sum() / mask.sum())
+
     return inside, (0.0, x1, 0.0, y1), fill
 
 
@@ -224,8 +229,8 @@ def _capture_row(radius: float, gap: float, cover: float, min_gap: float):
     return _capture(discs, gap, gap, gap + 2.0 * radius + cover, min_gap)
 
 
-#: name -> (inside(x, y, rng), bounding box on unit coordinates, fill fraction)
-SHAPES_2D: dict[str, tuple[Callable, tuple[float, float, float, float], float]] = {
+#: name -> (inside(x, y, rng), bounding box on unit coordinates, fill fraction or a function giving it)
+SHAPES_2D: dict[str, tuple[Callable, tuple[float, float, float, float], float | Callable[[], float]]] = {
     "triple": (_chambers(0.22, 6.0), (0.0, 3.6, 0.0, 1.0), 0.92),
     "sparse": (_chambers(0.0, 4.4), (0.0, 3.6, 0.0, 1.0), 0.92),
     "open": (_open, (0.0, 3.0, 0.0, 2.0), 0.90),
@@ -280,6 +285,7 @@ def make_container(name: str, n: int, radius: float, rng: np.random.Generator) -
     if n < 1 or not radius > 0:
         raise InputError("need n >= 1 and radius > 0", field="n/radius")
     fill = SHAPES_2D.get(name, (None, None, 1.0))[2]
+    fill = fill() if callable(fill) else fill
     coarse, ucell, _ = shape_mask(name, 400, rng_copy(rng))
     unit_area = coarse.sum() * ucell**2
     area = n * np.pi * radius**2 / (NOMINAL_PACKING * fill)
