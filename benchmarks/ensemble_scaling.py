@@ -7,6 +7,8 @@ Configurations, measured in the same run (``--configs``):
 
 - ``default``: :class:`HierarchyConfig` defaults (L-BFGS refiner, seam-only refinement below the
   top, 2 hops; Laplacian orderings by ``decentral.ensemble.ordering.choose_ordering``);
+- ``no_coarse`` (session 4's defaults): the same without the two-level initial inverse Hessian of
+  the top refinement (``RefineConfig(coarse_size=0)``: 4 L^-1 alone, no rigid motions of clusters);
 - ``mmd_order`` (session 3's ordering): the same with every Laplacian ordered by SuperLU's minimum
   degree (``RefineConfig(ordering="mmd")``) instead of the default rule (METIS nested dissection for
   3D Laplacians of 4,000 modules or more, Algorithm 1's cuts as the elimination order of the other
@@ -39,7 +41,8 @@ BLAS is pinned to one thread; the machine is shared, so CPU time is the figure o
 is recorded per run.
 
 Usage: ``python benchmarks/ensemble_scaling.py [--quick] [--sizes "2:2500,10000;3:5000,20000"]
-[--repeats 5] [--repeats-large 3] [--configs default,mmd_order,full_levels] [--name STEM] [--replot]``.
+[--repeats 5] [--repeats-large 3] [--configs default,no_coarse] [--name STEM] [--replot]`` (configurations:
+default, no_coarse, mmd_order, full_levels).
 """
 
 from __future__ import annotations
@@ -64,7 +67,8 @@ SIZES_2D = [1000, 2500, 10000, 25000, 100000]
 SIZES_3D = [1000, 5000, 20000]
 SHAPE = {2: "triple", 3: "triple3d"}
 PAIRS = [(2, 2500, 10000), (2, 25000, 100000), (3, 5000, 20000)]
-CONFIGS = ("default", "mmd_order", "full_levels")
+CONFIGS = ("default", "no_coarse", "mmd_order", "full_levels")
+DEFAULT_CONFIGS = ("default", "no_coarse")
 ROOT = Path(__file__).resolve().parents[1]
 INNER_CPU_S, INNER_MAX = 4.0, 7
 
@@ -77,6 +81,9 @@ def make_config(name: str, skip_top: bool = False):
 
     if name == "default":
         cfg = HierarchyConfig()
+    elif name == "no_coarse":
+        base = HierarchyConfig()
+        cfg = replace(base, final_refine=replace(base.final_refine, coarse_size=0))
     elif name == "mmd_order":
         base = HierarchyConfig()
         cfg = replace(base, level_refine=replace(base.level_refine, ordering="mmd"),
@@ -211,7 +218,7 @@ def plot(payload: dict, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(1, 3, figsize=(16, 4.8))
-    styles = {"default": "-", "mmd_order": "-.", "full_levels": ":"}
+    styles = {"default": "-", "no_coarse": "--", "mmd_order": "-.", "full_levels": ":"}
     for dim, marker in ((2, "o"), (3, "s")):
         floor_done = False
         for config, ls in styles.items():
@@ -266,7 +273,7 @@ def main() -> None:
     ap.add_argument("--sizes", help='only these sizes, e.g. "2:2500,10000;3:5000,20000" (a spot check)')
     ap.add_argument("--repeats", type=int, default=5, help="interleaved repeats of each size")
     ap.add_argument("--repeats-large", type=int, default=3, help="repeats of sizes above 50,000 modules")
-    ap.add_argument("--configs", default=",".join(CONFIGS), help="configurations to measure")
+    ap.add_argument("--configs", default=",".join(DEFAULT_CONFIGS), help=f"configurations to measure ({', '.join(CONFIGS)})")
     ap.add_argument("--name", default="ensemble_scaling", help="results file stem")
     ap.add_argument("--replot", action="store_true", help="only redraw the PNG from the saved JSON")
     args = ap.parse_args()
@@ -281,7 +288,8 @@ def main() -> None:
             sizes[int(dim)] = [int(v) for v in ns.split(",")]
     configs = [c for c in args.configs.split(",") if c]
     for c in configs:
-        make_config(c)
+        if c not in CONFIGS:
+            ap.error(f"--configs: unknown configuration {c!r} ({', '.join(CONFIGS)})")
     info = machine()
     # measurement groups: each 4x pair is measured back to back; other sizes on their own
     groups = [[(d, a), (d, b)] for d, a, b in PAIRS if a in sizes[d] and b in sizes[d]]

@@ -72,7 +72,9 @@ class HierarchyConfig:
         ensembles have a soft twisting mode along which the cost creeps down by ~1e-12 per step
         for hundreds of steps; a per-step test stopped triple3d's top at 179-392 iterations
         depending on rounding in the levels below, the 20-step window at 184-220, about as close
-        to the optimum.)
+        to the optimum.) Its initial inverse Hessian adds the rigid motions of clusters of about 500
+        modules to 4 L^-1 (``coarse_size``, :mod:`decentral.ensemble.coarse`), which relaxes that
+        twisting mode directly.
     seam_hops : int
         Below the top, refine only the seam of each merge: the modules within this many hops of an
         observation that crosses the cut, inside a ring of their neighbours held fixed (both parts
@@ -96,7 +98,7 @@ class HierarchyConfig:
     abstract_size: int = 64
     level_refine: RefineConfig = RefineConfig(max_iter=100, gtol=1e-3, method="lbfgs", history=30)
     final_refine: RefineConfig = RefineConfig(max_iter=300, gtol=1e-6, ftol=1e-10, ftol_window=20,
-                                              method="lbfgs", history=30)
+                                              method="lbfgs", history=30, coarse_size=500)
     seam_hops: int = 2
     seam_fraction: float = 0.25
 

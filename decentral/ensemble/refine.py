@@ -41,6 +41,7 @@ import numpy as np
 from scipy import sparse
 from scipy.sparse.linalg import splu
 
+from decentral.ensemble.coarse import TwoLevelInverse, cluster_labels
 from decentral.ensemble.ordering import ORDERINGS, choose_ordering, nested_dissection
 from decentral.ensemble.problem import EnsembleProblem
 from decentral.ensemble.rotation import angle_to_matrix, project_to_rotation, so3_exp, skew
@@ -88,6 +89,10 @@ class RefineConfig:
         for 3D ensembles from 4,000 modules, else the caller's elimination order if it gives one,
         else SuperLU's minimum degree), ``"nd"``, ``"mmd"`` or ``"given"``. Changes the cost per
         iteration, not the iterates (up to rounding).
+    coarse_size : int
+        ``"lbfgs"`` only: modules per cluster of the two-level initial inverse Hessian
+        (:mod:`decentral.ensemble.coarse`: the Laplacian plus rigid motions of METIS clusters of about
+        this many modules), used on problems of at least twice this size; 0 keeps 4 L^-1 alone.
     """
 
     max_iter: int = 200
@@ -99,6 +104,7 @@ class RefineConfig:
     history: int = 6
     gnorm: str = "max"
     ordering: str = "auto"
+    coarse_size: int = 0
 
 
 @dataclass(frozen=True)
@@ -598,12 +604,17 @@ def _refine_lbfgs(problem: EnsembleProblem, position: np.ndarray, rotation: np.n
         # seed 003 eq. (3): negative log-likelihood 1/2 sum_e |R_i z_e - (c_j - c_i)/2|^2
         return 0.5 * float(np.einsum("ea,ea->", r, r)), g, state
 
-    def h0(v):  # 4 L^-1 v on the free modules
+    def fine(v):  # 4 L^-1 v on the free modules
         out = np.zeros_like(v)
         out[free] = 4.0 * lap.solve_reduced(v[free])
         return out
 
     E, g, state = reduced(x)  # the closed-form fit is never worse than the given orientations
+    h0 = fine
+    if config.coarse_size > 0 and problem.n >= 2 * config.coarse_size:
+        turning = np.ones(problem.n, dtype=bool) if fixed is None else ~fixed
+        h0 = TwoLevelInverse(problem.i, problem.j, inc.B, x, rots.apply(state),
+                             cluster_labels(problem.adjacency(), config.coarse_size), free, turning, fine)
     levelled_off = _DecreaseTest(config, E)
     S: list[np.ndarray] = []
     Y: list[np.ndarray] = []

@@ -1,0 +1,130 @@
+"""Tests of the two-level initial inverse Hessian (rigid motions of clusters) of the L-BFGS refiner."""
+
+import numpy as np
+import pytest
+from scipy import sparse
+
+from decentral.ensemble.coarse import TwoLevelInverse, cluster_labels
+from decentral.ensemble.model import negative_log_likelihood
+from decentral.ensemble.refine import LaplacianSolver, RefineConfig, refine
+from decentral.ensemble.rotation import angle_to_matrix, matrix_to_angle, matrix_to_quat, so3_exp
+
+
+def _incidence(prob):
+    """B (E, n): B c = (c_j - c_i) / 2 per observation."""
+    e = prob.num_observations
+    rows = np.repeat(np.arange(e), 2)
+    cols = np.stack([prob.i, prob.j], 1).ravel()
+    vals = np.tile([-0.5, 0.5], e)
+    return sparse.csr_matrix((vals, (rows, cols)), shape=(e, prob.n))
+
+
+def _operator(prob, x, R, labels, fixed=None, every_centre_free=False):
+    """TwoLevelInverse at (x, R) (radius 1, so radii = metres) with the Laplacian of the contact graph; the
+    Laplacian holds one centre (the gauge) unless ``every_centre_free`` (for checks of the coarse space alone)."""
+    lap = LaplacianSolver(prob.n, prob.i, prob.j, fixed=fixed)
+    free = np.ones(prob.n, bool) if every_centre_free else lap.free
+
+    def fine(v):
+        out = np.zeros_like(v)
+        out[lap.free] = 4.0 * lap.solve_reduced(v[lap.free])
+        return out
+
+    turned = np.einsum("eab,eb->ea", R[prob.i], prob.z)
+    turning = np.ones(prob.n, bool) if fixed is None else ~fixed
+    return TwoLevelInverse(prob.i, prob.j, _incidence(prob), x, turned, labels, free, turning, fine), lap
+
+
+def _move(x, R, labels, delta, dim):
+    """Cluster rigid motions (t_k, w_k) applied exactly: centres turned about each cluster's centroid."""
+    k = labels.max() + 1
+    m = 3 if dim == 2 else 6
+    delta = delta.reshape(k, m)
+    g = np.stack([x[labels == c].mean(0) for c in range(k)])
+    Q = angle_to_matrix(delta[:, 2]) if dim == 2 else so3_exp(delta[:, 3:])
+    t = delta[:, :dim]
+    return g[labels] + np.einsum("nab,nb->na", Q[labels], x - g[labels]) + t[labels], Q[labels] @ R
+
+
+def _cost(prob, x, R):
+    return negative_log_likelihood(prob, x, matrix_to_angle(R) if prob.dim == 2 else matrix_to_quat(R))
+
+
+def test_cluster_labels_use_every_cluster_and_repeat(lattice):
+    """A k-way partition into about n / size clusters, each non-empty, the same on every call."""
+    prob, _, _ = lattice(3, (8, 6, 5))
+    a = cluster_labels(prob.adjacency(), 40)
+    assert a.shape == (prob.n,)
+    assert set(np.unique(a)) == set(range(round(prob.n / 40)))
+    assert np.array_equal(a, cluster_labels(prob.adjacency(), 40))
+    assert np.all(cluster_labels(prob.adjacency(), 10_000) == 0)
+
+
+@pytest.mark.parametrize("dim,shape", [(2, (12, 10)), (3, (6, 5, 4))])
+def test_coarse_curvature_is_the_hessian_of_rigid_cluster_motions(lattice, dim, shape):
+    """On a noiseless ensemble (zero residuals, so Gauss-Newton is exact) d^T E d is the second
+    derivative of the likelihood along the cluster rigid motions d, orientations turning with them."""
+    prob, x, R = lattice(dim, shape, radius=1.0)
+    labels = cluster_labels(prob.adjacency(), 20)
+    op, _ = _operator(prob, x, R, labels, every_centre_free=True)
+    rng = np.random.default_rng(4)
+    h = 1e-4
+    for _ in range(3):
+        d = rng.normal(size=op.curvature.shape[0])
+        second = (_cost(prob, *_move(x, R, labels, h * d, dim)) + _cost(prob, *_move(x, R, labels, -h * d, dim))
+                  - 2 * _cost(prob, x, R)) / h**2
+        assert np.isclose(d @ op.curvature @ d, second, rtol=1e-5)
+        # and P is their first-order centre displacement (central difference)
+        ahead, _ = _move(x, R, labels, h * d, dim)
+        behind, _ = _move(x, R, labels, -h * d, dim)
+        np.testing.assert_allclose((op.P @ d).reshape(x.shape), (ahead - behind) / (2 * h), atol=1e-6)
+
+
+@pytest.mark.parametrize("dim,shape", [(2, (12, 10)), (3, (6, 5, 4))])
+def test_two_level_inverse_is_symmetric_positive_definite_on_the_free_centres(lattice, dim, shape):
+    """u^T H0 v = v^T H0 u, v^T H0 v > 0 for v != 0, and H0 never moves a held centre."""
+    prob, x, R = lattice(dim, shape, noise=0.2, seed=1, radius=1.0)
+    fixed = np.zeros(prob.n, bool)
+    fixed[:7] = True
+    op, lap = _operator(prob, x, R, cluster_labels(prob.adjacency(), 15), fixed)
+    rng = np.random.default_rng(2)
+    u, v = rng.normal(size=(2,) + x.shape)
+    u[~lap.free] = v[~lap.free] = 0.0
+    assert np.isclose(np.vdot(u, op(v)), np.vdot(v, op(u)), rtol=1e-10)
+    assert np.vdot(v, op(v)) > 0 and np.vdot(u, op(u)) > 0
+    assert np.all(op(v)[~lap.free] == 0.0)
+
+
+def _twisted_bar(lattice, shape, twist):
+    """A noisy 3D bar started twisted about its long axis by ``twist`` radians end to end, orientations turned
+    with it: the soft mode that the Laplacian alone relaxes slowly."""
+    prob, x, R = lattice(3, shape, radius=1.0, noise=0.05, seed=2)
+    angle = twist * (x[:, 0] - x[:, 0].min()) / np.ptp(x[:, 0])
+    Q = so3_exp(np.stack([angle, 0 * angle, 0 * angle], 1))
+    g = x.mean(0)
+    return prob, g + np.einsum("nab,nb->na", Q, x - g), Q @ R
+
+
+@pytest.mark.parametrize("shape,twist", [((24, 4, 4), 0.6), ((40, 3, 3), 0.8)])
+def test_coarse_space_relaxes_a_twist_in_half_the_iterations_to_the_same_optimum(lattice, shape, twist):
+    """From a twisted start, L-BFGS with the cluster motions reaches the same maximum likelihood as with
+    4 L^-1 alone in at most half as many iterations (measured 70 -> 31 and 175 -> 56)."""
+    prob, x0, R0 = _twisted_bar(lattice, shape, twist)
+    base = RefineConfig(method="lbfgs", history=30, max_iter=2000, gtol=1e-8, ftol=0.0)
+    plain = refine(prob, x0, R0, base)
+    two_level = refine(prob, x0, R0, RefineConfig(**{**base.__dict__, "coarse_size": 32}))
+    assert plain.status == two_level.status == "converged"
+    assert np.isclose(two_level.cost, plain.cost, rtol=1e-10)
+    assert two_level.iterations <= plain.iterations / 2
+
+
+def test_coarse_space_with_held_modules_keeps_them(lattice):
+    """A seam-style refinement with held modules and the coarse space leaves the held poses untouched."""
+    prob, x, R = lattice(3, (8, 5, 4), noise=0.2, seed=6)
+    fixed = np.zeros(prob.n, bool)
+    fixed[::5] = True
+    res = refine(prob, x, R, RefineConfig(method="lbfgs", history=30, gtol=1e-9, max_iter=500, coarse_size=20),
+                 fixed=fixed)
+    assert res.status == "converged"
+    np.testing.assert_array_equal(res.position[fixed], x[fixed])
+    np.testing.assert_array_equal(res.rotation[fixed], R[fixed])
