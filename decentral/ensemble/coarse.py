@@ -98,22 +98,18 @@ def _motion_blocks(rel: np.ndarray) -> np.ndarray:
 
 
 def _turn_blocks(v: np.ndarray) -> np.ndarray:
-    """d (Q v) / d w at Q = I for vectors ``v`` (E, d), as (E, d, m): zero on the translation columns."""
-    e, d = v.shape
-    if d == 2:
-        out = np.zeros((e, 2, 3))
-        out[:, 0, 2], out[:, 1, 2] = -v[:, 1], v[:, 0]
-        return out
-    out = np.zeros((e, 3, 6))
-    out[:, :, 3:] = -skew(v)
-    return out
+    """d (Q v) / d w at Q = I for vectors ``v`` (E, d): (E, d, 1) in 2D (planar w), (E, 3, 3) in 3D."""
+    if v.shape[1] == 2:
+        return np.stack([-v[:, 1], v[:, 0]], 1)[:, :, None]
+    return -skew(v)
 
 
-def _block_rows(blocks: np.ndarray, cluster: np.ndarray, m: int, n_cols: int) -> sparse.csr_matrix:
-    """Sparse (len * d, n_cols) matrix whose row (r, a) holds ``blocks[r, a]`` at columns m * cluster[r] + 0..m-1."""
-    count, d, _ = blocks.shape
-    cols = np.broadcast_to((m * cluster)[:, None, None] + np.arange(m), blocks.shape)
-    indptr = np.arange(0, count * d * m + 1, m)
+def _block_rows(blocks: np.ndarray, cluster: np.ndarray, m: int, n_cols: int, first: int = 0) -> sparse.csr_matrix:
+    """Sparse (len * d, n_cols) matrix whose row (r, a) holds ``blocks[r, a]`` (q values) at columns
+    m * cluster[r] + first + 0..q-1."""
+    count, d, q = blocks.shape
+    cols = np.broadcast_to((m * cluster + first)[:, None, None] + np.arange(q), blocks.shape)
+    indptr = np.arange(0, count * d * q + 1, q)
     return sparse.csr_matrix((blocks.ravel(), cols.ravel(), indptr), shape=(count * d, n_cols))
 
 
@@ -163,13 +159,19 @@ class TwoLevelInverse:
         self.PT = self.P.T.tocsr()
         turn = _turn_blocks(turned)
         turn[~turning[i]] = 0.0  # held orientations do not turn
+        # J = Jrot - Bd P is never formed (12 entries per residual row in 3D); with W = Bd^T Jrot and
+        # Bd^T Bd = (B^T B) kron I_d, G = -Bd^T J = (B^T B kron I) P - W and
+        # E = J^T J = Jrot^T Jrot - P^T W - W^T P + P^T (B^T B kron I) P
+        Jrot = _block_rows(turn, labels[i], m, m * k, first=d)  # the turning columns (t_k come first)
+        Jrot.eliminate_zeros()
         Bd = sparse.kron(incidence, sparse.identity(d), format="csr")
-        J = _block_rows(turn, labels[i], m, m * k) - Bd @ self.P
-        G = -(Bd.T @ J)
-        G = sparse.diags(np.repeat(free, d).astype(float)) @ G  # the gradient lives on the free centres
+        W = (Bd.T @ Jrot).tocsr()
+        LP = (sparse.kron((incidence.T @ incidence).tocsr(), sparse.identity(d), format="csr") @ self.P).tocsr()
+        del Bd
+        self.curvature = (Jrot.T @ Jrot - self.PT @ W - W.T @ self.P + self.PT @ LP).toarray()  # E, (m K, m K)
+        G = sparse.diags(np.repeat(free, d).astype(float)) @ (LP - W)  # the gradient lives on the free centres
         G.eliminate_zeros()
         self.G, self.GT = G.tocsr(), G.T.tocsr()
-        self.curvature = (J.T @ J).toarray()  # E, (m K, m K)
         w, V = np.linalg.eigh(self.curvature)
         keep = w > _PINV_RTOL * max(float(w.max()), 1e-300)
         self.V, self.w = V[:, keep], w[keep]

@@ -46,6 +46,12 @@ def _move(x, R, labels, delta, dim):
     return g[labels] + np.einsum("nab,nb->na", Q[labels], x - g[labels]) + t[labels], Q[labels] @ R
 
 
+def _position_gradient(prob, x, R):
+    """d cost / d c (n, d) at fixed orientations: -B^T r with r_e = R_i z_e - (c_j - c_i) / 2."""
+    r = np.einsum("eab,eb->ea", R[prob.i], prob.z) - (x[prob.j] - x[prob.i]) / 2
+    return -(_incidence(prob).T @ r)
+
+
 def _cost(prob, x, R):
     return negative_log_likelihood(prob, x, matrix_to_angle(R) if prob.dim == 2 else matrix_to_quat(R))
 
@@ -63,7 +69,8 @@ def test_cluster_labels_use_every_cluster_and_repeat(lattice):
 @pytest.mark.parametrize("dim,shape", [(2, (12, 10)), (3, (6, 5, 4))])
 def test_coarse_curvature_is_the_hessian_of_rigid_cluster_motions(lattice, dim, shape):
     """On a noiseless ensemble (zero residuals, so Gauss-Newton is exact) d^T E d is the second
-    derivative of the likelihood along the cluster rigid motions d, orientations turning with them."""
+    derivative of the likelihood along the cluster rigid motions d, orientations turning with them,
+    and G d the first derivative of the position gradient."""
     prob, x, R = lattice(dim, shape, radius=1.0)
     labels = cluster_labels(prob.adjacency(), 20)
     op, _ = _operator(prob, x, R, labels, every_centre_free=True)
@@ -74,6 +81,11 @@ def test_coarse_curvature_is_the_hessian_of_rigid_cluster_motions(lattice, dim, 
         second = (_cost(prob, *_move(x, R, labels, h * d, dim)) + _cost(prob, *_move(x, R, labels, -h * d, dim))
                   - 2 * _cost(prob, x, R)) / h**2
         assert np.isclose(d @ op.curvature @ d, second, rtol=1e-5)
+        # G d is the first-order change of the position gradient -B^T r under the motions
+        np.testing.assert_allclose((op.G @ d).reshape(x.shape),
+                                   (_position_gradient(prob, *_move(x, R, labels, h * d, dim))
+                                    - _position_gradient(prob, *_move(x, R, labels, -h * d, dim))) / (2 * h),
+                                   atol=1e-6)
         # and P is their first-order centre displacement (central difference)
         ahead, _ = _move(x, R, labels, h * d, dim)
         behind, _ = _move(x, R, labels, -h * d, dim)
