@@ -21,8 +21,10 @@ Four methods, all on the sparse structure of the contact graph and fully vectori
     is the plain alternating sweep), with a backtracking (Armijo) line search. Its curvature pairs
     learn the soft collective modes (a 3D solid twisting about the thin rods that join its
     chambers) that make Anderson-mixed sweeps advance in plateaus. One Laplacian solve and
-    usually one orientation fit per iteration. The default of Algorithm 1's
-    :class:`~decentral.ensemble.HierarchyConfig`.
+    usually one orientation fit per iteration. With ``RefineConfig.coarse_size`` the initial
+    inverse Hessian is two-level (:mod:`decentral.ensemble.coarse`): 4 L^-1 plus the rigid motions
+    of clusters, which those soft modes are made of. The default of Algorithm 1's
+    :class:`~decentral.ensemble.HierarchyConfig` (two-level at the top).
 ``"pcg"``
     Preconditioned nonlinear conjugate gradient, the refiner of seed 003 §VI-B/E: O(E) per
     iteration, no factorization, so it undoes errors far from where they are corrected only slowly
@@ -552,6 +554,8 @@ def refine(problem: EnsembleProblem, position: np.ndarray, rotation: np.ndarray,
         raise ValueError(f"unknown gradient norm {config.gnorm!r} (max or l2)")
     if config.ordering not in ORDERINGS:
         raise ValueError(f"unknown ordering {config.ordering!r} ({', '.join(ORDERINGS)})")
+    if not config.coarse_size >= 0:
+        raise ValueError(f"coarse_size must be >= 0, got {config.coarse_size!r}")
     if elimination is not None:
         elimination = np.asarray(elimination, dtype=np.int64)
         if elimination.shape != (problem.n,) or not np.array_equal(np.sort(elimination), np.arange(problem.n)):
@@ -586,7 +590,9 @@ def _refine_lbfgs(problem: EnsembleProblem, position: np.ndarray, rotation: np.n
     F(c) = min_R cost(c, R); by the envelope theorem its gradient is the position gradient at the
     fitted orientations. The initial inverse Hessian is 4 L^-1, the exact inverse of the position
     block (cost = (1/8) |B c - 2 R z|^2 for fixed R, B the incidence matrix, L = B^T B), applied
-    with the factorized Laplacian; one module per component is held (translation gauge).
+    with the factorized Laplacian; one module per component is held (translation gauge). With
+    ``config.coarse_size`` > 0 (and at least twice that many modules) it is the two-level operator
+    of :class:`~decentral.ensemble.coarse.TwoLevelInverse`, built once at the start.
     """
     s = problem.radius
     z, x, R0 = _in_radii(problem, position, rotation)

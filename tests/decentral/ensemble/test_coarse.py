@@ -140,3 +140,19 @@ def test_coarse_space_with_held_modules_keeps_them(lattice):
     assert res.status == "converged"
     np.testing.assert_array_equal(res.position[fixed], x[fixed])
     np.testing.assert_array_equal(res.rotation[fixed], R[fixed])
+
+
+def test_negative_coarse_size_is_refused(lattice):
+    """A negative cluster size is a configuration error, not a silent "off"."""
+    prob, x, R = lattice(2, (6, 6))
+    with pytest.raises(ValueError, match="coarse_size"):
+        refine(prob, x, R, RefineConfig(method="lbfgs", coarse_size=-1))
+
+
+def test_coarse_space_is_skipped_below_two_clusters(lattice):
+    """Below twice the cluster size the refiner runs 4 L^-1 alone: the same iterates as coarse_size=0."""
+    prob, x, R = lattice(2, (8, 8), noise=0.2, seed=2)
+    a = refine(prob, x, R, RefineConfig(method="lbfgs", history=30, gtol=1e-9, coarse_size=0))
+    b = refine(prob, x, R, RefineConfig(method="lbfgs", history=30, gtol=1e-9, coarse_size=prob.n))
+    assert a.iterations == b.iterations
+    np.testing.assert_array_equal(a.position, b.position)
