@@ -52,7 +52,7 @@ __all__ = ["TwoLevelInverse", "cluster_labels"]
 #: METIS's random seed, fixed so that the partition (and so every floating-point result) is reproducible
 _METIS_SEED = 0
 
-#: eigenvalues of E below this fraction of its largest are treated as zero (motions that move nothing)
+#: eigenvalues of E below this fraction of its largest are treated as zero (motions that cost nothing)
 _PINV_RTOL = 1e-10
 
 
@@ -116,6 +116,25 @@ def _block_rows(blocks: np.ndarray, cluster: np.ndarray, m: int, n_cols: int, fi
     return sparse.csr_matrix((blocks.ravel(), cols.ravel(), indptr), shape=(count * d, n_cols))
 
 
+def _curvature_and_gradient_change(Jrot: sparse.csr_matrix, incidence: sparse.spmatrix, P: sparse.csr_matrix,
+                                   PT: sparse.csr_matrix, free: np.ndarray) -> tuple[np.ndarray, sparse.csr_matrix]:
+    """E = J^T J (dense, (m K, m K)) and G = -Bd^T J (sparse, (n d, m K), zero on held centres) for
+    J = Jrot - Bd P, Bd = B kron I_d, without forming J (12 entries per residual row in 3D): with
+    W = Bd^T Jrot and Bd^T Bd = (B^T B) kron I_d,
+
+        G = (B^T B kron I) P - W,    E = Jrot^T Jrot - P^T W - W^T P + P^T (B^T B kron I) P.
+    """
+    d = P.shape[0] // incidence.shape[1]
+    Bd = sparse.kron(incidence, sparse.identity(d), format="csr")
+    W = (Bd.T @ Jrot).tocsr()
+    del Bd
+    LP = (sparse.kron((incidence.T @ incidence).tocsr(), sparse.identity(d), format="csr") @ P).tocsr()
+    curvature = (Jrot.T @ Jrot - PT @ W - W.T @ P + PT @ LP).toarray()
+    G = sparse.diags(np.repeat(free, d).astype(float)) @ (LP - W)  # the gradient lives on the free centres
+    G.eliminate_zeros()
+    return curvature, G.tocsr()
+
+
 class TwoLevelInverse:
     """The two-level operator H0 of the module docstring, for vectors (n, d) in module radii.
 
@@ -162,19 +181,10 @@ class TwoLevelInverse:
         self.PT = self.P.T.tocsr()
         turn = _turn_blocks(turned)
         turn[~turning[i]] = 0.0  # held orientations do not turn
-        # J = Jrot - Bd P is never formed (12 entries per residual row in 3D); with W = Bd^T Jrot and
-        # Bd^T Bd = (B^T B) kron I_d, G = -Bd^T J = (B^T B kron I) P - W and
-        # E = J^T J = Jrot^T Jrot - P^T W - W^T P + P^T (B^T B kron I) P
         Jrot = _block_rows(turn, labels[i], m, m * k, first=d)  # the turning columns (t_k come first)
         Jrot.eliminate_zeros()
-        Bd = sparse.kron(incidence, sparse.identity(d), format="csr")
-        W = (Bd.T @ Jrot).tocsr()
-        LP = (sparse.kron((incidence.T @ incidence).tocsr(), sparse.identity(d), format="csr") @ self.P).tocsr()
-        del Bd
-        self.curvature = (Jrot.T @ Jrot - self.PT @ W - W.T @ self.P + self.PT @ LP).toarray()  # E, (m K, m K)
-        G = sparse.diags(np.repeat(free, d).astype(float)) @ (LP - W)  # the gradient lives on the free centres
-        G.eliminate_zeros()
-        self.G, self.GT = G.tocsr(), G.T.tocsr()
+        self.curvature, G = _curvature_and_gradient_change(Jrot, incidence, self.P, self.PT, free)
+        self.G, self.GT = G, G.T.tocsr()
         w, V = np.linalg.eigh(self.curvature)
         keep = w > _PINV_RTOL * max(float(w.max()), 1e-300)
         self.V, self.w = V[:, keep], w[keep]

@@ -95,6 +95,8 @@ class RefineConfig:
         ``"lbfgs"`` only: modules per cluster of the two-level initial inverse Hessian
         (:mod:`decentral.ensemble.coarse`: the Laplacian plus rigid motions of METIS clusters of about
         this many modules), used on problems of at least twice this size; 0 keeps 4 L^-1 alone.
+        Its coarse matrix is dense, m K square (m = 3 in 2D, 6 in 3D; K = n / coarse_size
+        clusters), so keep K in the hundreds: 500 gives K = 40 at 20,000 modules, 200 at 100,000.
     """
 
     max_iter: int = 200
