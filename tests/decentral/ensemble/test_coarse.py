@@ -5,7 +5,7 @@ import pytest
 from scipy import sparse
 
 from decentral.ensemble.coarse import TwoLevelInverse, cluster_labels
-from decentral.ensemble.model import negative_log_likelihood
+from decentral.ensemble.model import gradient, negative_log_likelihood
 from decentral.ensemble.refine import LaplacianSolver, RefineConfig, refine
 from decentral.ensemble.rotation import angle_to_matrix, matrix_to_angle, matrix_to_quat, so3_exp
 
@@ -46,14 +46,18 @@ def _move(x, R, labels, delta, dim):
     return g[labels] + np.einsum("nab,nb->na", Q[labels], x - g[labels]) + t[labels], Q[labels] @ R
 
 
+def _orientation(prob, R):
+    """The model's orientation parameters (angles in 2D, quaternions in 3D) of matrices R (n, d, d)."""
+    return matrix_to_angle(R) if prob.dim == 2 else matrix_to_quat(R)
+
+
 def _position_gradient(prob, x, R):
-    """d cost / d c (n, d) at fixed orientations: -B^T r with r_e = R_i z_e - (c_j - c_i) / 2."""
-    r = np.einsum("eab,eb->ea", R[prob.i], prob.z) - (x[prob.j] - x[prob.i]) / 2
-    return -(_incidence(prob).T @ r)
+    """d cost / d c (n, d) at fixed orientations, from the model's analytic gradient."""
+    return gradient(prob, x, _orientation(prob, R))[0]
 
 
 def _cost(prob, x, R):
-    return negative_log_likelihood(prob, x, matrix_to_angle(R) if prob.dim == 2 else matrix_to_quat(R))
+    return negative_log_likelihood(prob, x, _orientation(prob, R))
 
 
 def test_cluster_labels_use_every_cluster_and_repeat(lattice):
