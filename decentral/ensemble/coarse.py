@@ -45,19 +45,18 @@ from __future__ import annotations
 import numpy as np
 from scipy import sparse
 
+from decentral.ensemble.ordering import metis_graph, metis_options
 from decentral.ensemble.rotation import skew
 
 __all__ = ["TwoLevelInverse", "cluster_labels"]
-
-#: METIS's random seed, fixed so that the partition (and so every floating-point result) is reproducible
-_METIS_SEED = 0
 
 #: eigenvalues of E below this fraction of its largest are treated as zero (motions that cost nothing)
 _PINV_RTOL = 1e-10
 
 
 def cluster_labels(adjacency: sparse.spmatrix, size: int) -> np.ndarray:
-    """METIS k-way partition of a contact graph into clusters of about ``size`` modules.
+    """METIS k-way partition of a contact graph into clusters of about ``size`` modules (seeded as the
+    orderings are, :func:`~decentral.ensemble.ordering.metis_options`).
 
     Parameters
     ----------
@@ -73,16 +72,11 @@ def cluster_labels(adjacency: sparse.spmatrix, size: int) -> np.ndarray:
     """
     import pymetis
 
-    a = sparse.csr_matrix(adjacency, dtype=float)
-    n = a.shape[0]
+    n = adjacency.shape[0]
     k = max(int(round(n / max(int(size), 1))), 1)
     if k == 1:
         return np.zeros(n, dtype=np.int64)
-    a = ((a + a.T) != 0).astype(np.int8).tocsr()
-    a.setdiag(0)
-    a.eliminate_zeros()
-    graph = pymetis.CSRAdjacency(adj_starts=a.indptr, adjacent=a.indices)
-    _, parts = pymetis.part_graph(k, adjacency=graph, options=pymetis.Options(seed=_METIS_SEED))
+    _, parts = pymetis.part_graph(k, adjacency=metis_graph(adjacency), options=metis_options())
     return np.asarray(parts, dtype=np.int64)
 
 

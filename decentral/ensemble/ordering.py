@@ -27,7 +27,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import sparse
 
-__all__ = ["ND_MIN_SIZE", "ORDERINGS", "choose_ordering", "hierarchy_order", "nested_dissection"]
+__all__ = ["ND_MIN_SIZE", "ORDERINGS", "choose_ordering", "hierarchy_order", "metis_graph", "metis_options",
+           "nested_dissection"]
 
 #: accepted names: ``"auto"`` (the rule above), ``"nd"`` (METIS nested dissection), ``"mmd"`` (minimum
 #: degree), ``"given"`` (the caller's elimination order)
@@ -103,12 +104,25 @@ def nested_dissection(matrix: sparse.spmatrix) -> np.ndarray:
     """
     import pymetis
 
-    a = sparse.csr_matrix(matrix)
-    m = a.shape[0]
-    rows = np.repeat(np.arange(m), np.diff(a.indptr))
-    off = a.indices != rows
-    xadj = np.concatenate([[0], np.cumsum(np.bincount(rows[off], minlength=m))])
-    options = pymetis.Options(seed=_METIS_SEED)
-    graph = pymetis.CSRAdjacency(adj_starts=xadj, adjacent=a.indices[off])
-    perm, _ = pymetis.nested_dissection(graph, options=options)
+    perm, _ = pymetis.nested_dissection(metis_graph(matrix), options=metis_options())
     return np.asarray(perm, dtype=np.intp)
+
+
+def metis_graph(matrix: sparse.spmatrix):
+    """The graph of a sparse matrix (n, n) as METIS takes it: the symmetrized pattern without the
+    diagonal, a ``pymetis.CSRAdjacency``."""
+    import pymetis
+
+    a = sparse.csr_matrix(matrix, dtype=float)
+    a = ((a + a.T) != 0).astype(np.int8).tocsr()
+    a.setdiag(0)
+    a.eliminate_zeros()
+    a.sort_indices()
+    return pymetis.CSRAdjacency(adj_starts=a.indptr, adjacent=a.indices)
+
+
+def metis_options():
+    """METIS options with the fixed seed (:data:`_METIS_SEED`)."""
+    import pymetis
+
+    return pymetis.Options(seed=_METIS_SEED)
