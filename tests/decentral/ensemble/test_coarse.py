@@ -2,21 +2,11 @@
 
 import numpy as np
 import pytest
-from scipy import sparse
 
 from decentral.ensemble.coarse import TwoLevelInverse, cluster_labels
 from decentral.ensemble.model import gradient, negative_log_likelihood
-from decentral.ensemble.refine import LaplacianSolver, RefineConfig, refine
+from decentral.ensemble.refine import LaplacianSolver, RefineConfig, _Incidence, refine
 from decentral.ensemble.rotation import angle_to_matrix, matrix_to_angle, matrix_to_quat, so3_exp
-
-
-def _incidence(prob):
-    """B (E, n): B c = (c_j - c_i) / 2 per observation."""
-    e = prob.num_observations
-    rows = np.repeat(np.arange(e), 2)
-    cols = np.stack([prob.i, prob.j], 1).ravel()
-    vals = np.tile([-0.5, 0.5], e)
-    return sparse.csr_matrix((vals, (rows, cols)), shape=(e, prob.n))
 
 
 def _operator(prob, x, R, labels, fixed=None, every_centre_free=False):
@@ -32,7 +22,7 @@ def _operator(prob, x, R, labels, fixed=None, every_centre_free=False):
 
     turned = np.einsum("eab,eb->ea", R[prob.i], prob.z)
     turning = np.ones(prob.n, bool) if fixed is None else ~fixed
-    return TwoLevelInverse(prob.i, prob.j, _incidence(prob), x, turned, labels, free, turning, fine), lap
+    return TwoLevelInverse(prob.i, prob.j, _Incidence(prob.n, prob.i, prob.j).B, x, turned, labels, free, turning, fine), lap
 
 
 def _move(x, R, labels, delta, dim):
