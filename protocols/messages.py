@@ -79,6 +79,8 @@ __all__ = [
     "kind_id",
     "decode",
     "as_array",
+    "checked_shape",
+    "CorruptFrame",
     "Tracks",
     "PoseEstimates",
     "AdmmPrimal",
@@ -130,10 +132,13 @@ def as_array(
     ProtocolError
         If ``value`` cannot be converted or has the wrong number of dimensions or shape.
     """
-    try:
-        arr = np.array(value, dtype=dtype, copy=True, order="C")
-    except (TypeError, ValueError) as err:
-        raise ProtocolError(f"field {field!r}: not an array of {dtype}: {err}") from None
+    if dtype is not None and np.dtype(dtype).kind in "iu":
+        arr = _integer_array(value, field, np.dtype(dtype))
+    else:
+        try:
+            arr = np.array(value, dtype=dtype, copy=True, order="C")
+        except (TypeError, ValueError, OverflowError) as err:
+            raise ProtocolError(f"field {field!r}: not an array of {dtype}: {err}") from None
     if arr.dtype.kind not in "biuf":
         raise ProtocolError(f"field {field!r}: dtype {arr.dtype} is not numeric or bool")
     if ndim is not None and arr.ndim != ndim:
@@ -143,6 +148,47 @@ def as_array(
             raise ProtocolError(f"field {field!r}: expected shape {shape}, got {arr.shape}")
     arr.setflags(write=False)
     return arr
+
+
+def _integer_array(value: Any, field: str, dtype: np.dtype) -> np.ndarray:
+    """``value`` as an integer array of ``dtype``: integers only (no floats, NaN or bools), in range.
+
+    An empty sequence is accepted whatever its dtype (``[]`` is float64 to numpy).
+    """
+    try:
+        raw = np.asarray(value)
+    except (TypeError, ValueError, OverflowError) as err:
+        raise ProtocolError(f"field {field!r}: not an array of integers: {err}") from None
+    if raw.size and raw.dtype.kind not in "iu":
+        raise ProtocolError(f"field {field!r}: integers expected, got dtype {raw.dtype}")
+    if raw.size:
+        info = np.iinfo(dtype)
+        lo, hi = int(raw.min()), int(raw.max())
+        if lo < info.min or hi > info.max:
+            raise ProtocolError(f"field {field!r}: integer out of the {dtype} range")
+    return np.array(raw, dtype=dtype, copy=True, order="C")
+
+
+def checked_shape(shape: tuple[int, ...], itemsize: int, field: str, available: int) -> int:
+    """Element count of a declared array ``shape``, refusing shapes no frame of ``available`` bytes can hold.
+
+    The data of a non-empty array must fit in ``available`` bytes; the product of the non-zero
+    dimensions of an empty one must still be a size numpy can represent (a zero-element array of
+    dimensions whose product overflows is refused here, not by ``reshape``).
+
+    Raises
+    ------
+    ProtocolError
+        If the shape is impossible for the bytes that follow it.
+    """
+    if any(d < 0 for d in shape):
+        raise ProtocolError(f"field {field!r}: negative dimension in array shape {shape}")
+    count = math.prod(shape)
+    if count * itemsize > available:
+        raise ProtocolError(f"field {field!r}: truncated body: array of shape {shape} needs more than the {available} bytes left")
+    if math.prod(d for d in shape if d) * max(itemsize, 1) >= 2**62:
+        raise ProtocolError(f"field {field!r}: array shape {shape} is too large")
+    return count
 
 
 _SCALARS = (int, float, str, bool, bytes, type(None))
@@ -345,6 +391,11 @@ def _enc_value(value: Any, field: str, out: list[bytes], version: int = WIRE_VER
 _U8, _U16, _U32, _I64, _F64 = (struct.Struct(f) for f in ("<B", "<H", "<I", "<q", "<d"))
 
 
+class CorruptFrame(ProtocolError):
+    """A buffer that fails the framing checks (size, magic, version, length, checksum): damaged in
+    transit or not a frame at all, as opposed to an intact frame whose body is malformed."""
+
+
 class _Reader:
     """Bounds-checked cursor over a body; every defect is a ProtocolError."""
 
@@ -436,7 +487,7 @@ class _Reader:
         if ndim > _MAX_NDIM:
             raise ProtocolError(f"field {field!r}: bad array ndim {ndim}")
         shape = struct.unpack(f"<{ndim}I", self.take(4 * ndim, field))
-        count = math.prod(shape)
+        count = checked_shape(shape, dt.itemsize, field, self.end - self.pos)
         raw = self.take(count * dt.itemsize, field)
         arr = np.frombuffer(raw, dtype=dt).reshape(shape)
         if dt.kind == "b" and count and raw.strip(b"\x00\x01"):
@@ -445,8 +496,16 @@ class _Reader:
 
 
 def _load_array(raw: bytes, field: str) -> np.ndarray:
+    buf = io.BytesIO(raw)
     try:
-        arr = np.load(io.BytesIO(raw), allow_pickle=False)
+        readers = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
+        version = np.lib.format.read_magic(buf)
+        if version not in readers:
+            raise ValueError(f".npy format version {version} is not read here")
+        shape, _, dtype = readers[version](buf)
+        checked_shape(shape, dtype.itemsize, field, len(raw) - buf.tell())
+        buf.seek(0)
+        arr = np.load(buf, allow_pickle=False)
     except Exception as err:  # numpy raises several types on malformed .npy data
         raise ProtocolError(f"field {field!r}: bad array ({type(err).__name__}: {err})") from None
     if not isinstance(arr, np.ndarray) or arr.dtype.kind not in "biuf":
@@ -465,24 +524,25 @@ def decode(data: bytes | bytearray | memoryview) -> Message:
     Raises
     ------
     ProtocolError
-        On a short buffer, bad magic, unknown version, length or checksum mismatch, unknown kind,
-        malformed or missing field, trailing bytes, or field values the kind rejects.
+        On a short buffer, bad magic, unknown version, length or checksum mismatch (these as its
+        subclass :class:`CorruptFrame`), unknown kind, malformed or missing field, trailing bytes,
+        array shapes the body cannot hold, or field values the kind rejects. Never another exception.
     """
     if not isinstance(data, (bytes, bytearray, memoryview)):
         raise ProtocolError(f"cannot decode a {type(data).__name__}, expected bytes")
     data = bytes(data)
     if len(data) < HEADER_SIZE:
-        raise ProtocolError(f"truncated frame: {len(data)} bytes, the header alone is {HEADER_SIZE}")
+        raise CorruptFrame(f"truncated frame: {len(data)} bytes, the header alone is {HEADER_SIZE}")
     magic, version, _flags, kid, length, crc = _HEADER.unpack_from(data)
     if magic != MAGIC:
-        raise ProtocolError(f"bad magic {magic!r}, expected {MAGIC!r}")
+        raise CorruptFrame(f"bad magic {magic!r}, expected {MAGIC!r}")
     if version not in _READABLE_VERSIONS:
-        raise ProtocolError(f"unsupported wire version {version}, this side reads {_READABLE_VERSIONS}")
+        raise CorruptFrame(f"unsupported wire version {version}, this side reads {_READABLE_VERSIONS}")
     if len(data) != HEADER_SIZE + length:
-        raise ProtocolError(f"frame length mismatch: header says {length} body bytes, got {len(data) - HEADER_SIZE}")
+        raise CorruptFrame(f"frame length mismatch: header says {length} body bytes, got {len(data) - HEADER_SIZE}")
     body = data[HEADER_SIZE:]
     if zlib.crc32(body, zlib.crc32(data[:12])) != crc:
-        raise ProtocolError("checksum mismatch: the frame is corrupted")
+        raise CorruptFrame("checksum mismatch: the frame is corrupted")
     cls = _REGISTRY.get(kid)
     if cls is None:
         raise ProtocolError(f"unknown message kind id {kid}")

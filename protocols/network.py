@@ -3,7 +3,8 @@
 Every message really goes over the wire: :meth:`SimulatedNetwork.send` encodes it
 (:meth:`Message.to_bytes`), the link may corrupt the frame, and the receiver decodes it on
 :meth:`~SimulatedNetwork.poll` (a corrupted frame fails its CRC and is counted as dropped, reason
-``"corrupt"``). Per directed link ``(a, b)`` a copy sent at time ``t``:
+``"corrupt"``; an intact frame whose body is not a valid message, reason ``"malformed"``). Per
+directed link ``(a, b)`` a copy sent at time ``t``:
 
 1. is refused if ``a`` is down at ``t`` (``"sender_down"``) or a partition active at ``t`` separates
    ``a`` from ``b`` (``"partition"``);
@@ -45,7 +46,7 @@ import numpy as np
 
 from decentral.errors import InputError, ProtocolError
 from protocols.messages import BROADCAST, Message, decode
-from protocols.transport import Counts, Delivery, Transport, TransportStats
+from protocols.transport import Counts, Delivery, Transport, TransportStats, rejection_reason
 
 __all__ = ["LinkConfig", "Partition", "Crash", "NetworkConfig", "BatchDelivery", "SimulatedNetwork"]
 
@@ -336,8 +337,8 @@ class SimulatedNetwork(Transport):
                 continue
             try:
                 message = _decode_frame(item.frame)
-            except ProtocolError:
-                self._drop(keys, size, "corrupt")
+            except ProtocolError as err:
+                self._drop(keys, size, rejection_reason(err))
                 continue
             self._bump(keys, ("delivered", 1), ("bytes_delivered", size))
             out.append(Delivery(message, agent, item.sent_at, item.arrival, size, item.duplicate))

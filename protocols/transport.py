@@ -18,9 +18,23 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Mapping
 
-from protocols.messages import Message
+from decentral.errors import ProtocolError
+from protocols.messages import CorruptFrame, Message
 
-__all__ = ["Delivery", "Counts", "TransportStats", "Transport"]
+__all__ = ["Delivery", "Counts", "TransportStats", "Transport", "REJECT_REASONS", "rejection_reason"]
+
+#: drop reasons of frames a receiver refused to decode: ``corrupt`` failed the framing checks
+#: (damaged in transit), ``malformed`` was an intact frame whose body is not a valid message
+REJECT_REASONS = ("corrupt", "malformed")
+
+
+def rejection_reason(err: ProtocolError) -> str:
+    """The drop reason (one of :data:`REJECT_REASONS`) a transport counts a frame refused with ``err`` under.
+
+    Every transport decodes with :func:`protocols.messages.decode`, catches exactly
+    :class:`~decentral.errors.ProtocolError` and counts the frame as dropped for this reason.
+    """
+    return "corrupt" if isinstance(err, CorruptFrame) else "malformed"
 
 
 @dataclass(frozen=True, slots=True)
@@ -94,7 +108,7 @@ class TransportStats:
         Per message ``KIND``.
     drop_reasons : Mapping[str, int]
         Dropped copies by cause (``"loss"``, ``"partition"``, ``"sender_down"``, ``"receiver_down"``,
-        ``"unknown_receiver"``).
+        ``"unknown_receiver"``, and the rejections ``"corrupt"`` and ``"malformed"``).
     """
 
     total: Counts
@@ -103,6 +117,11 @@ class TransportStats:
     per_link: Mapping[tuple[str, str], Counts] = field(default_factory=lambda: MappingProxyType({}))
     per_kind: Mapping[str, Counts] = field(default_factory=lambda: MappingProxyType({}))
     drop_reasons: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}))
+
+    @property
+    def rejected(self) -> dict[str, int]:
+        """Frames the receivers refused to decode, by reason (:data:`REJECT_REASONS`; zeros included)."""
+        return {reason: int(self.drop_reasons.get(reason, 0)) for reason in REJECT_REASONS}
 
     def as_dict(self) -> dict:
         """JSON-ready form (links keyed ``"sender->receiver"``)."""
@@ -113,6 +132,7 @@ class TransportStats:
             "per_link": {f"{a}->{b}": v.as_dict() for (a, b), v in self.per_link.items()},
             "per_kind": {k: v.as_dict() for k, v in self.per_kind.items()},
             "drop_reasons": dict(self.drop_reasons),
+            "rejected": self.rejected,
         }
 
 
