@@ -16,7 +16,15 @@ from scipy import sparse
 from decentral.errors import InputError
 from decentral.ensemble.rotation import angle_to_matrix, matrix_to_angle, matrix_to_quat, quat_to_matrix
 
-__all__ = ["EnsembleProblem", "EnsembleEstimate", "connected_components"]
+__all__ = ["EnsembleProblem", "EnsembleEstimate", "connected_components", "MAX_MODULES", "MIN_RADIUS", "MAX_RADIUS",
+           "MAX_REACH"]
+
+#: ids are packed as ``i * n + j`` in int64, so ``n`` must stay below 2**31
+MAX_MODULES = 2**31 - 1
+#: physically meaningful module radii, metres (a radius of 1e-308 or 1e308 is a broken file, not a robot)
+MIN_RADIUS, MAX_RADIUS = 1e-6, 1e6
+#: an observation ``z`` lies on the observer's perimeter; farther than this many radii it is refused
+MAX_REACH = 100.0
 
 
 @dataclass(frozen=True)
@@ -71,10 +79,10 @@ class EnsembleProblem:
 
         if self.dim not in (2, 3):
             bad(f"must be 2 or 3, got {self.dim}", "dim")
-        if self.n < 1:
-            bad(f"must be a positive module count, got {self.n}", "n")
-        if not np.isfinite(self.radius) or self.radius <= 0:
-            bad(f"must be finite and positive, got {self.radius}", "radius")
+        if not 1 <= self.n <= MAX_MODULES:
+            bad(f"must be a module count in 1..{MAX_MODULES}, got {self.n}", "n")
+        if not MIN_RADIUS <= self.radius <= MAX_RADIUS:  # also refuses NaN
+            bad(f"must be in [{MIN_RADIUS:g}, {MAX_RADIUS:g}] (metres), got {self.radius:g}", "radius")
         if self.i.ndim != 1:
             bad("must be a 1-D integer array", "i")
         if self.j.ndim != 1:
@@ -90,6 +98,11 @@ class EnsembleProblem:
         if not np.all(np.isfinite(self.z)):
             k = int(np.flatnonzero(~np.all(np.isfinite(self.z), axis=1))[0])
             bad(f"non-finite value in row {k}", "z")
+        reach = np.abs(self.z).max(axis=1) if self.z.size else np.zeros(0)
+        if np.any(reach > MAX_REACH * self.radius):
+            k = int(np.flatnonzero(reach > MAX_REACH * self.radius)[0])
+            bad(f"row {k} lies {reach[k]:.3g} from the module centre, beyond {MAX_REACH:g} radii: an observation "
+                "is a point on the observer's perimeter (about one radius away)", "z")
         if np.any(self.i == self.j):
             k = int(np.flatnonzero(self.i == self.j)[0])
             bad(f"module {int(self.i[k])} observes itself at index {k}", "j")

@@ -6,7 +6,6 @@ carrying the file and the field path (``steps[3].detections.A0/cam0[1].r``); wri
 
 from __future__ import annotations
 
-import json
 import os
 from typing import Any
 
@@ -25,6 +24,7 @@ from decentral.observations import (
     Step,
 )
 from sims.io.atomic import write_json_atomic
+from sims.io.jsonfile import load_json
 from sims.io.validate import (
     require_int,
     require_list,
@@ -52,23 +52,6 @@ __all__ = [
 
 LOG_FORMAT = "decentral.log/1"
 ESTIMATE_FORMAT = "decentral.estimate/1"
-
-
-def load_json(path: str | os.PathLike) -> Any:
-    """Load a JSON file, turning unreadable or malformed files into :class:`InputError`."""
-    try:
-        with open(path, encoding="utf-8") as fh:
-            return json.load(fh)  # NaN/Infinity parse as floats; validators reject them by field
-    except FileNotFoundError:
-        raise InputError("file not found", source=str(path)) from None
-    except IsADirectoryError:
-        raise InputError("is a directory, not a file", source=str(path)) from None
-    except OSError as err:
-        raise InputError(f"cannot read file ({err.strerror})", source=str(path)) from None
-    except UnicodeDecodeError:
-        raise InputError("not a UTF-8 text file", source=str(path)) from None
-    except json.JSONDecodeError as err:
-        raise InputError(f"not valid JSON ({err.msg} at line {err.lineno})", source=str(path)) from None
 
 
 def _check_format(doc: Any, expected: str) -> dict:

@@ -1,0 +1,90 @@
+"""Strict, bounded JSON reading shared by every reader of the contract's JSON files.
+
+Before :func:`json.loads` runs, the file's size and its nesting depth are checked against
+:mod:`sims.io.limits` (a pre-scan over the text with the strings removed, so a file of 100,000
+nested brackets is refused without recursing); while it runs, integer literals longer than the
+digit limit and keys given twice in one object are refused (a node id listed twice must not be
+silently the last one). ``NaN`` and ``Infinity`` still parse, so that the validators can name
+the field that holds them.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from typing import Any
+
+import numpy as np
+
+from decentral.errors import InputError
+from sims.io.limits import Limits, current_limits, over_limit
+
+__all__ = ["load_json", "loads_json", "json_depth"]
+
+#: a complete JSON string literal (escapes included); what the depth pre-scan removes
+_STRING = re.compile(r'"(?:[^"\\]|\\.)*"', re.DOTALL)
+
+
+def json_depth(text: str) -> int:
+    """Deepest nesting of arrays/objects in ``text`` (brackets inside strings do not count)."""
+    brackets = np.frombuffer(re.sub(r"[^\[\]{}]+", "", _STRING.sub("", text)).encode("ascii"), dtype=np.uint8)
+    if not brackets.size:
+        return 0
+    steps = np.where((brackets == ord("[")) | (brackets == ord("{")), 1, -1).astype(np.int32)
+    return int(np.cumsum(steps).max())
+
+
+def loads_json(text: str, source: str, limits: Limits | None = None) -> Any:
+    """Parse ``text`` (the contents of ``source``) under ``limits``; raise :class:`InputError` naming ``source``."""
+    limits = limits or current_limits()
+    depth = json_depth(text)
+    if depth > limits.max_json_depth:
+        raise over_limit("nesting depth", depth, "max_json_depth", limits.max_json_depth, source=source)
+
+    def bounded_int(literal: str) -> int:
+        digits = len(literal.lstrip("-"))
+        if digits > limits.max_int_digits:
+            raise over_limit("an integer of", digits, "max_int_digits", limits.max_int_digits, " digits",
+                             source=source)
+        return int(literal)
+
+    def unique_keys(pairs: list[tuple[str, Any]]) -> dict:
+        obj: dict = {}
+        for key, value in pairs:
+            if key in obj:
+                raise InputError("key given twice in one object", source=source, field=key)
+            obj[key] = value
+        return obj
+
+    try:
+        return json.loads(text, object_pairs_hook=unique_keys, parse_int=bounded_int)
+    except json.JSONDecodeError as err:
+        raise InputError(f"not valid JSON ({err.msg} at line {err.lineno})", source=source) from None
+    except RecursionError:  # only below the depth pre-scan's limit when that is raised very high
+        raise InputError("JSON nested too deeply to parse", source=source) from None
+
+
+def load_json(path: str | os.PathLike, limits: Limits | None = None) -> Any:
+    """Read and parse the JSON file ``path`` under ``limits``; any defect is an :class:`InputError` naming it."""
+    limits = limits or current_limits()
+    src = str(path)
+    try:
+        with open(path, "rb") as fh:
+            size = os.fstat(fh.fileno()).st_size
+            if size > limits.max_file_mb * 1e6:
+                raise over_limit("file size", round(size / 1e6, 1), "max_file_mb", limits.max_file_mb, " MB", source=src)
+            raw = fh.read(int(limits.max_file_mb * 1e6) + 1)  # bounded even if the file grows meanwhile
+    except FileNotFoundError:
+        raise InputError("file not found", source=src) from None
+    except IsADirectoryError:
+        raise InputError("is a directory, not a file", source=src) from None
+    except OSError as err:
+        raise InputError(f"cannot read file ({err.strerror})", source=src) from None
+    if len(raw) > limits.max_file_mb * 1e6:
+        raise over_limit("file size", round(len(raw) / 1e6, 1), "max_file_mb", limits.max_file_mb, " MB", source=src)
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        raise InputError("not a UTF-8 text file", source=src) from None
+    return loads_json(text, src, limits)
