@@ -87,8 +87,12 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"must be in [0, 1), got {args.loss}", field="--loss")
     if args.distributed and args.method != "ncut":
         raise InputError(f"--distributed runs the ncut method only, not {args.method!r}", field="--method")
+    if args.seed < 0:
+        raise InputError(f"must be >= 0, got {args.seed}", field="--seed")
     from sims.io.ensemble_npz import read_ensemble, write_ensemble_estimate
+    from sims.io.paths import check_output
 
+    check_output(args.output, [args.observations])
     problem = read_ensemble(args.observations)
     t0 = time.perf_counter()
     if args.distributed:

@@ -6,7 +6,9 @@ import argparse
 
 from decentral.errors import InputError
 from decentral.factors import NoiseModel
+from sims.io.validate import require_range
 from sims.io.log_json import read_log, write_estimate
+from sims.io.paths import check_output
 
 __all__ = ["HELP", "add_arguments", "run", "ESTIMATORS"]
 
@@ -51,7 +53,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="odometry yaw step std, rad")
 
 
+#: command-line noise levels must lie in this range (in their units: px, px, m, rad)
+SIGMA_RANGE = (1e-9, 1e6)
+
+
 def _noise(args: argparse.Namespace) -> NoiseModel:
+    for name in ("sigma_pixel", "sigma_radius", "sigma_odom_p", "sigma_odom_theta"):
+        require_range(getattr(args, name), "--" + name.replace("_", "-"), *SIGMA_RANGE)
     try:
         return NoiseModel(args.sigma_pixel, args.sigma_radius, args.sigma_odom_p, args.sigma_odom_theta, args.weighting)
     except ValueError as err:
@@ -65,6 +73,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"must be in [0, 1), got {args.loss}", field="--loss")
     if args.max_rounds < 1:
         raise InputError(f"must be >= 1, got {args.max_rounds}", field="--max-rounds")
+    if args.seed < 0:
+        raise InputError(f"must be >= 0, got {args.seed}", field="--seed")
+    check_output(args.output, [args.log])
     log = read_log(args.log)
     reference = args.reference or log.assemblies[0]
     if reference not in log.assemblies:

@@ -2,8 +2,8 @@
 
 Each subcommand lives in its own module under :mod:`sims.cli` and exposes ``HELP`` (one line),
 ``add_arguments(parser)`` and ``run(args) -> int``. The registry below is explicit (a test checks it
-against the files on disk). Known errors (:class:`decentral.DecentralError`) become one line on
-stderr and exit status 2; nothing else is printed, and no traceback.
+against the files on disk). Every failure becomes one line on stderr and exit status 2
+(:func:`_run_mapped`); nothing else is printed, and no traceback.
 """
 
 from __future__ import annotations
@@ -30,7 +30,6 @@ COMMANDS: dict[str, str] = {
 }
 
 EXIT_BAD_INPUT = 2
-EXIT_INTERNAL = 1
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -59,23 +58,70 @@ def main(argv: list[str] | None = None) -> int:
         os.environ.setdefault(var, "1")
     parser = build_parser()
     args = parser.parse_args(argv)
+    return _run_mapped(args)
+
+
+#: longest error line printed (a hostile file can put megabytes into a value we quote)
+MAX_ERROR_CHARS = 400
+
+
+def _error_line(command: str, text: str) -> str:
+    """One line on stderr: newlines folded, overlong messages cut."""
+    text = " ".join(str(text).split())
+    if len(text) > MAX_ERROR_CHARS:
+        text = text[: MAX_ERROR_CHARS - 3] + "..."
+    return f"decentral {command}: {text}"
+
+
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM, raised like Ctrl-C so that every ``finally`` (temporary files) runs."""
+
+
+def _on_sigterm(signum, frame):  # noqa: ARG001 - the signal module's signature
+    raise _Terminated
+
+
+def _run_mapped(args: argparse.Namespace) -> int:
+    """Run the subcommand; every failure becomes exactly one stderr line and exit status 2.
+
+    Known errors (:class:`DecentralError`) print their message (file and field); anything else is
+    a bug or an exhausted resource and says so in one line (``DECENTRAL_DEBUG=1`` re-raises it for
+    a traceback). Warnings (numpy's RuntimeWarnings among them) are captured, never printed, unless
+    debugging. SIGTERM is handled like SIGINT so temporary files are removed on the way out.
+    """
+    import signal
+    import warnings
+
+    debug = bool(os.environ.get("DECENTRAL_DEBUG"))
     try:
-        status = args._run(args)
+        previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    except ValueError:  # not the main thread: leave signals alone
+        previous = None
+    try:
+        with warnings.catch_warnings():
+            if not debug:
+                warnings.simplefilter("ignore")
+            status = args._run(args)
     except DecentralError as err:
-        print(f"decentral {args.command}: error: {err}", file=sys.stderr)
+        print(_error_line(args.command, f"error: {err}"), file=sys.stderr)
         return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        print(f"decentral {args.command}: interrupted", file=sys.stderr)
-        return 130
-    except Exception as err:  # a bug, not bad input: say so in one line unless debugging
-        if os.environ.get("DECENTRAL_DEBUG"):
+    except KeyboardInterrupt as err:
+        print(_error_line(args.command, "terminated" if isinstance(err, _Terminated) else "interrupted"),
+              file=sys.stderr)
+        return 143 if isinstance(err, _Terminated) else 130
+    except MemoryError:
+        print(_error_line(args.command, "error: out of memory (an input larger than this machine can hold; "
+                                        "see the limits in the README)"), file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except Exception as err:  # a bug, not a known error: still one line and the bad-input status
+        if debug:
             raise
-        print(
-            f"decentral {args.command}: internal error: {type(err).__name__}: {err} "
-            "(set DECENTRAL_DEBUG=1 for a traceback)",
-            file=sys.stderr,
-        )
-        return EXIT_INTERNAL
+        print(_error_line(args.command, f"error: internal error: {type(err).__name__}: {err} "
+                                        "(set DECENTRAL_DEBUG=1 for a traceback)"), file=sys.stderr)
+        return EXIT_BAD_INPUT
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
     return int(status or 0)
 
 

@@ -9,6 +9,7 @@ import numpy as np
 from decentral.errors import InputError
 from sims.ensembles.generator import SHAPES, EnsembleSpec, generate, save_observations, save_truth
 from sims.ensembles.sensors import SensorModel
+from sims.io.paths import check_output
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -30,6 +31,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     if not 0 < args.threshold < 1:
         raise InputError("must be in (0, 1)", field="--threshold")
+    check_output(args.output)
+    if args.truth:
+        check_output(args.truth, [args.output], field="--truth")
     spec = EnsembleSpec(args.shape, args.n, args.radius, args.lattice, args.jitter, SensorModel(threshold=args.threshold))
     ens = generate(spec, np.random.default_rng(args.seed))
     if args.truth:

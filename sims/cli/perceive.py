@@ -17,10 +17,15 @@ from typing import Sequence
 import numpy as np
 
 from decentral.errors import InputError
+from sims.io.limits import current_limits
+from sims.io.validate import require_range
 
 __all__ = ["HELP", "add_arguments", "run", "perceive_paths", "to_records"]
 
 HELP = "find, identify and track the spherical nodes in camera frames (writes decentral.detections/1)"
+
+#: accepted --min-radius / --max-radius, pixels
+RADIUS_RANGE = (1.0, 1e5)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -47,11 +52,12 @@ def _tag_table(path: str | None) -> dict[int, int] | None:
     if path is None:
         return None
     from sims.io.log_json import load_json
-    from sims.io.validate import require_int, require_mapping
+    from sims.io.validate import require_int, require_int_key, require_mapping
 
-    doc = require_mapping(load_json(path), "(top level)")
+    doc = load_json(path)
     try:
-        return {require_int(k, f"[{k!r}]"): require_int(v, f"[{k!r}]") for k, v in doc.items()}
+        doc = require_mapping(doc, "(top level)")
+        return {require_int_key(k, f"[{k!r}]"): require_int(v, f"[{k!r}]") for k, v in doc.items()}
     except InputError as err:
         raise err.located(path) from None
 
@@ -88,20 +94,23 @@ def perceive_paths(
     motion: str = "auto",
     log=None,
     camera: str | None = None,
+    max_pixels: int | None = None,
 ):
     """Run perception over image files or one video; return the :class:`DetectionFrame` list.
 
     ``log`` (an :class:`~decentral.observations.ObservationLog`) and ``camera`` supply the camera
     model (eq. (1) circles) and, with ``motion="odometry"`` (or ``"auto"``, the default, when the log
     has odometry for the camera's assembly), the observer's rotation per step; without a log,
-    ``"auto"`` is image registration.
+    ``"auto"`` is image registration. Frames over ``max_pixels`` pixels are refused before decoding.
     """
     from agents.perception import AprilTagConfig, AprilTagIdentifier, HoughCircleDetector, HoughConfig, Perception
     from agents.perception.frames import iter_frames
     from agents.perception.pipeline import perceive_frames
 
-    if max_radius <= min_radius or min_radius <= 0:
-        raise InputError("need 0 < --min-radius < --max-radius", field="--min-radius")
+    require_range(min_radius, "--min-radius", *RADIUS_RANGE)
+    require_range(max_radius, "--max-radius", *RADIUS_RANGE)
+    if max_radius <= min_radius:
+        raise InputError("need --min-radius < --max-radius", field="--min-radius")
     detector = HoughCircleDetector(HoughConfig(min_radius=int(np.floor(min_radius)), max_radius=int(np.ceil(max_radius))))
     try:
         identifier = AprilTagIdentifier(AprilTagConfig(family=family, tag_table=tag_table))
@@ -111,24 +120,27 @@ def perceive_paths(
         if motion == "odometry":
             raise InputError("--motion odometry needs --log-template and --camera", field="--motion")
         perception = Perception(detector, identifier, track=track, motion="flow" if motion in ("flow", "auto") else None)
-        return to_records(perceive_frames(iter_frames(list(paths)), perception))
+        return to_records(perceive_frames(iter_frames(list(paths), max_pixels), perception))
     from sims.experiments.perception_run import perceive_with_log
 
-    return list(perceive_with_log(iter_frames(list(paths)), log, camera, family=family, tag_table=tag_table,
+    return list(perceive_with_log(iter_frames(list(paths), max_pixels), log, camera, family=family, tag_table=tag_table,
                                   track=track, motion=motion, min_radius=min_radius, max_radius=max_radius).frames)
 
 
 def run(args: argparse.Namespace) -> int:
     from sims.io.detections_json import assemble_log, write_detections
 
+    require_range(args.log_min_score, "--log-min-score", -1e6, 1e6)
+    max_pixels = current_limits().max_pixels
     given = [args.log_template is not None, args.camera is not None, args.log_out is not None]
     if any(given) and not all(given):
         raise InputError("--log-template, --camera and --log-out go together", field="--log-template")
-    from pathlib import Path
+    from sims.io.paths import check_output
 
-    for out in (args.output, args.log_out):  # fail before the work, not half-way through the writes
-        if out is not None and not Path(out).resolve().parent.is_dir():
-            raise InputError("output folder does not exist", source=str(out))
+    inputs = [*args.frames, args.tag_table, args.log_template]  # fail before the work, not half-way through
+    check_output(args.output, inputs)
+    if args.log_out is not None:
+        check_output(args.log_out, [*inputs, args.output], field="--log-out")
     log = None
     if args.log_template is not None:
         from sims.io.log_json import read_log
@@ -146,13 +158,14 @@ def run(args: argparse.Namespace) -> int:
         motion=args.motion,
         log=log,
         camera=args.camera,
+        max_pixels=max_pixels,
     )
     filled = None
     if log is not None:
         try:
             from agents.perception.frames import iter_frames
 
-            _, first = next(iter(iter_frames(args.frames)))
+            _, first = next(iter(iter_frames(args.frames, max_pixels)))
             sizes = {args.camera: (first.shape[1], first.shape[0])}
             filled = assemble_log(log, {args.camera: frames}, min_score=args.log_min_score, image_sizes=sizes)
         except InputError as err:

@@ -29,7 +29,15 @@ from decentral.errors import InputError
 from decentral.observations import Detection, ObservationLog
 from sims.io.atomic import write_json_atomic
 from sims.io.log_json import load_json
-from sims.io.validate import require_list, require_mapping, require_number, require_positive
+from sims.io.validate import (
+    MAX_PIXELS,
+    MIN_PIXELS,
+    require_int,
+    require_list,
+    require_mapping,
+    require_number,
+    require_positive,
+)
 
 __all__ = [
     "DETECTIONS_FORMAT",
@@ -108,11 +116,8 @@ def write_detections(path: str | os.PathLike, frames: Sequence[DetectionFrame]) 
 
 
 def _optional_int(value: Any, field: str) -> int | None:
-    if value is None:
-        return None
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not float(value).is_integer():
-        raise InputError("must be an integer or null", field=field)
-    return int(value)
+    """``None`` for JSON null, else a JSON integer (``5``, never ``5.0`` or ``"5"``)."""
+    return None if value is None else require_int(value, field)
 
 
 def parse_detections(doc: Any) -> list[DetectionFrame]:
@@ -135,7 +140,8 @@ def parse_detections(doc: Any) -> list[DetectionFrame]:
             if d.get("tag") is not None:
                 t = require_mapping(d["tag"], f"{f}.tag")
                 corners = np.array(
-                    [[require_number(c, f"{f}.tag.corners") for c in row] for row in require_list(t.get("corners"), f"{f}.tag.corners")],
+                    [[require_number(c, f"{f}.tag.corners", MAX_PIXELS) for c in require_list(row, f"{f}.tag.corners")]
+                     for row in require_list(t.get("corners"), f"{f}.tag.corners")],
                     dtype=float,
                 )
                 if corners.shape != (4, 2):
@@ -147,10 +153,10 @@ def parse_detections(doc: Any) -> list[DetectionFrame]:
                     corners,
                 )
             dets.append(DetectionRecord(
-                require_number(d.get("u"), f"{f}.u"),
-                require_number(d.get("v"), f"{f}.v"),
-                require_positive(d.get("r"), f"{f}.r"),
-                require_number(d.get("score", 1.0), f"{f}.score"),
+                require_number(d.get("u"), f"{f}.u", MAX_PIXELS),
+                require_number(d.get("v"), f"{f}.v", MAX_PIXELS),
+                require_positive(d.get("r"), f"{f}.r", MIN_PIXELS, MAX_PIXELS),
+                require_number(d.get("score", 1.0), f"{f}.score", MAX_PIXELS),
                 _optional_int(d.get("id"), f"{f}.id"),
                 _optional_int(d.get("track"), f"{f}.track"),
                 tag,

@@ -26,7 +26,14 @@ from decentral.observations import (
 from sims.io.atomic import write_json_atomic
 from sims.io.jsonfile import load_json
 from sims.io.validate import (
+    MAX_ANGLE,
+    MAX_METRES,
+    MAX_PIXELS,
+    MAX_SECONDS,
+    MIN_METRES,
+    MIN_PIXELS,
     require_int,
+    require_int_key,
     require_list,
     require_mapping,
     require_matrix,
@@ -78,12 +85,12 @@ def _parse_pose(value: Any, field: str) -> Pose:
     for key in ("R", "p"):
         if key not in value:
             raise InputError("missing", field=f"{field}.{key}")
-    return Pose(require_rotation(value["R"], f"{field}.R"), require_vector(value["p"], f"{field}.p", 3))
+    return Pose(require_rotation(value["R"], f"{field}.R"), require_vector(value["p"], f"{field}.p", 3, MAX_METRES))
 
 
 def _parse_K(value: Any, field: str) -> np.ndarray:
-    K = require_matrix(value, field, 3, 3)
-    if abs(np.linalg.det(K)) < 1e-9 or K[0, 0] <= 0 or K[1, 1] <= 0:
+    K = require_matrix(value, field, 3, 3, MAX_PIXELS)
+    if abs(np.linalg.det(K)) < 1e-9 or K[0, 0] < MIN_PIXELS or K[1, 1] < MIN_PIXELS:
         raise InputError("camera matrix is singular or has non-positive focal lengths", field=field)
     if not np.allclose(K[2], [0.0, 0.0, 1.0]):
         raise InputError("last row of a pinhole K must be [0, 0, 1]", field=field)
@@ -122,11 +129,11 @@ def _parse_config(value: Any, field: str, declared: set[str]) -> dict[str, dict[
         nodes = require_mapping(nodes, f"{field}.{name}")
         parsed: dict[int, np.ndarray] = {}
         for key, centre in nodes.items():
-            node = require_int(key, f"{field}.{name}.{key}")
+            node = require_int_key(key, f"{field}.{name}.{key}")
             if node in owner:
                 raise InputError(f"node id {node} also belongs to {owner[node]}", field=f"{field}.{name}.{key}")
             owner[node] = name
-            parsed[node] = require_vector(centre, f"{field}.{name}.{key}", 3)
+            parsed[node] = require_vector(centre, f"{field}.{name}.{key}", 3, MAX_METRES)
         config[name] = parsed
     return config
 
@@ -142,7 +149,8 @@ def _parse_odometry(value: Any, field: str, declared: set[str]) -> dict[str, Odo
             if key not in odo:
                 raise InputError("missing", field=f"{field}.{name}.{key}")
         odometry[name] = Odometry(
-            require_vector(odo["dp"], f"{field}.{name}.dp", 3), require_number(odo["dtheta"], f"{field}.{name}.dtheta")
+            require_vector(odo["dp"], f"{field}.{name}.dp", 3, MAX_METRES),
+            require_number(odo["dtheta"], f"{field}.{name}.dtheta", MAX_ANGLE),
         )
     return odometry
 
@@ -163,9 +171,9 @@ def _parse_detections(value: Any, field: str, cameras: dict[str, Camera]) -> dic
             parsed.append(
                 Detection(
                     node=require_int(det["id"], f"{where}.id"),
-                    u=require_number(det["u"], f"{where}.u"),
-                    v=require_number(det["v"], f"{where}.v"),
-                    r=require_positive(det["r"], f"{where}.r"),
+                    u=require_number(det["u"], f"{where}.u", MAX_PIXELS),
+                    v=require_number(det["v"], f"{where}.v", MAX_PIXELS),
+                    r=require_positive(det["r"], f"{where}.r", MIN_PIXELS, MAX_PIXELS),
                 )
             )
         detections[key] = tuple(parsed)
@@ -188,7 +196,7 @@ def parse_log(doc: Any) -> ObservationLog:
     for key in ("node_radius", "assemblies", "steps"):
         if key not in doc:
             raise InputError("missing", field=key)
-    radius = require_positive(doc["node_radius"], "node_radius")
+    radius = require_positive(doc["node_radius"], "node_radius", MIN_METRES, MAX_METRES)
     assemblies = require_mapping(doc["assemblies"], "assemblies")
     if not assemblies:
         raise InputError("no assemblies declared", field="assemblies")
@@ -205,7 +213,7 @@ def parse_log(doc: Any) -> ObservationLog:
         for key in ("t", "config"):
             if key not in raw:
                 raise InputError("missing", field=f"{field}.{key}")
-        t = require_number(raw["t"], f"{field}.t")
+        t = require_number(raw["t"], f"{field}.t", MAX_SECONDS)
         if t <= previous_t:
             raise InputError(f"step times must increase ({t:g} after {previous_t:g})", field=f"{field}.t")
         previous_t = t
@@ -296,10 +304,10 @@ def parse_estimate(doc: Any) -> Estimate:
         for name, pose in require_mapping(raw.get("poses", {}), f"steps[{k}].poses").items():
             pose = require_mapping(pose, f"steps[{k}].poses.{name}")
             poses[name] = PlanarPose(
-                require_vector(pose.get("p"), f"steps[{k}].poses.{name}.p", 3),
-                require_number(pose.get("theta"), f"steps[{k}].poses.{name}.theta"),
+                require_vector(pose.get("p"), f"steps[{k}].poses.{name}.p", 3, MAX_METRES),
+                require_number(pose.get("theta"), f"steps[{k}].poses.{name}.theta", MAX_ANGLE),
             )
-        steps.append(EstimateStep(require_number(raw.get("t"), f"steps[{k}].t"), poses))
+        steps.append(EstimateStep(require_number(raw.get("t"), f"steps[{k}].t", MAX_SECONDS), poses))
     return Estimate(doc["reference"], tuple(steps), doc.get("stats", {}))
 
 

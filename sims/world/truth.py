@@ -27,6 +27,15 @@ import numpy as np
 
 from decentral.errors import InputError
 from decentral.metrics import GroundTruth
+from sims.io.validate import (
+    MAX_METRES,
+    MAX_SECONDS,
+    MIN_METRES,
+    require_number,
+    require_positive,
+    require_rotation,
+    require_vector,
+)
 
 __all__ = ["TRUTH_FORMAT", "Truth", "truth_to_dict", "parse_truth", "read_truth", "write_truth"]
 
@@ -82,16 +91,6 @@ def truth_to_dict(truth: Truth) -> dict:
     }
 
 
-def _array(value: Any, shape: tuple, field: str) -> np.ndarray:
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise InputError("not an array of numbers", field=field) from None
-    if arr.shape != shape or not np.all(np.isfinite(arr)):
-        raise InputError(f"expected finite numbers of shape {shape}", field=field)
-    return arr
-
-
 def parse_truth(doc: Any) -> Truth:
     """Validate a decoded ``decentral.truth/1`` document."""
     if not isinstance(doc, dict) or doc.get("format") != TRUTH_FORMAT:
@@ -105,7 +104,7 @@ def parse_truth(doc: Any) -> Truth:
     for k, raw in enumerate(steps):
         if not isinstance(raw, dict) or not isinstance(raw.get("poses"), dict):
             raise InputError("missing poses", field=f"steps[{k}].poses")
-        times.append(float(_array(raw.get("t"), (), f"steps[{k}].t")))
+        times.append(require_number(raw.get("t"), f"steps[{k}].t", MAX_SECONDS))
         if names is None:
             names = list(raw["poses"])
             R = {n: [] for n in names}
@@ -116,20 +115,23 @@ def parse_truth(doc: Any) -> Truth:
             pose = raw["poses"][n]
             if not isinstance(pose, dict):
                 raise InputError("not a pose", field=f"steps[{k}].poses.{n}")
-            R[n].append(_array(pose.get("R"), (3, 3), f"steps[{k}].poses.{n}.R"))
-            p[n].append(_array(pose.get("p"), (3,), f"steps[{k}].poses.{n}.p"))
+            R[n].append(require_rotation(pose.get("R"), f"steps[{k}].poses.{n}.R"))
+            p[n].append(require_vector(pose.get("p"), f"steps[{k}].poses.{n}.p", 3, MAX_METRES))
         visible.append(raw.get("visible", {}))
         frames.append(raw.get("frames", {}))
     try:
         gt = GroundTruth(np.asarray(times), {n: np.stack(R[n]) for n in names}, {n: np.stack(p[n]) for n in names})
     except InputError as err:
         raise InputError(err.message, field=f"steps.{err.field}") from None
-    radius = doc.get("node_radius", 0.06)
+    radius = require_positive(doc.get("node_radius", 0.06), "node_radius", MIN_METRES, MAX_METRES)
     reference = doc.get("reference", names[0])
-    if reference not in names:
+    if not isinstance(reference, str) or reference not in names:
         raise InputError(f"reference {reference!r} has no poses", field="reference")
     has_frames = any(frames)
-    return Truth(gt, float(radius), reference, tuple(visible), dict(doc.get("meta", {})),
+    meta = doc.get("meta", {})
+    if not isinstance(meta, dict):
+        raise InputError("must be an object", field="meta")
+    return Truth(gt, radius, reference, tuple(visible), meta,
                  tuple(frames) if has_frames else ())
 
 
