@@ -32,9 +32,17 @@ COMMANDS: dict[str, str] = {
 EXIT_BAD_INPUT = 2
 
 
+class _OneLineParser(argparse.ArgumentParser):
+    """A parser whose usage errors are one stderr line (and exit status 2) like every other failure."""
+
+    def error(self, message: str):
+        self.exit(EXIT_BAD_INPUT, _error_line(self.prog.removeprefix("decentral").strip(), f"error: {message}")
+                  + f" (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Return the top-level parser with every registered subcommand attached."""
-    parser = argparse.ArgumentParser(
+    parser = _OneLineParser(
         prog="decentral",
         description="Decentralized multi-observer relative localization for modular robots.",
     )
@@ -70,7 +78,7 @@ def _error_line(command: str, text: str) -> str:
     text = " ".join(str(text).split())
     if len(text) > MAX_ERROR_CHARS:
         text = text[: MAX_ERROR_CHARS - 3] + "..."
-    return f"decentral {command}: {text}"
+    return f"decentral {command}: {text}" if command else f"decentral: {text}"
 
 
 class _Terminated(KeyboardInterrupt):

@@ -34,11 +34,21 @@ def run(args: argparse.Namespace) -> int:
     from sims.io.log_json import read_estimate
     from sims.world.truth import read_truth
 
+    from decentral.errors import InputError, SolverError
+    from sims.io.atomic import first_non_finite
+
     estimate = read_estimate(args.estimate)
     truth = read_truth(args.truth)
-    score = score_estimate(truth.poses, estimate)
+    try:
+        score = score_estimate(truth.poses, estimate)
+    except InputError as err:  # what the truth lacks is named in the estimate's fields
+        raise err.located(args.estimate) from None
+    doc = score.to_dict()
+    bad = first_non_finite(doc)
+    if bad is not None:  # never print NaN/Infinity as a score
+        raise SolverError(f"{args.estimate}: the score's {bad} is not finite against {args.truth}")
     if args.json:
-        print(json.dumps(score.to_dict(), indent=1))
+        print(json.dumps(doc, indent=1, allow_nan=False))
     else:
         per = {name: s.to_dict() for name, s in score.per_assembly.items()}
         print(format_table({**per, "overall": score.overall.to_dict()}))
