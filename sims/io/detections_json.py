@@ -35,6 +35,7 @@ from sims.io.validate import (
     require_int,
     require_list,
     require_mapping,
+    require_matrix,
     require_number,
     require_positive,
 )
@@ -139,13 +140,7 @@ def parse_detections(doc: Any) -> list[DetectionFrame]:
             tag = None
             if d.get("tag") is not None:
                 t = require_mapping(d["tag"], f"{f}.tag")
-                corners = np.array(
-                    [[require_number(c, f"{f}.tag.corners", MAX_PIXELS) for c in require_list(row, f"{f}.tag.corners")]
-                     for row in require_list(t.get("corners"), f"{f}.tag.corners")],
-                    dtype=float,
-                )
-                if corners.shape != (4, 2):
-                    raise InputError("must be 4 [x, y] pairs", field=f"{f}.tag.corners")
+                corners = require_matrix(t.get("corners"), f"{f}.tag.corners", 4, 2, MAX_PIXELS)
                 tag = TagRecord(
                     _optional_int(t.get("id"), f"{f}.tag.id") or 0,
                     _optional_int(t.get("hamming"), f"{f}.tag.hamming") or 0,
