@@ -3,6 +3,7 @@ output or is refused with exit 2 and one stderr line naming the file, writing no
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 
@@ -19,7 +20,7 @@ SETTINGS = settings(max_examples=25, deadline=None, suppress_health_check=[Healt
 #: values that break a field when put in place of another
 HOSTILE = st.one_of(
     st.sampled_from([1e308, -1e308, 1e-308, 0, -1, 2**63, 10**30, True, None, "10", "", [], {}, [[[]]],
-                     float("nan"), float("inf")]),
+                     float("nan"), float("inf")]).map(copy.deepcopy),  # fresh containers, never shared
     st.floats(allow_nan=True, allow_infinity=True),
     st.integers(),
     st.text(max_size=5),
@@ -43,6 +44,8 @@ def mutated(draw, doc):
     doc = json.loads(json.dumps(doc))
     for _ in range(draw(st.integers(1, 3))):
         paths = [p for p, _ in _leaves(doc) if p]
+        if not paths:  # an earlier mutation replaced the whole content
+            break
         path = draw(st.sampled_from(paths))
         parent = doc
         for key in path[:-1]:
