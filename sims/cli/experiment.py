@@ -16,6 +16,16 @@ from decentral.errors import InputError
 
 __all__ = ["HELP", "add_arguments", "run"]
 
+
+def _plot_atomic(plot, result, target: Path) -> None:
+    """``plot(result, path)`` into a temporary file renamed to ``target``; removed on any failure."""
+    tmp = target.with_name(f".{target.stem}.part{target.suffix}")  # matplotlib picks the format by suffix
+    try:
+        plot(result, tmp)
+        tmp.replace(target)
+    finally:
+        tmp.unlink(missing_ok=True)
+
 HELP = "reproduce seed 000's Table I or Fig. 4 on rendered frames (writes JSON and a PNG plot)"
 
 
@@ -49,15 +59,11 @@ def run(args: argparse.Namespace) -> int:
         write_json_atomic(out / "table1.json", result)
         md = table_markdown(result)
         write_atomic(out / "table1.md", lambda fh: fh.write(md))
-        tmp = out / ".table1.png.part.png"
-        plot_table1(result, tmp)
-        tmp.replace(out / "table1.png")
+        _plot_atomic(plot_table1, result, out / "table1.png")
         print(md, end="")
     else:
         result = run_reconfig(TableConfig(seeds=1, steps=args.steps or 80, clean=args.clean))
         write_json_atomic(out / "reconfig.json", result)
-        tmp = out / ".reconfig.png.part.png"
-        plot_reconfig(result, tmp)
-        tmp.replace(out / "reconfig.png")
+        _plot_atomic(plot_reconfig, result, out / "reconfig.png")
         print(f"reconfig: {out / 'reconfig.json'}, {out / 'reconfig.png'}")
     return 0

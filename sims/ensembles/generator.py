@@ -220,11 +220,9 @@ def save_truth(path: str | os.PathLike, ens: Ensemble, seed: int | None = None) 
 
 def load_truth(path: str | os.PathLike) -> dict[str, np.ndarray]:
     """Read a ``decentral.ensemble_truth/1`` file into a dict of arrays (checks the format)."""
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            out = {k: data[k] for k in data.files}
-    except (OSError, ValueError) as err:
-        raise InputError(f"cannot read truth file ({err})", source=str(path)) from None
+    from sims.io.ensemble_npz import read_npz_arrays
+
+    out = read_npz_arrays(path)  # bounded like the observations; errors name the file
     if str(out.get("format", "")) != TRUTH_FORMAT:
         raise InputError(f"expected format {TRUTH_FORMAT!r}", source=str(path), field="format")
     return out
