@@ -17,7 +17,7 @@ from typing import Sequence
 import numpy as np
 
 from decentral.errors import InputError
-from sims.io.limits import current_limits
+from sims.io.limits import current_limits, over_limit
 from sims.io.validate import require_range
 
 __all__ = ["HELP", "add_arguments", "run", "perceive_paths", "to_records"]
@@ -46,6 +46,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--log-min-score", type=float, default=0.5,
                         help="detections with a lower rim score stay out of --log-out (default 0.5); so do "
                              "circles not wholly inside the image")
+
+
+def _check_image_files(paths: Sequence[str], limits) -> None:
+    """Image files are read whole before decoding: refuse one larger than the file-size limit (videos stream)."""
+    import os
+
+    from agents.perception.frames import is_video
+
+    for path in paths:
+        if not is_video(path) and os.path.isfile(path) and os.path.getsize(path) > limits.max_file_mb * 1e6:
+            raise over_limit("file size", round(os.path.getsize(path) / 1e6, 1), "max_file_mb", limits.max_file_mb,
+                             " MB", source=path)
 
 
 def _tag_table(path: str | None) -> dict[int, int] | None:
@@ -131,7 +143,9 @@ def run(args: argparse.Namespace) -> int:
     from sims.io.detections_json import assemble_log, write_detections
 
     require_range(args.log_min_score, "--log-min-score", -1e6, 1e6)
-    max_pixels = current_limits().max_pixels
+    limits = current_limits()
+    max_pixels = limits.max_pixels
+    _check_image_files(args.frames, limits)
     given = [args.log_template is not None, args.camera is not None, args.log_out is not None]
     if any(given) and not all(given):
         raise InputError("--log-template, --camera and --log-out go together", field="--log-template")

@@ -313,6 +313,34 @@ def test_bad_tag_tables_are_refused(text, words, tmp_path):
     assert words in out.lines[0]
 
 
+def test_image_files_over_the_size_limit_are_refused_before_reading(tmp_path, monkeypatch):
+    """An image file larger than DECENTRAL_MAX_FILE_MB is refused from its size on disk."""
+    monkeypatch.setenv("DECENTRAL_MAX_FILE_MB", "0.01")
+    img = _png(tmp_path / "frame.png", 64, 64, b"".join(b"\0" + bytes(64) for _ in range(64)))
+    with open(img, "ab") as fh:
+        fh.write(bytes(20_000))
+    out = run_in_process(["perceive", img, "-o", tmp_path / "d.json"], tmp_path)
+    assert_refused(out, "frame.png")
+    assert "DECENTRAL_MAX_FILE_MB" in out.lines[0]
+
+
+def test_a_bad_limit_variable_is_refused_naming_it(log_doc, tmp_path, monkeypatch):
+    """A limit variable that is not a positive number is itself a one-line error naming the variable."""
+    monkeypatch.setenv("DECENTRAL_MAX_JSON_DEPTH", "deep")
+    log = write_json_text(tmp_path / "log.json", log_doc)
+    assert_refused(run_in_process(["localize", log, "-o", tmp_path / "e.json"], tmp_path), "DECENTRAL_MAX_JSON_DEPTH")
+
+
+def test_raising_a_limit_lets_the_input_through(tmp_path, monkeypatch):
+    """The same image refused under a lowered pixel limit is processed once the limit is raised again."""
+    img = _png(tmp_path / "frame.png", 64, 64, b"".join(b"\0" + bytes(64) for _ in range(64)))
+    monkeypatch.setenv("DECENTRAL_MAX_PIXELS", "1000")
+    assert_refused(run_in_process(["perceive", img, "-o", tmp_path / "d.json"], tmp_path), "frame.png")
+    monkeypatch.setenv("DECENTRAL_MAX_PIXELS", "5000")
+    out = run_in_process(["perceive", img, "-o", tmp_path / "d.json"], tmp_path)
+    assert out.status == 0 and (tmp_path / "d.json").exists(), out.stderr
+
+
 def test_perceive_output_equal_to_a_frame_is_refused(tmp_path):
     """Writing the detections over an input frame is refused."""
     img = _png(tmp_path / "frame.png", 64, 64, b"".join(b"\0" + bytes(64) for _ in range(64)))
