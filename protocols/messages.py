@@ -185,7 +185,8 @@ def checked_shape(shape: tuple[int, ...], itemsize: int, field: str, available: 
         raise ProtocolError(f"field {field!r}: negative dimension in array shape {shape}")
     count = math.prod(shape)
     if count * itemsize > available:
-        raise ProtocolError(f"field {field!r}: truncated body: array of shape {shape} needs more than the {available} bytes left")
+        raise ProtocolError(f"field {field!r}: truncated body: array of shape {shape} needs more than the "
+                            f"{available} bytes left")
     if math.prod(d for d in shape if d) * max(itemsize, 1) >= 2**62:
         raise ProtocolError(f"field {field!r}: array shape {shape} is too large")
     return count

@@ -21,7 +21,8 @@ import numpy as np
 
 from decentral.errors import InputError
 
-__all__ = ["VIDEO_SUFFIXES", "MIN_SIDE", "is_video", "image_size", "load_image", "iter_frames", "native_stderr_silenced"]
+__all__ = ["VIDEO_SUFFIXES", "MIN_SIDE", "is_video", "image_size", "load_image", "iter_frames",
+           "native_stderr_silenced"]
 
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg")
 #: smallest frame side, pixels: the detector's image pyramid and tag reads need at least this much
