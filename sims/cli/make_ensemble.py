@@ -9,7 +9,9 @@ import numpy as np
 from decentral.errors import InputError
 from sims.ensembles.generator import SHAPES, EnsembleSpec, generate, save_observations, save_truth
 from sims.ensembles.sensors import SensorModel
+from sims.io.limits import current_limits, over_limit
 from sims.io.paths import check_output
+from sims.io.validate import MAX_METRES, MIN_METRES, require_range
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -31,6 +33,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     if not 0 < args.threshold < 1:
         raise InputError("must be in (0, 1)", field="--threshold")
+    limits = current_limits()
+    if args.n > limits.max_modules:
+        raise over_limit("module count", args.n, "max_modules", limits.max_modules, field="-n")
+    require_range(args.radius, "--radius", MIN_METRES, MAX_METRES)
     check_output(args.output)
     if args.truth:
         check_output(args.truth, [args.output], field="--truth")

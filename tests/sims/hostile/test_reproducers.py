@@ -355,3 +355,11 @@ def test_usage_errors_are_one_line(tmp_path):
                  ["localize", "x.json", "-o", "y.json", "--window", "five"], []):
         out = run_in_process(argv, tmp_path, trace_memory=False)
         assert out.status == 2 and len(out.lines) == 1, out.stderr
+
+
+@pytest.mark.parametrize("option, value", [("-n", str(10**9)), ("--radius", "1e308"), ("--radius", "nan"),
+                                           ("--jitter", "inf"), ("-n", "-5")])
+def test_absurd_make_ensemble_options_are_refused(option, value, tmp_path):
+    """A module count over the limit or a non-physical radius is refused before generating anything."""
+    out = run_in_process(["make-ensemble", "triple", "-o", tmp_path / "obs.npz", option, value], tmp_path)
+    assert_refused(out, option.lstrip("-").split("-")[0])
