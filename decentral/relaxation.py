@@ -114,8 +114,11 @@ def _anchored_pinv_apply(L: np.ndarray, B: np.ndarray) -> np.ndarray:
     m = L.shape[0]
     X = np.zeros((m,) + B.shape[1:])
     if m > 1:
-        factor = scipy.linalg.cho_factor(L[1:, 1:], check_finite=False)
-        X[1:] = scipy.linalg.cho_solve(factor, B[1:], check_finite=False)
+        try:
+            factor = scipy.linalg.cho_factor(L[1:, 1:], check_finite=False)
+            X[1:] = scipy.linalg.cho_solve(factor, B[1:], check_finite=False)
+        except np.linalg.LinAlgError:  # numerically semidefinite: weights spanning too many orders of magnitude
+            X[1:] = scipy.linalg.lstsq(L[1:, 1:], B[1:], check_finite=False)[0]
     return X - X.mean(axis=0)
 
 

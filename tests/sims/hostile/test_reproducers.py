@@ -363,3 +363,16 @@ def test_absurd_make_ensemble_options_are_refused(option, value, tmp_path):
     """A module count over the limit or a non-physical radius is refused before generating anything."""
     out = run_in_process(["make-ensemble", "triple", "-o", tmp_path / "obs.npz", option, value], tmp_path)
     assert_refused(out, option.lstrip("-").split("-")[0])
+
+
+@pytest.mark.parametrize("path, value", [(["steps", 1, "detections", "A0/cam0", 0, "r"], 1e-3),
+                                         (["steps", 1, "odometry", "A1", "dp", 0], 1e6),
+                                         (["assemblies", "A0", "cameras", "cam0", "K", 0, 0], 1e7)])
+def test_extremes_inside_the_ranges_are_localized_not_crashed(path, value, log_doc, tmp_path):
+    """Values at the edge of the accepted ranges give an estimate (a 1e-3 px radius made a Cholesky fail)."""
+    log = write_json_text(tmp_path / "log.json", _set(log_doc, path, value))
+    for mode in ("centralized", "admm"):
+        out = run_in_process(["localize", log, "-o", tmp_path / f"{mode}.json", "--mode", mode], tmp_path,
+                             trace_memory=False)
+        assert out.status == 0 and not out.stderr, out.stderr
+        json.loads((tmp_path / f"{mode}.json").read_text())
