@@ -341,6 +341,20 @@ def test_raising_a_limit_lets_the_input_through(tmp_path, monkeypatch):
     assert out.status == 0 and (tmp_path / "d.json").exists(), out.stderr
 
 
+def test_video_frame_size_is_checked_before_frames_are_read(tmp_path, monkeypatch):
+    """A video whose frames exceed the pixel limit is refused from the container's frame size."""
+    import cv2
+
+    writer = cv2.VideoWriter(str(tmp_path / "clip.avi"), cv2.VideoWriter_fourcc(*"MJPG"), 5, (32, 24))
+    for _ in range(3):
+        writer.write(np.zeros((24, 32, 3), np.uint8))
+    writer.release()
+    monkeypatch.setenv("DECENTRAL_MAX_PIXELS", "500")
+    out = run_in_process(["perceive", tmp_path / "clip.avi", "-o", tmp_path / "d.json"], tmp_path)
+    assert_refused(out, "clip.avi")
+    assert "32 x 24" in out.lines[0]
+
+
 def test_perceive_output_equal_to_a_frame_is_refused(tmp_path):
     """Writing the detections over an input frame is refused."""
     img = _png(tmp_path / "frame.png", 64, 64, b"".join(b"\0" + bytes(64) for _ in range(64)))
