@@ -25,23 +25,18 @@ def json_depth(text: str) -> int:
     """Deepest nesting of arrays/objects in ``text`` (brackets inside strings do not count).
 
     Vectorized over the UTF-8 bytes: a quote opens or closes a string unless an odd run of
-    backslashes precedes it (runs are followed back one step at a time, only for the quotes still
-    preceded by a backslash, so the work is bounded by the text's length); brackets between an odd
-    and an even quote are inside a string.
+    backslashes precedes it; brackets between an odd and an even quote are inside a string.
     """
     raw = np.frombuffer(text.encode("utf-8"), dtype=np.uint8)
     quotes = np.flatnonzero(raw == ord('"'))
     if quotes.size and "\\" in text:
-        run = np.zeros(quotes.size, dtype=np.int64)
-        live = np.flatnonzero(quotes > 0)
-        at = quotes[live] - 1
-        while live.size:
-            back = raw[at] == ord("\\")
-            live, at = live[back], at[back]
-            run[live] += 1
-            keep = at > 0
-            live, at = live[keep], at[keep] - 1
-        quotes = quotes[run % 2 == 0]
+        slash = raw == ord("\\")
+        starts = np.flatnonzero(slash & ~np.concatenate(([False], slash[:-1])))  # first byte of each run
+        escaped = (quotes > 0) & slash[np.maximum(quotes - 1, 0)]
+        q = quotes[escaped]
+        run = q - starts[np.searchsorted(starts, q - 1, side="right") - 1]  # backslashes right before q
+        escaped[escaped] = run % 2 == 1
+        quotes = quotes[~escaped]
     brackets = np.flatnonzero((raw == ord("[")) | (raw == ord("]")) | (raw == ord("{")) | (raw == ord("}")))
     brackets = brackets[np.searchsorted(quotes, brackets) % 2 == 0]
     if not brackets.size:
