@@ -7,6 +7,7 @@ from protocols.messages import (
     BROADCAST,
     AdmmDual,
     AdmmPrimal,
+    CorruptFrame,
     Heartbeat,
     Message,
     OdometryReport,
@@ -16,13 +17,16 @@ from protocols.messages import (
     register,
 )
 from protocols.network import Crash, LinkConfig, NetworkConfig, Partition, SimulatedNetwork
-from protocols.transport import Counts, Delivery, Transport, TransportStats
+from protocols.transport import REJECT_REASONS, Counts, Delivery, Transport, TransportStats, rejection_reason
 
 __all__ = [
     "BROADCAST",
     "Message",
     "register",
     "decode",
+    "CorruptFrame",
+    "rejection_reason",
+    "REJECT_REASONS",
     "Tracks",
     "PoseEstimates",
     "AdmmPrimal",
