@@ -340,26 +340,51 @@ def layout_components(positions: list[np.ndarray], radius: float) -> list[np.nda
 
 def localize_components(problem: EnsembleProblem, solve_component) -> tuple[EnsembleEstimate, float, list]:
     """Run ``solve_component(sub, nodes) -> (position, rotation, cost)`` per connected component and lay
-    the results side by side. Returns the estimate, the summed cost and the per-component outputs."""
+    the results side by side. Returns the estimate, the summed cost and the per-component outputs.
+
+    Components are taken largest first (ties: smallest module id). A module with no observation at
+    all is a component of its own with nothing to solve: it keeps the identity orientation and its
+    slot in the layout, without a call (a file of 10**6 unobserved modules is laid out at once).
+    Every component's subproblem is cut from one pass over the observations, so many small
+    components cost time linear in the problem size.
+    """
+    n, d = problem.n, problem.dim
     k, labels = connected_components(problem.adjacency(), directed=False)
     order = np.argsort(labels, kind="stable")
     bounds = np.searchsorted(labels[order], np.arange(k + 1))
-    # largest component first so that it sits at the origin side
-    comps = sorted((order[bounds[c]:bounds[c + 1]] for c in range(k)), key=lambda m: (-m.size, m[0]))
-    pos = np.zeros((problem.n, problem.dim))
-    rot = np.tile(np.eye(problem.dim), (problem.n, 1, 1))
-    comp_label = np.zeros(problem.n, dtype=np.int64)
-    parts, cost, outs = [], 0.0, []
-    for c, nodes in enumerate(comps):
-        sub = problem.subproblem(nodes) if k > 1 else problem
+    sizes = np.diff(bounds)
+    rank = np.lexsort((order[bounds[:-1]], -sizes))  # component ids, largest first
+    new_label = np.empty(k, dtype=np.int64)
+    new_label[rank] = np.arange(k)
+    local = np.empty(n, dtype=np.int64)  # each module's index inside its component (ascending ids)
+    local[order] = np.arange(n) - bounds[labels[order]]
+    edge_order = np.argsort(labels[problem.i], kind="stable")
+    edge_bounds = np.searchsorted(labels[problem.i][edge_order], np.arange(k + 1))
+    pos = np.zeros((n, d))
+    rot = np.tile(np.eye(d), (n, 1, 1))
+    parts, comps, cost = [], [], 0.0
+    for c in rank[sizes[rank] > 1]:
+        nodes = order[bounds[c]:bounds[c + 1]]
+        if k == 1:
+            sub = problem
+        else:
+            e = edge_order[edge_bounds[c]:edge_bounds[c + 1]]
+            sub = EnsembleProblem(d, int(nodes.size), problem.radius, local[problem.i[e]], local[problem.j[e]],
+                                  problem.z[e])
         p, r, cst = solve_component(sub, nodes)
         parts.append(p)
+        comps.append(nodes)
         rot[nodes] = r
-        comp_label[nodes] = c
         cost += cst
-    for nodes, p in zip(comps, layout_components(parts, problem.radius) if k > 1 else parts):
+    if k > 1:
+        parts = layout_components(parts, problem.radius)
+    for nodes, p in zip(comps, parts):
         pos[nodes] = p
-    return EnsembleEstimate(pos, rot, comp_label), cost, outs
+    singles = order[bounds[rank[sizes[rank] == 1]]]
+    if singles.size:  # after the others, 4 radii apart, as layout_components would place them
+        x0 = sum(float(np.ptp(p[:, 0])) + 4.0 * problem.radius for p in parts)
+        pos[singles, 0] = x0 + problem.radius + 4.0 * problem.radius * np.arange(singles.size)
+    return EnsembleEstimate(pos, rot, new_label[labels]), cost, []
 
 
 def normcut_localize(problem: EnsembleProblem, rng: np.random.Generator,

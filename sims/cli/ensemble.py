@@ -90,10 +90,15 @@ def run(args: argparse.Namespace) -> int:
     if args.seed < 0:
         raise InputError(f"must be >= 0, got {args.seed}", field="--seed")
     from sims.io.ensemble_npz import read_ensemble, write_ensemble_estimate
+    from sims.io.limits import current_limits, over_limit
     from sims.io.paths import check_output
 
     check_output(args.output, [args.observations])
-    problem = read_ensemble(args.observations)
+    limits = current_limits()
+    problem = read_ensemble(args.observations, limits)
+    if args.distributed and problem.n > limits.max_agents:
+        raise over_limit("module count", problem.n, "max_agents", limits.max_agents, " for --distributed",
+                         source=args.observations, field="n")
     t0 = time.perf_counter()
     if args.distributed:
         estimate, extra = _distributed(problem, args)

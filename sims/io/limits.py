@@ -13,6 +13,7 @@ DECENTRAL_MAX_FILE_MB     512                     size of a JSON input file on d
 DECENTRAL_MAX_JSON_DEPTH  32                      nesting of arrays and objects in a JSON input
 DECENTRAL_MAX_INT_DIGITS  32                      digits of an integer literal in a JSON input
 DECENTRAL_MAX_MODULES     1000000                 module count ``n`` of an ensemble
+DECENTRAL_MAX_AGENTS      100000                  module count of a ``--distributed`` run (an agent each)
 DECENTRAL_MAX_ARRAY_MB    1024                    decompressed bytes of all arrays of one ``.npz``
 DECENTRAL_MAX_PIXELS      40000000                width x height of one image or video frame
 ========================  ======================  ====================================================
@@ -44,6 +45,8 @@ class Limits:
         Most digits of one JSON integer literal.
     max_modules : int
         Largest ensemble module count ``n``.
+    max_agents : int
+        Largest module count of a distributed ensemble run, which holds one agent object per module.
     max_array_mb : float
         Largest total of decompressed array bytes in one ``.npz``, megabytes.
     max_pixels : int
@@ -54,6 +57,7 @@ class Limits:
     max_json_depth: int = 32
     max_int_digits: int = 32
     max_modules: int = 1_000_000
+    max_agents: int = 100_000
     max_array_mb: float = 1024.0
     max_pixels: int = 40_000_000
 

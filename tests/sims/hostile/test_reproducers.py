@@ -187,6 +187,27 @@ def test_huge_module_counts_are_refused_before_allocation(n, ensemble_arrays, tm
     assert "n" in out.lines[0] and out.peak_bytes < 50e6
 
 
+def test_distributed_runs_are_bounded_by_the_agent_limit(ensemble_arrays, tmp_path):
+    """--distributed holds one agent per module: n over the agent limit is refused before any agent exists."""
+    arrays = {**ensemble_arrays, "n": np.asarray(10**6), "i": np.zeros(0, np.int64), "j": np.zeros(0, np.int64),
+              "z": np.zeros((0, 2))}
+    obs = write_npz(tmp_path / "obs.npz", **arrays)
+    out = run_in_process(["ensemble", obs, "-o", tmp_path / "est.npz", "--distributed"], tmp_path)
+    assert_refused(out, "obs.npz")
+    assert "DECENTRAL_MAX_AGENTS" in out.lines[0]
+
+
+def test_unobserved_modules_are_laid_out_at_once(ensemble_arrays, tmp_path):
+    """A tiny file declaring 10**6 modules and no observation is localized quickly (each module alone)."""
+    arrays = {**ensemble_arrays, "n": np.asarray(10**6), "i": np.zeros(0, np.int64), "j": np.zeros(0, np.int64),
+              "z": np.zeros((0, 2))}
+    obs = write_npz(tmp_path / "obs.npz", **arrays)
+    out = run_in_process(["ensemble", obs, "-o", tmp_path / "est.npz"], tmp_path, trace_memory=False)
+    assert out.status == 0 and out.seconds < 10, out.stderr
+    with np.load(tmp_path / "est.npz") as est:
+        assert est["position"].shape == (10**6, 2) and np.unique(est["component"]).size == 10**6
+
+
 def _npy_header(shape, dtype="<f8") -> bytes:
     header = repr({"descr": dtype, "fortran_order": False, "shape": shape}).encode() + b" "
     header += b" " * (-(len(header) + 11) % 64) + b"\n"
