@@ -14,6 +14,7 @@ DECENTRAL_MAX_JSON_DEPTH  32                      nesting of arrays and objects 
 DECENTRAL_MAX_INT_DIGITS  32                      digits of an integer literal in a JSON input
 DECENTRAL_MAX_MODULES     1000000                 module count ``n`` of an ensemble
 DECENTRAL_MAX_AGENTS      100000                  module count of a ``--distributed`` run (an agent each)
+DECENTRAL_MAX_ASSEMBLIES  512                     assemblies of an observation log (a joint window is dense)
 DECENTRAL_MAX_ARRAY_MB    1024                    decompressed bytes of all arrays of one ``.npz``
 DECENTRAL_MAX_PIXELS      40000000                width x height of one image or video frame
 ========================  ======================  ====================================================
@@ -47,6 +48,9 @@ class Limits:
         Largest ensemble module count ``n``.
     max_agents : int
         Largest module count of a distributed ensemble run, which holds one agent object per module.
+    max_assemblies : int
+        Most assemblies in an observation log: a joint window over m assemblies and K steps holds
+        dense (2 m K)^2 matrices.
     max_array_mb : float
         Largest total of decompressed array bytes in one ``.npz``, megabytes.
     max_pixels : int
@@ -58,6 +62,7 @@ class Limits:
     max_int_digits: int = 32
     max_modules: int = 1_000_000
     max_agents: int = 100_000
+    max_assemblies: int = 512
     max_array_mb: float = 1024.0
     max_pixels: int = 40_000_000
 

@@ -25,6 +25,7 @@ from decentral.observations import (
 )
 from sims.io.atomic import write_json_atomic
 from sims.io.jsonfile import load_json
+from sims.io.limits import Limits, current_limits, over_limit
 from sims.io.validate import (
     MAX_ANGLE,
     MAX_METRES,
@@ -71,9 +72,14 @@ def _check_format(doc: Any, expected: str) -> dict:
 # --- decentral.log/1 -------------------------------------------------------------------------
 
 
-def read_log(path: str | os.PathLike) -> ObservationLog:
-    """Read and validate a ``decentral.log/1`` file."""
-    doc = load_json(path)
+def read_log(path: str | os.PathLike, limits: Limits | None = None) -> ObservationLog:
+    """Read and validate a ``decentral.log/1`` file (its assembly count within ``limits``)."""
+    limits = limits or current_limits()
+    doc = load_json(path, limits)
+    count = len(doc["assemblies"]) if isinstance(doc, dict) and isinstance(doc.get("assemblies"), dict) else 0
+    if count > limits.max_assemblies:
+        raise over_limit("assembly count", count, "max_assemblies", limits.max_assemblies, source=str(path),
+                         field="assemblies")
     try:
         return parse_log(doc)
     except InputError as err:

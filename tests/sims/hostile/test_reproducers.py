@@ -71,6 +71,15 @@ def test_log_text_attacks_are_refused(text, words, tmp_path):
     assert words in out.lines[0]
 
 
+def test_assembly_count_is_bounded(log_doc, tmp_path, monkeypatch):
+    """A log declaring more assemblies than the limit is refused before parsing them."""
+    monkeypatch.setenv("DECENTRAL_MAX_ASSEMBLIES", "1")
+    log = write_json_text(tmp_path / "log.json", log_doc)
+    out = run_in_process(["localize", log, "-o", tmp_path / "est.json"], tmp_path)
+    assert_refused(out, "log.json")
+    assert "DECENTRAL_MAX_ASSEMBLIES" in out.lines[0]
+
+
 def test_a_node_id_given_twice_in_one_assembly_is_refused(log_doc, tmp_path):
     """Duplicate JSON keys (a node listed twice) are refused, not silently the last one."""
     text = json.dumps(log_doc).replace('"A1": {"10": [0.0, 0.0, 0.0]}', '"A1": {"10": [0.0, 0.0, 0.0], "10": [9, 9, 9]}', 1)
