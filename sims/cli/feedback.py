@@ -122,7 +122,7 @@ class Progress:
 
 
 @contextlib.contextmanager
-def progress(desc: str, total: int | None = None, unit: str = "step", *, leave: bool = False) -> Iterator[Progress]:
+def progress(desc: str, total: int | None = None, unit: str = "step", *, leave: bool | None = None) -> Iterator[Progress]:
     """Open a progress bar for ``total`` units of work (``None``: unknown, no ETA).
 
     Parameters
@@ -133,9 +133,13 @@ def progress(desc: str, total: int | None = None, unit: str = "step", *, leave: 
         Expected count; a library callback may set or correct it later.
     unit : str
         Name of one unit (``step``, ``frame``, ``cell``).
-    leave : bool
-        Keep the finished bar on screen (default: erase it; the summary line follows).
+    leave : bool, optional
+        Keep the finished bar. Default: erase it on a terminal (the summary line follows), keep its
+        final state when bars are forced onto a non-terminal (a log file then ends with the counts).
     """
+    if leave is None:
+        isatty = getattr(sys.stderr, "isatty", None)
+        leave = not (isatty and isatty())
     bar = tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, leave=leave, disable=not _bars_enabled(),
                dynamic_ncols=True, mininterval=0.2)
     try:
