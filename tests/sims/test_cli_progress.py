@@ -192,3 +192,43 @@ def test_distributed_stages_reach_their_total(ensemble):
     messages = [c[2]["messages"] for c in calls]
     assert messages == sorted(messages) and messages[-1] == int(res.messages.sum())
     assert res.info["capped_levels"] == []
+
+
+def _stderr_on_a_terminal(argv: list[str]) -> tuple[int, bytes]:
+    """Run the console script with stderr on a 120-column pseudo-terminal; return (status, what it showed)."""
+    import fcntl
+    import os
+    import pty
+    import struct
+    import subprocess
+    import sys
+    import termios
+
+    master, slave = pty.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 120, 0, 0))
+    env = {k: v for k, v in os.environ.items() if k != feedback.PROGRESS_ENV}
+    proc = subprocess.Popen([sys.executable, "-m", "sims.cli.main", *argv], stdout=subprocess.DEVNULL,
+                            stderr=slave, env=env)
+    os.close(slave)
+    shown = b""
+    while True:
+        try:
+            chunk = os.read(master, 4096)
+        except OSError:  # the child closed the terminal
+            break
+        if not chunk:
+            break
+        shown += chunk
+    os.close(master)
+    return proc.wait(), shown
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "openpty"), reason="needs a pseudo-terminal")
+def test_on_a_terminal_the_bar_shows_by_default_and_quiet_hides_it(sim6, tmp_path):
+    """Without any setting a terminal stderr gets the bar (then the summary); -q shows nothing; files stay clean."""
+    out = tmp_path / "t.json"
+    status, shown = _stderr_on_a_terminal(["localize", str(sim6 / "log.json"), "-o", str(out), "--mode", "admm"])
+    assert status == 0 and b"%|" in shown and b"rounds=" in shown and b"decentral localize: 6 steps" in shown
+    assert json.loads(out.read_text())["format"] == "decentral.estimate/1"
+    status, shown = _stderr_on_a_terminal(["-q", "localize", str(sim6 / "log.json"), "-o", str(out), "--mode", "admm"])
+    assert status == 0 and shown == b""
