@@ -17,6 +17,7 @@ from typing import Sequence
 import numpy as np
 
 from decentral.errors import InputError
+from sims.cli import feedback
 from sims.io.limits import current_limits, over_limit
 from sims.io.validate import require_range
 
@@ -95,6 +96,30 @@ def to_records(results, *, K: np.ndarray | None = None):
     return frames
 
 
+def _frame_total(paths: Sequence[str]) -> int | None:
+    """Number of frames the inputs hold: one per image, a video's frame count (None if unknown)."""
+    from agents.perception.frames import is_video, native_stderr_silenced
+
+    if len(paths) == 1 and is_video(paths[0]):
+        import cv2
+
+        with native_stderr_silenced():  # FFmpeg prints its own complaints about a damaged file
+            cap = cv2.VideoCapture(str(paths[0]))
+        try:
+            count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+        finally:
+            cap.release()
+        return count if count > 0 else None
+    return len(paths)
+
+
+def _frames(paths: Sequence[str], max_pixels: int | None = None):
+    """The input frames, with a progress bar counting them."""
+    from agents.perception.frames import iter_frames
+
+    return feedback.track(iter_frames(list(paths), max_pixels), "perceive", total=_frame_total(paths), unit="frame")
+
+
 def perceive_paths(
     paths: Sequence[str],
     *,
@@ -116,7 +141,6 @@ def perceive_paths(
     ``"auto"`` is image registration. Frames over ``max_pixels`` pixels are refused before decoding.
     """
     from agents.perception import AprilTagConfig, AprilTagIdentifier, HoughCircleDetector, HoughConfig, Perception
-    from agents.perception.frames import iter_frames
     from agents.perception.pipeline import perceive_frames
 
     require_range(min_radius, "--min-radius", *RADIUS_RANGE)
@@ -132,10 +156,10 @@ def perceive_paths(
         if motion == "odometry":
             raise InputError("--motion odometry needs --log-template and --camera", field="--motion")
         perception = Perception(detector, identifier, track=track, motion="flow" if motion in ("flow", "auto") else None)
-        return to_records(perceive_frames(iter_frames(list(paths), max_pixels), perception))
+        return to_records(perceive_frames(_frames(paths, max_pixels), perception))
     from sims.experiments.perception_run import perceive_with_log
 
-    return list(perceive_with_log(iter_frames(list(paths), max_pixels), log, camera, family=family, tag_table=tag_table,
+    return list(perceive_with_log(_frames(paths, max_pixels), log, camera, family=family, tag_table=tag_table,
                                   track=track, motion=motion, min_radius=min_radius, max_radius=max_radius).frames)
 
 
@@ -189,4 +213,10 @@ def run(args: argparse.Namespace) -> int:
         from sims.io.log_json import write_log
 
         write_log(args.log_out, filled)
+    dets = [d for f in frames for d in f.detections]
+    ids = {d.node for d in dets if d.node is not None}
+    tracks = {d.track for d in dets if d.track is not None}
+    feedback.summary(f"{len(frames)} frames, {len(dets)} detections, {sum(d.node is not None for d in dets)} "
+                     f"identified ({len(ids)} node ids, {len(tracks)} tracks) -> {args.output}"
+                     + (f", {args.log_out}" if filled is not None else ""))
     return 0

@@ -14,20 +14,25 @@ import math
 import os
 import zipfile
 import zlib
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from decentral.ensemble.problem import EnsembleEstimate, EnsembleProblem
+from decentral.ensemble.problem import MAX_RADIUS, MIN_RADIUS, EnsembleEstimate, EnsembleProblem
 from decentral.errors import InputError, SolverError
 from sims.io.atomic import write_atomic
 from sims.io.limits import Limits, current_limits, over_limit
+from sims.io.validate import MAX_METRES
 
-__all__ = ["OBSERVATION_FORMAT", "ESTIMATE_FORMAT", "read_npz_arrays", "read_ensemble", "write_ensemble_estimate"]
+__all__ = ["OBSERVATION_FORMAT", "ESTIMATE_FORMAT", "TRUTH_FORMAT", "EnsembleTruth", "read_npz_arrays", "read_ensemble",
+           "read_ensemble_positions", "read_ensemble_truth", "write_ensemble_estimate", "is_npz"]
 
 OBSERVATION_FORMAT = "decentral.ensemble/1"
 #: ``format`` field written into estimates (the contract requires ``position`` and ``orientation``)
 ESTIMATE_FORMAT = "decentral.ensemble_estimate/1"
+#: ``format`` of the true poses that ``decentral make-ensemble --truth`` writes
+TRUTH_FORMAT = "decentral.ensemble_truth/1"
 
 
 def _npy_header(fh: Any, key: str, src: str) -> tuple[tuple[int, ...], bool, np.dtype]:
@@ -132,6 +137,101 @@ def _int_array(data: dict, key: str, src: str) -> np.ndarray:
     raise InputError(f"expected integer ids, got dtype {a.dtype}", source=src, field=key)
 
 
+def _number(data: dict, key: str, src: str) -> float:
+    v = _scalar(data, key, src)
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise InputError(f"expected a number, got {type(v).__name__}", source=src, field=key)
+    return float(v)
+
+
+def is_npz(path: str | os.PathLike) -> bool:
+    """Whether ``path`` starts like a zip archive (an ``.npz``); False when it cannot be read."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(4) == b"PK\x03\x04"
+    except OSError:
+        return False
+
+
+def _format(data: dict, expected: str, src: str, required: bool = True) -> None:
+    if "format" not in data:
+        if required:
+            raise InputError("missing", source=src, field="format")
+        return
+    fmt = data["format"]
+    if fmt.dtype.kind not in "US" or fmt.size != 1 or str(fmt.reshape(()).item()) != expected:
+        shown = str(fmt.reshape(()).item()) if fmt.size == 1 else f"array of shape {fmt.shape}"
+        raise InputError(f"expected {expected!r}, got {shown!r}", source=src, field="format")
+
+
+def _points(data: dict, key: str, src: str, n: int | None = None, dim: int | None = None) -> np.ndarray:
+    """A finite (n, dim) float array ``key``, dim 2 or 3."""
+    if key not in data:
+        raise InputError("missing", source=src, field=key)
+    a = data[key]
+    if a.dtype.kind not in "fiu" or a.ndim != 2 or a.shape[1] not in (2, 3):
+        raise InputError(f"expected an (n, 2) or (n, 3) array of numbers, got {a.dtype} {a.shape}",
+                         source=src, field=key)
+    if (n is not None and a.shape[0] != n) or (dim is not None and a.shape[1] != dim):
+        raise InputError(f"expected shape ({n}, {dim}), got {a.shape}", source=src, field=key)
+    a = a.astype(float)
+    if not np.all(np.isfinite(a)):
+        raise InputError("non-finite value", source=src, field=key)
+    if a.size and np.abs(a).max() > MAX_METRES:
+        raise InputError(f"a coordinate beyond the physical range (at most {MAX_METRES:g} m)", source=src, field=key)
+    return a
+
+
+@dataclass(frozen=True)
+class EnsembleTruth:
+    """True module centres of an ensemble (``decentral.ensemble_truth/1``).
+
+    Attributes
+    ----------
+    position : ndarray, shape (n, dim)
+        True centres, metres.
+    radius : float
+        Module radius, metres.
+    pairs : ndarray of int64, shape (P, 2), or None
+        Observed neighbour pairs (``i < j``), when the file holds them.
+    """
+
+    position: np.ndarray
+    radius: float
+    pairs: np.ndarray | None
+
+
+def read_ensemble_truth(path: str | os.PathLike) -> EnsembleTruth:
+    """Load and validate a ``decentral.ensemble_truth/1`` file; raise :class:`InputError` on any defect."""
+    src = str(path)
+    data = read_npz_arrays(src)
+    _format(data, TRUTH_FORMAT, src)
+    position = _points(data, "position", src)
+    radius = _number(data, "radius", src)
+    if not MIN_RADIUS <= radius <= MAX_RADIUS:
+        raise InputError(f"must be in [{MIN_RADIUS:g}, {MAX_RADIUS:g}] (metres), got {radius!r}", source=src,
+                         field="radius")
+    pairs = None
+    if "pairs" in data:
+        pairs = data["pairs"]
+        n = position.shape[0]
+        if pairs.dtype.kind not in "iu" or pairs.ndim != 2 or pairs.shape[1] != 2:
+            raise InputError(f"expected a (P, 2) integer array, got {pairs.dtype} {pairs.shape}",
+                             source=src, field="pairs")
+        if pairs.size and (pairs.min() < 0 or pairs.max() >= n or np.any(pairs[:, 0] == pairs[:, 1])):
+            raise InputError(f"ids must be distinct and in 0..{n - 1}", source=src, field="pairs")
+        pairs = pairs.astype(np.int64)
+    return EnsembleTruth(position, float(radius), pairs)
+
+
+def read_ensemble_positions(path: str | os.PathLike, n: int, dim: int) -> np.ndarray:
+    """The ``position`` (n, dim) of an ensemble estimate ``.npz`` (its ``format``, if any, checked)."""
+    src = str(path)
+    data = read_npz_arrays(src)
+    _format(data, ESTIMATE_FORMAT, src, required=False)
+    return _points(data, "position", src, n, dim)
+
+
 def read_ensemble(path: str | os.PathLike, limits: Limits | None = None) -> EnsembleProblem:
     """Load and validate a ``decentral.ensemble/1`` file; raise :class:`InputError` on any defect.
 
@@ -141,19 +241,12 @@ def read_ensemble(path: str | os.PathLike, limits: Limits | None = None) -> Ense
     limits = limits or current_limits()
     src = str(path)
     data = read_npz_arrays(path, limits)
-    if "format" not in data:
-        raise InputError("missing", source=src, field="format")
-    fmt = data["format"]
-    if fmt.dtype.kind not in "US" or fmt.size != 1 or str(fmt.reshape(()).item()) != OBSERVATION_FORMAT:
-        shown = str(fmt.reshape(()).item()) if fmt.size == 1 else f"array of shape {fmt.shape}"
-        raise InputError(f"expected {OBSERVATION_FORMAT!r}, got {shown!r}", source=src, field="format")
+    _format(data, OBSERVATION_FORMAT, src)
     dim = _int_scalar(data, "dim", src)
     n = _int_scalar(data, "n", src)
     if n > limits.max_modules:
         raise over_limit("module count", n, "max_modules", limits.max_modules, source=src, field="n")
-    radius_v = _scalar(data, "radius", src)
-    if isinstance(radius_v, bool) or not isinstance(radius_v, (int, float)):
-        raise InputError(f"expected a number, got {type(radius_v).__name__}", source=src, field="radius")
+    radius_v = _number(data, "radius", src)
     i = _int_array(data, "i", src)
     j = _int_array(data, "j", src)
     if "z" not in data:
