@@ -257,14 +257,19 @@ def test_a_zip_bomb_is_refused_from_its_directory(ensemble_arrays, tmp_path, mon
     assert "DECENTRAL_MAX_ARRAY_MB" in out.lines[0] and out.peak_bytes < 50e6
 
 
+def _with_directory_size(path, member: str, change):
+    """Rewrite the uncompressed size of ``member`` in the zip's central directory (entry signature PK\\1\\2)."""
+    raw = bytearray(path.read_bytes())
+    at = raw.index(member.encode(), raw.index(b"PK\x01\x02"))
+    entry = raw.rindex(b"PK\x01\x02", 0, at)
+    struct.pack_into("<I", raw, entry + 24, change(struct.unpack_from("<I", raw, entry + 24)[0]))
+    path.write_bytes(bytes(raw))
+    return path
+
+
 def test_a_member_declaring_gigabytes_is_refused_at_the_default_limits(ensemble_arrays, tmp_path):
     """A zip directory entry declaring 4 GB of decompressed data is refused from the directory alone."""
-    obs = write_npz(tmp_path / "obs.npz", **ensemble_arrays)
-    raw = bytearray(obs.read_bytes())
-    at = raw.index(b"z.npy", raw.index(b"PK\x01\x02"))
-    entry = raw.rindex(b"PK\x01\x02", 0, at)
-    struct.pack_into("<I", raw, entry + 24, 4_000_000_000)  # uncompressed size in the central directory
-    obs.write_bytes(bytes(raw))
+    obs = _with_directory_size(write_npz(tmp_path / "obs.npz", **ensemble_arrays), "z.npy", lambda size: 4_000_000_000)
     out = run_in_process(["ensemble", obs, "-o", tmp_path / "est.npz"], tmp_path)
     assert_refused(out, "obs.npz")
     assert "DECENTRAL_MAX_ARRAY_MB" in out.lines[0] and out.peak_bytes < 50e6
@@ -272,14 +277,7 @@ def test_a_member_declaring_gigabytes_is_refused_at_the_default_limits(ensemble_
 
 def test_a_zip_directory_that_understates_a_member_is_refused(ensemble_arrays, tmp_path):
     """A member inflating beyond what its directory entry says is cut there and fails its checksum."""
-    obs = write_npz(tmp_path / "obs.npz", **ensemble_arrays)
-    raw = bytearray(obs.read_bytes())
-    # shrink the uncompressed size of 'z.npy' in its central directory entry (signature PK\1\2)
-    at = raw.index(b"z.npy", raw.index(b"PK\x01\x02"))
-    entry = raw.rindex(b"PK\x01\x02", 0, at)
-    size = struct.unpack_from("<I", raw, entry + 24)[0]
-    struct.pack_into("<I", raw, entry + 24, size - 16)
-    obs.write_bytes(bytes(raw))
+    obs = _with_directory_size(write_npz(tmp_path / "obs.npz", **ensemble_arrays), "z.npy", lambda size: size - 16)
     assert_refused(run_in_process(["ensemble", obs, "-o", tmp_path / "est.npz"], tmp_path), "obs.npz")
 
 
