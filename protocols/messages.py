@@ -132,11 +132,17 @@ def as_array(
     ProtocolError
         If ``value`` cannot be converted or has the wrong number of dimensions or shape.
     """
+    try:
+        raw = np.asarray(value)
+    except (TypeError, ValueError, OverflowError) as err:
+        raise ProtocolError(f"field {field!r}: not an array of {dtype}: {err}") from None
+    if raw.size and raw.dtype.kind not in "biuf":  # never parse numbers out of strings or objects
+        raise ProtocolError(f"field {field!r}: numbers expected, got dtype {raw.dtype}")
     if dtype is not None and np.dtype(dtype).kind in "iu":
-        arr = _integer_array(value, field, np.dtype(dtype))
+        arr = _integer_array(raw, field, np.dtype(dtype))
     else:
         try:
-            arr = np.array(value, dtype=dtype, copy=True, order="C")
+            arr = np.array(raw, dtype=dtype, copy=True, order="C")
         except (TypeError, ValueError, OverflowError) as err:
             raise ProtocolError(f"field {field!r}: not an array of {dtype}: {err}") from None
     if arr.dtype.kind not in "biuf":
@@ -155,10 +161,7 @@ def _integer_array(value: Any, field: str, dtype: np.dtype) -> np.ndarray:
 
     An empty sequence is accepted whatever its dtype (``[]`` is float64 to numpy).
     """
-    try:
-        raw = np.asarray(value)
-    except (TypeError, ValueError, OverflowError) as err:
-        raise ProtocolError(f"field {field!r}: not an array of integers: {err}") from None
+    raw = np.asarray(value)
     if raw.size and raw.dtype.kind not in "iu":
         raise ProtocolError(f"field {field!r}: integers expected, got dtype {raw.dtype}")
     if raw.size:

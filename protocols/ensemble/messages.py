@@ -92,7 +92,7 @@ class Hello(Message):
     seq: int = -1
 
     def __post_init__(self) -> None:
-        z = tuple(float(v) for v in np.asarray(self.z, dtype=np.float64).ravel())
+        z = tuple(float(v) for v in as_array(self.z, "z", dtype=np.float64).ravel())
         if len(z) not in (2, 3) or not all(np.isfinite(z)):
             raise ProtocolError("field 'z': need 2 or 3 finite floats")
         _set(self, "z", z)

@@ -103,3 +103,13 @@ def test_network_counts_malformed_frames_as_rejected():
     assert stats.rejected == {"corrupt": 1, "malformed": 1}
     assert stats.as_dict()["rejected"] == {"corrupt": 1, "malformed": 1}
     assert stats.total.balanced()
+
+
+def test_numbers_are_never_parsed_out_of_strings():
+    """Float fields refuse strings that numpy would parse ("0.05"), on construction and on decode."""
+    from protocols.ensemble.messages import Hello
+
+    with pytest.raises(ProtocolError, match="numbers expected"):
+        Hello(sender="a", receiver="b", round=0, z=("0.05", "0"))
+    with pytest.raises(ProtocolError, match="numbers expected"):
+        Tracks(sender="a", receiver="b", round=0, t=0.0, camera="a/c", ids=[1], uvr=[["1", "2", "3"]])
