@@ -24,6 +24,7 @@ from decentral.errors import InputError
 from decentral.factors import NoiseModel, StepMeasurements, measure_log
 from decentral.geometry import wrap_angle
 from decentral.observations import Estimate, EstimateStep, ObservationLog, PlanarPose
+from decentral.placement import count_reasons, unplaced_reasons
 from decentral.relaxation import RelaxationResult, recover_positions, reduce_rotations, solve_relaxation, yaw_hessian
 from decentral.window import WindowProblem, build_window
 
@@ -192,18 +193,25 @@ def estimate_log(log: ObservationLog, config: EstimatorConfig = EstimatorConfig(
         span = range(max(0, k - config.window + 1), k + 1)
         problem = build_window(measurements, span, reference)
         poses: dict[str, PlanarPose] = {}
+        connected, usable, yaw_std = set(), False, {}
         if problem is not None:
             theta0 = _warm_start(previous, problem, measurements) if config.warm_start else None
             solved = solve_window(problem, (reference, k), config, theta0)
             usable = solved.relaxation.status in ("optimal", "optimal_inaccurate", "uncertified")
             for key in sorted(solved.placeable) if usable else ():
                 poses[key[0]] = solved.relative(key, (reference, k))
+            connected = {name for name, step in problem.variables if step == k}
+            yaw_std = solved.yaw_std
             windows.append(_window_stats(k, solved))
             previous = solved
         else:
             previous = None
-        steps.append(EstimateStep(measurements[k].t, poses))
+        seen = {name for j in span for name in measurements[j].visual.observer + measurements[j].visual.target}
+        unplaced = unplaced_reasons(log.assemblies, reference, poses, with_data=seen, connected=connected,
+                                    solved=usable, yaw_std=yaw_std)
+        steps.append(EstimateStep(measurements[k].t, poses, unplaced))
     stats = _summary(measurements, windows, config, time.perf_counter() - start)
+    stats["unplaced"] = count_reasons(step.unplaced for step in steps)
     return Estimate(reference, tuple(steps), stats)
 
 

@@ -145,10 +145,15 @@ class PlanarPose:
 
 @dataclass(frozen=True)
 class EstimateStep:
-    """Poses relative to the reference at one step; assemblies that cannot be placed are absent."""
+    """Poses relative to the reference at one step; assemblies that cannot be placed are absent.
+
+    ``unplaced`` says why each absent assembly (other than the reference) is absent: a reason code of
+    :data:`decentral.placement.REASONS`, e.g. ``{"A2": "yaw_std_above_limit"}``.
+    """
 
     t: float
     poses: dict[str, PlanarPose]
+    unplaced: dict[str, str] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)

@@ -24,6 +24,7 @@ from decentral.admm import AdmmConfig
 from decentral.errors import InputError
 from decentral.factors import NoiseModel
 from decentral.observations import Estimate, EstimateStep, ObservationLog
+from decentral.placement import count_reasons
 from protocols.network import Crash, LinkConfig, NetworkConfig, Partition, SimulatedNetwork
 
 __all__ = ["AdmmRunConfig", "AdmmRun", "own_step", "run_admm"]
@@ -224,7 +225,9 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
         converged.append(bool(live) and all(agents[n].converged for n in live))
         per_agent.append({n: agents[n].estimates() for n in live})
         ref_poses = agents[reference].estimates() if reference in live else {}
-        est_steps.append(EstimateStep(log.steps[k].t, ref_poses))
+        why = (agents[reference].unplaced(ref_poses) if reference in live
+               else {n: "no_consensus" for n in names if n != reference})
+        est_steps.append(EstimateStep(log.steps[k].t, ref_poses, why))
     transport = net.stats().as_dict()
     seconds = time.perf_counter() - start
     total_rounds = int(sum(rounds))
@@ -252,6 +255,7 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
             for n in names
         },
         "messages": transport,
+        "unplaced": count_reasons(step.unplaced for step in est_steps),
         "seconds": seconds,
         "seconds_per_round": tick_seconds / max(total_rounds, 1),
         "admm": {"rho0": config.admm.rho0, "mu": config.admm.mu, "tau": config.admm.tau,

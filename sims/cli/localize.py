@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 from decentral.errors import InputError
 from decentral.factors import NoiseModel
 from sims.io.log_json import read_log, write_estimate
 
-__all__ = ["HELP", "add_arguments", "run", "ESTIMATORS"]
+__all__ = ["HELP", "add_arguments", "run", "summary_line", "ESTIMATORS"]
 
 HELP = "estimate every assembly's pose relative to a reference from an observation log"
 
@@ -82,7 +83,19 @@ def run(args: argparse.Namespace) -> int:
         config = EstimatorConfig(window=args.window, solver=args.solver, noise=noise)
         estimate = estimate_log(log, config, reference)
     write_estimate(args.output, estimate)
+    print(summary_line(estimate, args.output), file=sys.stderr)
     return 0
+
+
+def summary_line(estimate, output) -> str:
+    """One line: steps, placements, and how many (step, assembly) pairs were left out for each reason."""
+    from decentral.placement import count_reasons
+
+    placed = sum(len(step.poses) for step in estimate.steps)
+    reasons = count_reasons(step.unplaced for step in estimate.steps)
+    why = ", ".join(f"{code} {n}" for code, n in sorted(reasons.items(), key=lambda kv: -kv[1]))
+    return (f"localize: {len(estimate.steps)} steps, {placed} placements relative to {estimate.reference}"
+            + (f"; not placed: {why}" if why else "") + f" -> {output}")
 
 
 def _run_admm(log, args, noise, reference):

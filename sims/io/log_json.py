@@ -289,6 +289,7 @@ def estimate_to_dict(estimate: Estimate) -> dict:
                     name: {"p": [float(x) for x in pose.p], "theta": float(pose.theta)}
                     for name, pose in step.poses.items()
                 },
+                "unplaced": dict(step.unplaced),
             }
             for step in estimate.steps
         ],
@@ -316,7 +317,11 @@ def parse_estimate(doc: Any) -> Estimate:
                 require_vector(pose.get("p"), f"steps[{k}].poses.{name}.p", 3),
                 require_number(pose.get("theta"), f"steps[{k}].poses.{name}.theta"),
             )
-        steps.append(EstimateStep(require_number(raw.get("t"), f"steps[{k}].t"), poses))
+        unplaced = require_mapping(raw.get("unplaced", {}), f"steps[{k}].unplaced")
+        for name, reason in unplaced.items():
+            if not isinstance(reason, str):
+                raise InputError("expected a reason string", field=f"steps[{k}].unplaced.{name}")
+        steps.append(EstimateStep(require_number(raw.get("t"), f"steps[{k}].t"), poses, dict(unplaced)))
     return Estimate(doc["reference"], tuple(steps), doc.get("stats", {}))
 
 
