@@ -28,6 +28,7 @@ COMMANDS: dict[str, str] = {
     "make-ensemble": "sims.cli.make_ensemble",
     "ensemble": "sims.cli.ensemble",
     "export": "sims.cli.export",
+    "build-log": "sims.cli.build_log",
 }
 
 EXIT_BAD_INPUT = 2

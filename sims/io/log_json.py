@@ -40,6 +40,8 @@ __all__ = [
     "LOG_FORMAT",
     "ESTIMATE_FORMAT",
     "load_json",
+    "parse_pose",
+    "parse_camera_matrix",
     "read_log",
     "parse_log",
     "log_to_dict",
@@ -90,7 +92,7 @@ def read_log(path: str | os.PathLike) -> ObservationLog:
         raise err.located(str(path)) from None
 
 
-def _parse_pose(value: Any, field: str) -> Pose:
+def parse_pose(value: Any, field: str) -> Pose:
     value = require_mapping(value, field)
     for key in ("R", "p"):
         if key not in value:
@@ -98,7 +100,7 @@ def _parse_pose(value: Any, field: str) -> Pose:
     return Pose(require_rotation(value["R"], f"{field}.R"), require_vector(value["p"], f"{field}.p", 3))
 
 
-def _parse_K(value: Any, field: str) -> np.ndarray:
+def parse_camera_matrix(value: Any, field: str) -> np.ndarray:
     K = require_matrix(value, field, 3, 3)
     if abs(np.linalg.det(K)) < 1e-9 or K[0, 0] <= 0 or K[1, 1] <= 0:
         raise InputError("camera matrix is singular or has non-positive focal lengths", field=field)
@@ -121,9 +123,9 @@ def _parse_cameras(assemblies: dict) -> dict[str, Camera]:
             camera = Camera(
                 assembly=name,
                 name=cam_name,
-                K=_parse_K(cam["K"], f"{field}.K"),
-                strut_in_root=_parse_pose(cam["strut_in_root"], f"{field}.strut_in_root"),
-                cam_in_strut=_parse_pose(cam["cam_in_strut"], f"{field}.cam_in_strut"),
+                K=parse_camera_matrix(cam["K"], f"{field}.K"),
+                strut_in_root=parse_pose(cam["strut_in_root"], f"{field}.strut_in_root"),
+                cam_in_strut=parse_pose(cam["cam_in_strut"], f"{field}.cam_in_strut"),
             )
             cameras[camera.key] = camera
     return cameras
@@ -195,7 +197,7 @@ def _parse_mounts(value: Any, field: str, cameras: dict[str, Camera]) -> dict[st
     for key, pose in value.items():
         if key not in cameras:
             raise InputError("mount for an undeclared camera", field=f"{field}.{key}")
-        mounts[key] = _parse_pose(pose, f"{field}.{key}")
+        mounts[key] = parse_pose(pose, f"{field}.{key}")
     return mounts
 
 
