@@ -15,8 +15,8 @@ HELP = "estimate every assembly's pose relative to a reference from an observati
 
 #: estimator name -> one-line description (the seed's method and its baselines)
 ESTIMATORS = {
-    "windowed": "seed 000 §IV: radius-depth visual factors + odometry, SDP relaxation, sliding window",
-    "bearing": "seed 000 §V-C 2 baseline: root-node bearings only (no radius) + odometry",
+    "windowed": "Liu et al. 2024 §IV: radius-depth visual factors + odometry, SDP relaxation, sliding window",
+    "bearing": "Liu et al. 2024 §V-C 2 baseline: root-node bearings only (no radius) + odometry",
 }
 
 
@@ -44,7 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--solver", choices=("low-rank", "sdp"), default="low-rank",
                         help="low-rank with certificate (default) or the cvxpy/Clarabel SDP reference")
     parser.add_argument("--weighting", choices=("information", "unit"), default="information",
-                        help="weight factors by their noise (default) or not at all, as the seed's sums")
+                        help="weight factors by their noise (default) or not at all, as the paper's sums")
     parser.add_argument("--sigma-pixel", type=float, default=NoiseModel.sigma_pixel, help="detection centre std, px")
     parser.add_argument("--sigma-radius", type=float, default=NoiseModel.sigma_radius, help="detection radius std, px")
     parser.add_argument("--sigma-odom-p", type=float, default=NoiseModel.sigma_odom_p, help="odometry step std, m")

@@ -1,4 +1,4 @@
-"""``decentral score``: seed 000 Table I metrics of an estimate against a simulator's ground truth."""
+"""``decentral score``: the Table I metrics of Liu et al. (2024) of an estimate against a simulator's ground truth."""
 
 from __future__ import annotations
 
@@ -16,10 +16,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print the full score as JSON")
 
 
-def format_table(rows: dict[str, dict]) -> str:
-    """A fixed-width table of named overall scores (``Score.overall.to_dict()`` values)."""
+def format_table(rows: dict[str, dict], first: str = "method") -> str:
+    """A fixed-width table of named overall scores (``Score.overall.to_dict()`` values).
+
+    ``first`` heads the column of row names: what the rows are (methods, assemblies, ...).
+    """
     fps = any("fps" in r for r in rows.values())
-    lines = [f"{'method':<28} {'pos [m]':>9} {'rel [%]':>8} {'yaw [deg]':>10} {'coverage':>9}" + (" fps [Hz]" if fps else "")]
+    lines = [f"{first:<28} {'pos [m]':>9} {'rel [%]':>8} {'yaw [deg]':>10} {'coverage':>9}" + (" fps [Hz]" if fps else "")]
     for name, r in rows.items():
         if r["position_m"] is None:
             lines.append(f"{name:<28} {'-':>9} {'-':>8} {'-':>10} {100 * r['coverage']:>8.0f}%")
@@ -41,5 +44,6 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(score.to_dict(), indent=1))
     else:
         per = {name: s.to_dict() for name, s in score.per_assembly.items()}
-        print(format_table({**per, "overall": score.overall.to_dict()}))
+        print(format_table({**per, "overall": score.overall.to_dict()},
+                           first=f"assembly (relative to {score.reference})"))
     return 0
