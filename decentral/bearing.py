@@ -28,7 +28,7 @@ import numpy as np
 from decentral.errors import InputError
 from decentral.factors import NoiseModel, StepMeasurements, measure_log
 from decentral.geometry import rotz, wrap_angle
-from decentral.observations import Estimate, EstimateStep, ObservationLog, PlanarPose
+from decentral.observations import Estimate, EstimateStep, ObservationLog, PlanarPose, require_log, resolve_reference
 
 __all__ = ["BearingConfig", "estimate_log_bearing", "solve_bearing_window"]
 
@@ -117,9 +117,10 @@ def solve_bearing_window(x: np.ndarray, c: np.ndarray, b: np.ndarray) -> tuple[f
 def estimate_log_bearing(log: ObservationLog, config: BearingConfig = BearingConfig(),
                          reference: str | None = None) -> Estimate:
     """Bearing-only estimates of every target the reference observes (seed 000 §V-C 2)."""
-    reference = reference or log.assemblies[0]
-    if reference not in log.assemblies:
-        raise InputError(f"unknown reference assembly {reference!r}", field="reference")
+    log = require_log(log)
+    if not isinstance(config, BearingConfig):
+        raise InputError(f"expected a BearingConfig, got {type(config).__name__}", field="config")
+    reference = resolve_reference(log, reference)
     start = time.perf_counter()
     measurements = measure_log(log, config.noise)
     steps = []

@@ -23,7 +23,7 @@ import numpy as np
 from decentral.errors import InputError
 from decentral.factors import NoiseModel, StepMeasurements, measure_log
 from decentral.geometry import wrap_angle
-from decentral.observations import Estimate, EstimateStep, ObservationLog, PlanarPose
+from decentral.observations import Estimate, EstimateStep, ObservationLog, PlanarPose, require_log, resolve_reference
 from decentral.placement import count_reasons, unplaced_reasons
 from decentral.relaxation import RelaxationResult, recover_positions, reduce_rotations, solve_relaxation, yaw_hessian
 from decentral.window import WindowProblem, build_window
@@ -179,12 +179,21 @@ def estimate_log(log: ObservationLog, config: EstimatorConfig = EstimatorConfig(
     Returns
     -------
     Estimate
-        Per step, the poses of every placeable assembly; ``stats`` reports certificates, solver use,
-        skipped detections and timings.
+        Per step, the poses of every placeable assembly and, in ``unplaced``, why each other one is
+        not placed; ``stats`` reports certificates, solver use, skipped detections, reason counts
+        (``stats["unplaced"]``) and timings.
+
+    Raises
+    ------
+    InputError
+        If ``log`` is not a well-formed :class:`ObservationLog` (e.g. a decoded JSON dict: read files
+        with :func:`sims.io.log_json.read_log`), ``config`` not an :class:`EstimatorConfig`, or
+        ``reference`` not one of its assemblies.
     """
-    reference = reference or log.assemblies[0]
-    if reference not in log.assemblies:
-        raise InputError(f"unknown reference assembly {reference!r}", field="reference")
+    log = require_log(log)
+    if not isinstance(config, EstimatorConfig):
+        raise InputError(f"expected an EstimatorConfig, got {type(config).__name__}", field="config")
+    reference = resolve_reference(log, reference)
     start = time.perf_counter()
     measurements = measure_log(log, config.noise)
     steps, windows = [], []

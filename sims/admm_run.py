@@ -23,7 +23,7 @@ from agents.assembly import AgentConfig, AssemblyAgent, OwnStep
 from decentral.admm import AdmmConfig
 from decentral.errors import InputError
 from decentral.factors import NoiseModel
-from decentral.observations import Estimate, EstimateStep, ObservationLog
+from decentral.observations import Estimate, EstimateStep, ObservationLog, require_log, resolve_reference
 from decentral.placement import count_reasons
 from protocols.network import Crash, LinkConfig, NetworkConfig, Partition, SimulatedNetwork
 
@@ -156,9 +156,10 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
     seed : int
         Seed of the network's randomness (losses, duplicates, jitter); the run is deterministic in it.
     """
-    reference = reference or log.assemblies[0]
-    if reference not in log.assemblies:
-        raise InputError(f"unknown reference assembly {reference!r}", field="reference")
+    log = require_log(log)
+    if not isinstance(config, AdmmRunConfig):
+        raise InputError(f"expected an AdmmRunConfig, got {type(config).__name__}", field="config")
+    reference = resolve_reference(log, reference)
     start = time.perf_counter()
     names = tuple(log.assemblies)
     net = SimulatedNetwork(NetworkConfig(

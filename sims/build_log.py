@@ -210,6 +210,8 @@ def build_log(rig: Rig) -> tuple[ObservationLog, BuildReport]:
     """
     from sims.io.detections_json import read_detections
 
+    if not isinstance(rig, Rig):
+        raise InputError(f"expected a Rig (sims.io.rig.read_rig), got {type(rig).__name__}", field="rig")
     cams = rig.cameras
     detection_files = {key: read_detections(cam.source.path) for key, cam in cams.items()
                        if cam.source.kind == "detections"}

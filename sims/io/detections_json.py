@@ -27,7 +27,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from decentral.errors import InputError
-from decentral.observations import Detection, ObservationLog
+from decentral.observations import Detection, ObservationLog, require_log
 from sims.io.atomic import write_json_atomic
 from sims.io.log_json import load_json
 from sims.io.validate import require_list, require_mapping, require_number, require_positive
@@ -197,6 +197,7 @@ def assemble_log(
     InputError
         If a camera is not declared in the template or the frame count differs from the step count.
     """
+    template = require_log(template)
     for key, frames in detections.items():
         if key not in template.cameras:
             raise InputError(f"camera {key!r} is not declared in the log template", field="--camera")

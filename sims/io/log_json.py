@@ -23,6 +23,8 @@ from decentral.observations import (
     PlanarPose,
     Pose,
     Step,
+    require_estimate,
+    require_log,
 )
 from sims.io.atomic import write_json_atomic
 from sims.io.validate import (
@@ -246,6 +248,7 @@ def _pose_to_dict(pose: Pose) -> dict:
 
 def log_to_dict(log: ObservationLog) -> dict:
     """Return the ``decentral.log/1`` document of ``log`` (inverse of :func:`parse_log`)."""
+    log = require_log(log)
     assemblies: dict[str, dict] = {name: {} for name in log.assemblies}
     for camera in log.cameras.values():
         cams = assemblies[camera.assembly].setdefault("cameras", {})
@@ -281,6 +284,7 @@ def write_log(path: str | os.PathLike, log: ObservationLog) -> None:
 
 def estimate_to_dict(estimate: Estimate) -> dict:
     """Return the ``decentral.estimate/1`` document of ``estimate``."""
+    estimate = require_estimate(estimate)
     return {
         "format": ESTIMATE_FORMAT,
         "reference": estimate.reference,

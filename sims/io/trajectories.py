@@ -30,7 +30,7 @@ import numpy as np
 from decentral.errors import InputError
 from decentral.geometry import wrap_angle
 from decentral.metrics import GroundTruth, relative_truth
-from decentral.observations import Estimate
+from decentral.observations import Estimate, require_estimate
 from sims.io.atomic import write_atomic
 
 __all__ = [
@@ -121,6 +121,7 @@ def estimate_trajectories(estimate: Estimate, reference: str | None = None) -> d
         Write the poses relative to this assembly instead of ``estimate.reference``; only the times
         at which it is placed remain, and the estimate's reference becomes one of the trajectories.
     """
+    estimate = require_estimate(estimate)
     rows: dict[str, list] = {}
     for step in estimate.steps:
         for name, pose in step.poses.items():
@@ -141,6 +142,8 @@ def truth_trajectories(truth: GroundTruth, reference: str) -> dict[str, Trajecto
 
     The same relation :func:`decentral.metrics.score_estimate` scores against, at every truth step.
     """
+    if not isinstance(truth, GroundTruth):
+        raise InputError(f"expected a GroundTruth, got {type(truth).__name__}", field="truth")
     if reference not in truth.R:
         raise InputError(f"no assembly {reference!r} in the truth", field="reference")
     out = {}
