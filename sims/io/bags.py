@@ -13,6 +13,7 @@ data with), not the recording time.
 from __future__ import annotations
 
 import os
+import struct
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -28,8 +29,11 @@ IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 INFO_TYPE = "sensor_msgs/msg/CameraInfo"
 
 
-def _messages(bag: str | os.PathLike, topic: str, types: tuple[str, ...]) -> Iterator:
-    """Deserialized messages of ``topic`` in ``bag`` (bag order), checking the topic's type."""
+def _messages(bag: str | os.PathLike, topic: str, types: tuple[str, ...], *, raw: bool = False) -> Iterator:
+    """Deserialized messages of ``topic`` in ``bag`` (bag order), checking the topic's type.
+
+    With ``raw``, yields ``(serialized bytes, is_ros2)`` instead, for readers that need only a prefix.
+    """
     from rosbags.highlevel import AnyReader
 
     path = Path(bag)
@@ -49,8 +53,8 @@ def _messages(bag: str | os.PathLike, topic: str, types: tuple[str, ...]) -> Ite
             if conn.msgtype not in types:
                 raise InputError(f"topic has type {conn.msgtype}, expected {' or '.join(types)}",
                                  source=str(bag), field=topic)
-        for conn, _, raw in reader.messages(connections=connections):
-            yield reader.deserialize(raw, conn.msgtype)
+        for conn, _, data in reader.messages(connections=connections):
+            yield (data, reader.is2) if raw else reader.deserialize(data, conn.msgtype)
     finally:
         reader.close()
 
@@ -81,9 +85,20 @@ def read_camera_info(bag: str | os.PathLike, topic: str) -> np.ndarray:
     raise InputError("no CameraInfo message", source=str(bag), field=topic)
 
 
+def _raw_stamp(data: bytes, ros2: bool) -> float:
+    """``header.stamp`` [s] read from a serialized message whose first field is a std_msgs/Header.
+
+    Both encodings put the stamp's two 32-bit words at bytes 4-12: after CDR's 4-byte encapsulation
+    header in ROS 2 (byte 1 gives the endianness), after the header's ``seq`` in ROS 1 (little endian).
+    """
+    order = "<" if not ros2 or data[1] == 1 else ">"
+    sec, nanosec = struct.unpack_from(order + "iI", data, 4)
+    return float(sec) + 1e-9 * float(nanosec)
+
+
 def image_times(bag: str | os.PathLike, topic: str) -> np.ndarray:
-    """Header stamps [s] of the image messages on ``topic``, in bag order."""
-    return np.array([_stamp(msg) for msg in _messages(bag, topic, IMAGE_TYPES)], float)
+    """Header stamps [s] of the image messages on ``topic``, in bag order (no image is decoded)."""
+    return np.array([_raw_stamp(data, ros2) for data, ros2 in _messages(bag, topic, IMAGE_TYPES, raw=True)], float)
 
 
 def _decode(msg, where: str) -> np.ndarray:

@@ -189,3 +189,17 @@ def test_bad_data_files_end_in_one_line_naming_file_and_field(tmp_path, sim, cap
     assert len(err) == 3
     assert "A1.tum: line 22" in err[0] and "A0_cam0.json: frames[2].t" in err[1] and "run.bag: /nope" in err[2]
     assert not (tmp_path / "log.json").exists()
+
+
+@pytest.mark.parametrize("version", [1, 2])
+def test_image_stamps_read_from_the_serialized_header_equal_the_decoded_ones(tmp_path, version):
+    """image_times reads header.stamp from the raw bytes (no image decoded): same as deserializing, ROS 1 and 2."""
+    from sims.io.bags import IMAGE_TYPES, _messages, _stamp, image_times, iter_images
+    from sims.robot_data import write_bag
+
+    frames = [(t, np.full((4, 6, 3), 10 * k, np.uint8)) for k, t in enumerate((0.5, 1.25, 1.7e9 + 0.123456))]
+    bag = write_bag(tmp_path / ("run.bag" if version == 1 else "run"), version, {}, {"/img": frames})
+    decoded = [_stamp(m) for m in _messages(bag, "/img", IMAGE_TYPES)]
+    np.testing.assert_array_equal(image_times(bag, "/img"), decoded)
+    np.testing.assert_allclose(decoded, [t for t, _ in frames], atol=1e-6)
+    assert [int(image[0, 0, 0]) for _, image in iter_images(bag, "/img")] == [0, 10, 20]
