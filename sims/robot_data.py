@@ -18,7 +18,7 @@ import numpy as np
 
 from decentral.errors import InputError
 from decentral.geometry import wrap_angle, yaw_of
-from sims.io.robot_files import Trajectory2
+from sims.io.trajectories import Trajectory, trajectory_lines
 from sims.scenarios.base import Simulation
 
 __all__ = ["ODOMETRY_FORMATS", "odometry_trajectories", "write_robot_data", "write_bag"]
@@ -27,7 +27,7 @@ __all__ = ["ODOMETRY_FORMATS", "odometry_trajectories", "write_robot_data", "wri
 ODOMETRY_FORMATS = ("tum", "csv", "ros1", "ros2")
 
 
-def odometry_trajectories(sim: Simulation) -> dict[str, Trajectory2]:
+def odometry_trajectories(sim: Simulation) -> dict[str, Trajectory]:
     """Per assembly, the log's odometry integrated into poses, sampled at the steps where it is defined."""
     log, truth = sim.log, sim.truth.poses
     out = {}
@@ -48,7 +48,7 @@ def odometry_trajectories(sim: Simulation) -> dict[str, Trajectory2]:
             if odo is not None:
                 rows.append((log.steps[k].t, *p, yaw))
         arr = np.array(rows)
-        out[name] = Trajectory2(arr[:, 0], arr[:, 1:4], arr[:, 4])
+        out[name] = Trajectory(arr[:, 0], arr[:, 1:4], arr[:, 4])
     return out
 
 
@@ -67,19 +67,7 @@ def _toml_key(key) -> str:
     return key if key.replace("_", "").replace("-", "").isalnum() else _toml(key)
 
 
-def _tum_lines(traj: Trajectory2) -> str:
-    half = 0.5 * traj.yaw
-    rows = [" ".join(repr(float(x)) for x in (t, *p, 0.0, 0.0, np.sin(h), np.cos(h)))
-            for t, p, h in zip(traj.t, traj.p, half)]
-    return "# t x y z qx qy qz qw (root of the assembly in its odometry frame)\n" + "\n".join(rows) + "\n"
-
-
-def _csv_lines(traj: Trajectory2) -> str:
-    rows = [",".join(repr(float(x)) for x in (t, *p, y)) for t, p, y in zip(traj.t, traj.p, traj.yaw)]
-    return "t,x,y,z,yaw\n" + "\n".join(rows) + "\n"
-
-
-def write_bag(path: str | os.PathLike, version: int, odometry: dict[str, Trajectory2],
+def write_bag(path: str | os.PathLike, version: int, odometry: dict[str, Trajectory],
               images: dict[str, list[tuple[float, np.ndarray]]] | None = None,
               infos: dict[str, np.ndarray] | None = None) -> Path:
     """Write a ROS 1 (``version=1``, ``path`` a ``.bag`` file) or ROS 2 (``version=2``, a folder) bag.
@@ -209,7 +197,7 @@ def write_robot_data(sim: Simulation, outdir: str | os.PathLike, *, odometry: st
         else:
             rig.append(f"nodes = {_toml({int(n): c for n, c in layouts[0]['nodes'].items()})}")
         if odometry in ("tum", "csv"):
-            text = (_tum_lines if odometry == "tum" else _csv_lines)(traj[name])
+            text = "\n".join(trajectory_lines(traj[name], odometry)[f".{odometry}"]) + "\n"
             write_atomic(out / f"{name}.{odometry}", lambda fh, text=text: fh.write(text))
             rig.append(f'odometry = {{ file = "{name}.{odometry}" }}')
         else:

@@ -20,7 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from decentral.errors import InputError
-from sims.io.robot_files import Trajectory2, checked_trajectory, yaw_from_quaternion
+from sims.io.robot_files import checked_trajectory, yaw_from_quaternion
+from sims.io.trajectories import Trajectory
 
 __all__ = ["IMAGE_TYPES", "read_odometry_topic", "read_camera_info", "image_times", "iter_images"]
 
@@ -63,7 +64,7 @@ def _stamp(msg) -> float:
     return float(msg.header.stamp.sec) + 1e-9 * float(msg.header.stamp.nanosec)
 
 
-def read_odometry_topic(bag: str | os.PathLike, topic: str) -> Trajectory2:
+def read_odometry_topic(bag: str | os.PathLike, topic: str) -> Trajectory:
     """The trajectory of a ``nav_msgs/Odometry`` topic (header stamps, position, yaw)."""
     rows = []
     for msg in _messages(bag, topic, (ODOMETRY_TYPE,)):

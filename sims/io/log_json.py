@@ -27,6 +27,7 @@ from decentral.observations import (
     require_log,
 )
 from sims.io.atomic import write_json_atomic
+from sims.io.text import read_text
 from sims.io.validate import (
     require_int,
     require_list,
@@ -60,17 +61,9 @@ ESTIMATE_FORMAT = "decentral.estimate/1"
 
 def load_json(path: str | os.PathLike) -> Any:
     """Load a JSON file, turning unreadable or malformed files into :class:`InputError`."""
+    text = read_text(path)
     try:
-        with open(path, encoding="utf-8") as fh:
-            return json.load(fh)  # NaN/Infinity parse as floats; validators reject them by field
-    except FileNotFoundError:
-        raise InputError("file not found", source=str(path)) from None
-    except IsADirectoryError:
-        raise InputError("is a directory, not a file", source=str(path)) from None
-    except OSError as err:
-        raise InputError(f"cannot read file ({err.strerror})", source=str(path)) from None
-    except UnicodeDecodeError:
-        raise InputError("not a UTF-8 text file", source=str(path)) from None
+        return json.loads(text)  # NaN/Infinity parse as floats; validators reject them by field
     except json.JSONDecodeError as err:
         raise InputError(f"not valid JSON ({err.msg} at line {err.lineno})", source=str(path)) from None
 

@@ -40,6 +40,7 @@ from decentral.errors import InputError
 from decentral.observations import Pose
 from sims.io.log_json import parse_camera_matrix, parse_pose
 from sims.io.robot_files import Layout, parse_nodes, read_layout
+from sims.io.text import read_text
 from sims.io.validate import require_mapping, require_number, require_positive
 
 __all__ = ["RIG_FORMAT", "OdometrySource", "FrameSource", "RigCamera", "RigAssembly", "Rig", "read_rig", "parse_rig"]
@@ -250,16 +251,10 @@ def parse_rig(doc: Any, root: str | os.PathLike = ".", source: str = "") -> Rig:
 
 def read_rig(path: str | os.PathLike) -> Rig:
     """Read and validate a rig file; errors name the file and the field."""
+    text = read_text(path)
     try:
-        with open(path, "rb") as fh:
-            doc = tomllib.load(fh)
-    except FileNotFoundError:
-        raise InputError("file not found", source=str(path)) from None
-    except IsADirectoryError:
-        raise InputError("is a directory, not a file", source=str(path)) from None
-    except OSError as err:
-        raise InputError(f"cannot read file ({err.strerror})", source=str(path)) from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
         raise InputError(f"not valid TOML ({err})", source=str(path)) from None
     try:
         return parse_rig(doc, Path(path).parent, str(path))

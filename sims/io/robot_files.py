@@ -26,42 +26,21 @@ import numpy as np
 from decentral.errors import InputError
 from decentral.observations import Pose
 from sims.io.log_json import load_json, parse_pose
+from sims.io.text import read_text
+from sims.io.trajectories import Trajectory
 from sims.io.validate import require_int, require_list, require_mapping, require_number, require_vector
 
-__all__ = ["Trajectory2", "LAYOUT_FORMAT", "Layout", "yaw_from_quaternion", "checked_trajectory", "parse_nodes",
+__all__ = ["LAYOUT_FORMAT", "Layout", "yaw_from_quaternion", "checked_trajectory", "parse_nodes",
            "read_trajectory_file",
            "read_times", "read_layout"]
 
 LAYOUT_FORMAT = "decentral.layout/1"
 
 
-@dataclass(frozen=True)
-class Trajectory2:
-    """A sampled odometry trajectory: times (T,) [s] increasing, positions (T, 3) [m], yaws (T,) [rad]."""
-
-    t: np.ndarray
-    p: np.ndarray
-    yaw: np.ndarray
-
-
 def yaw_from_quaternion(qx, qy, qz, qw) -> np.ndarray:
     """Yaw [rad] (rotation about z, ZYX convention) of unit quaternions; roll and pitch are dropped."""
     qx, qy, qz, qw = (np.asarray(a, float) for a in (qx, qy, qz, qw))
     return np.arctan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
-
-
-def _read_text(path: str | os.PathLike) -> str:
-    try:
-        with open(path, encoding="utf-8") as fh:
-            return fh.read()
-    except FileNotFoundError:
-        raise InputError("file not found", source=str(path)) from None
-    except IsADirectoryError:
-        raise InputError("is a directory, not a file", source=str(path)) from None
-    except UnicodeDecodeError:
-        raise InputError("not a UTF-8 text file", source=str(path)) from None
-    except OSError as err:
-        raise InputError(f"cannot read file ({err.strerror})", source=str(path)) from None
 
 
 def _finite_row(parts: list[str], n: int, where: str) -> list[float]:
@@ -76,8 +55,8 @@ def _finite_row(parts: list[str], n: int, where: str) -> list[float]:
     return values
 
 
-def checked_trajectory(t, p, yaw, source: str) -> Trajectory2:
-    """A :class:`Trajectory2` after checking that it has samples and that its times increase."""
+def checked_trajectory(t, p, yaw, source: str) -> Trajectory:
+    """A :class:`Trajectory` after checking that it has samples and that its times increase."""
     t, p, yaw = np.asarray(t, float), np.asarray(p, float).reshape(-1, 3), np.asarray(yaw, float)
     if len(t) == 0:
         raise InputError("no odometry samples", source=source)
@@ -85,12 +64,12 @@ def checked_trajectory(t, p, yaw, source: str) -> Trajectory2:
     if len(bad):
         raise InputError(f"sample times must increase ({t[bad[0] + 1]:g} after {t[bad[0]]:g})",
                          source=source, field=f"sample {bad[0] + 1}")
-    return Trajectory2(t, p, yaw)
+    return Trajectory(t, p, yaw)
 
 
-def _read_tum(path: str | os.PathLike) -> Trajectory2:
+def _read_tum(path: str | os.PathLike) -> Trajectory:
     rows = []
-    for number, line in enumerate(_read_text(path).splitlines(), 1):
+    for number, line in enumerate(read_text(path).splitlines(), 1):
         line = line.split("#", 1)[0].strip()
         if line:
             try:
@@ -104,8 +83,8 @@ def _read_tum(path: str | os.PathLike) -> Trajectory2:
 _TIME_COLUMNS = ("t", "time", "timestamp")
 
 
-def _read_csv(path: str | os.PathLike) -> Trajectory2:
-    lines = _read_text(path).splitlines()
+def _read_csv(path: str | os.PathLike) -> Trajectory:
+    lines = read_text(path).splitlines()
     reader = csv.reader(line for line in lines if line.strip() and not line.lstrip().startswith("#"))
     header = [h.strip().lower() for h in next(reader, [])]
     col = {name: i for i, name in enumerate(header)}
@@ -130,7 +109,7 @@ def _read_csv(path: str | os.PathLike) -> Trajectory2:
     return checked_trajectory(values[time_col], p, yaw, str(path))
 
 
-def read_trajectory_file(path: str | os.PathLike) -> Trajectory2:
+def read_trajectory_file(path: str | os.PathLike) -> Trajectory:
     """Read a TUM (any suffix but ``.csv``) or CSV (``.csv``) odometry trajectory."""
     return _read_csv(path) if str(path).lower().endswith(".csv") else _read_tum(path)
 
@@ -138,7 +117,7 @@ def read_trajectory_file(path: str | os.PathLike) -> Trajectory2:
 def read_times(path: str | os.PathLike) -> np.ndarray:
     """Read a times file: one strictly increasing time [s] per line."""
     times = []
-    for number, line in enumerate(_read_text(path).splitlines(), 1):
+    for number, line in enumerate(read_text(path).splitlines(), 1):
         line = line.split("#", 1)[0].strip()
         if line:
             try:

@@ -54,31 +54,32 @@ _SAFE_NAME = re.compile(r"[A-Za-z0-9_.+-]+")
 
 @dataclass(frozen=True)
 class Trajectory:
-    """One assembly's poses relative to the reference at the times it is placed.
+    """A planar trajectory: an assembly's poses relative to the reference at the times it is placed
+    (what the exporters write), or a robot's odometry poses in its odometry frame (what build-log reads).
 
     Attributes
     ----------
     t : ndarray, shape (T,)
         Times [s], increasing.
     p : ndarray, shape (T, 3)
-        Positions of the assembly's root in the reference's root horizontal frame [m].
-    theta : ndarray, shape (T,)
-        Yaw of the assembly's root relative to the reference's [rad], in (-pi, pi].
+        Positions of the assembly's root in the reference's root horizontal frame (or the odometry frame) [m].
+    yaw : ndarray, shape (T,)
+        Yaw ``theta`` of the assembly's root relative to the reference's [rad].
     """
 
     t: np.ndarray
     p: np.ndarray
-    theta: np.ndarray
+    yaw: np.ndarray
 
     def quaternions(self) -> np.ndarray:
-        """Unit quaternions ``(qx, qy, qz, qw)`` (T, 4) of the rotations about z by ``theta``."""
-        half = 0.5 * self.theta
+        """Unit quaternions ``(qx, qy, qz, qw)`` (T, 4) of the rotations about z by ``yaw``."""
+        half = 0.5 * self.yaw
         zeros = np.zeros_like(half)
         return np.stack([zeros, zeros, np.sin(half), np.cos(half)], axis=1)
 
     def matrices(self) -> np.ndarray:
-        """Poses as 3x4 matrices ``[R | p]`` (T, 3, 4), R the rotation about z by ``theta``."""
-        c, s = np.cos(self.theta), np.sin(self.theta)
+        """Poses as 3x4 matrices ``[R | p]`` (T, 3, 4), R the rotation about z by ``yaw``."""
+        c, s = np.cos(self.yaw), np.sin(self.yaw)
         out = np.zeros((len(self.t), 3, 4))
         out[:, 0, 0], out[:, 0, 1], out[:, 1, 0], out[:, 1, 1] = c, -s, s, c
         out[:, 2, 2] = 1.0
@@ -95,18 +96,18 @@ def _relative_to(traj: dict[str, Trajectory], old: str, new: str) -> dict[str, T
     base = traj[new]
     where = {float(t): i for i, t in enumerate(base.t)}
     others = {name: tr for name, tr in traj.items() if name != new}
-    others[old] = Trajectory(base.t, np.zeros_like(base.p), np.zeros_like(base.theta))
+    others[old] = Trajectory(base.t, np.zeros_like(base.p), np.zeros_like(base.yaw))
     out = {}
     for name, tr in others.items():
         rows = [(i, where[float(t)]) for i, t in enumerate(tr.t) if float(t) in where]
         if not rows:
             continue
         i, j = (np.array(x) for x in zip(*rows))
-        th0 = base.theta[j]
+        th0 = base.yaw[j]
         d = tr.p[i] - base.p[j]
         c, s = np.cos(th0), np.sin(th0)
         p = np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], d[:, 2]], axis=1)
-        out[name] = Trajectory(tr.t[i], p, np.asarray(wrap_angle(tr.theta[i] - th0)))
+        out[name] = Trajectory(tr.t[i], p, np.asarray(wrap_angle(tr.yaw[i] - th0)))
     return out
 
 
@@ -168,7 +169,7 @@ def trajectory_lines(traj: Trajectory, fmt: str) -> dict[str, list[str]]:
                 ".times.txt": [_num(t) for t in traj.t]}
     if fmt == "csv":
         q = traj.quaternions()
-        rows = [",".join(map(_num, (t, *p, th, *qq))) for t, p, th, qq in zip(traj.t, traj.p, traj.theta, q)]
+        rows = [",".join(map(_num, (t, *p, th, *qq))) for t, p, th, qq in zip(traj.t, traj.p, traj.yaw, q)]
         return {".csv": ["t,x,y,z,theta,qx,qy,qz,qw", *rows]}
     raise InputError(f"unknown format {fmt!r}; known: {', '.join(FORMATS)}", field="format")
 

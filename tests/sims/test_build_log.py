@@ -187,7 +187,7 @@ def test_bad_data_files_end_in_one_line_naming_file_and_field(tmp_path, sim, cap
     assert main(["build-log", str(bag_rig), "-o", str(tmp_path / "log.json")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 3
-    assert "A1.tum: line 22" in err[0] and "A0_cam0.json: frames[2].t" in err[1] and "run.bag: /nope" in err[2]
+    assert "A1.tum: line 21" in err[0] and "A0_cam0.json: frames[2].t" in err[1] and "run.bag: /nope" in err[2]
     assert not (tmp_path / "log.json").exists()
 
 
