@@ -69,12 +69,12 @@ def _toml_key(key) -> str:
 
 def write_bag(path: str | os.PathLike, version: int, odometry: dict[str, Trajectory],
               images: dict[str, list[tuple[float, np.ndarray]]] | None = None,
-              infos: dict[str, np.ndarray] | None = None) -> Path:
+              infos: dict[str, np.ndarray] | None = None, compressed: bool = False) -> Path:
     """Write a ROS 1 (``version=1``, ``path`` a ``.bag`` file) or ROS 2 (``version=2``, a folder) bag.
 
     ``odometry``: topic -> trajectory (``nav_msgs/Odometry``, frame ``odom``); ``images``: topic ->
-    ``(time, BGR uint8 image)`` list (``sensor_msgs/Image``, bgr8); ``infos``: topic -> K
-    (``sensor_msgs/CameraInfo``, one message).
+    ``(time, BGR uint8 image)`` list (``sensor_msgs/Image``, bgr8, or with ``compressed``
+    ``sensor_msgs/CompressedImage``, PNG); ``infos``: topic -> K (``sensor_msgs/CameraInfo``, one message).
     """
     from rosbags.typesys import Stores, get_typestore
 
@@ -102,6 +102,11 @@ def write_bag(path: str | os.PathLike, version: int, odometry: dict[str, Traject
             twist=T[geo + "TwistWithCovariance"](twist=T[geo + "Twist"](linear=vec, angular=vec), covariance=np.zeros(36)))
 
     def image_msg(t, image):
+        if compressed:
+            import cv2
+
+            ok, data = cv2.imencode(".png", image)
+            return T["sensor_msgs/msg/CompressedImage"](header=header(t, "camera"), format="png", data=data.reshape(-1))
         h, w = image.shape[:2]
         return T["sensor_msgs/msg/Image"](header=header(t, "camera"), height=h, width=w, encoding="bgr8",
                                           is_bigendian=0, step=3 * w, data=np.ascontiguousarray(image).reshape(-1))
@@ -120,7 +125,8 @@ def write_bag(path: str | os.PathLike, version: int, odometry: dict[str, Traject
     for topic, traj in odometry.items():
         messages += [(t, topic, "nav_msgs/msg/Odometry", odom_msg(t, p, y)) for t, p, y in zip(traj.t, traj.p, traj.yaw)]
     for topic, frames in (images or {}).items():
-        messages += [(t, topic, "sensor_msgs/msg/Image", image_msg(t, im)) for t, im in frames]
+        kind = "sensor_msgs/msg/CompressedImage" if compressed else "sensor_msgs/msg/Image"
+        messages += [(t, topic, kind, image_msg(t, im)) for t, im in frames]
     for topic, K in (infos or {}).items():
         messages.append((0.0, topic, "sensor_msgs/msg/CameraInfo", info_msg(K)))
     messages.sort(key=lambda m: m[0])

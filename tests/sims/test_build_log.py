@@ -191,15 +191,40 @@ def test_bad_data_files_end_in_one_line_naming_file_and_field(tmp_path, sim, cap
     assert not (tmp_path / "log.json").exists()
 
 
-@pytest.mark.parametrize("version", [1, 2])
-def test_image_stamps_read_from_the_serialized_header_equal_the_decoded_ones(tmp_path, version):
-    """image_times reads header.stamp from the raw bytes (no image decoded): same as deserializing, ROS 1 and 2."""
+@pytest.mark.parametrize("version,compressed", [(1, False), (2, False), (1, True), (2, True)])
+def test_image_stamps_read_from_the_serialized_header_equal_the_decoded_ones(tmp_path, version, compressed):
+    """image_times reads header.stamp from the raw bytes (no image decoded): same as deserializing, in ROS 1
+    and 2 bags, for Image and CompressedImage; the images decode to what was written."""
     from sims.io.bags import IMAGE_TYPES, _messages, _stamp, image_times, iter_images
     from sims.robot_data import write_bag
 
     frames = [(t, np.full((4, 6, 3), 10 * k, np.uint8)) for k, t in enumerate((0.5, 1.25, 1.7e9 + 0.123456))]
-    bag = write_bag(tmp_path / ("run.bag" if version == 1 else "run"), version, {}, {"/img": frames})
+    bag = write_bag(tmp_path / ("run.bag" if version == 1 else "run"), version, {}, {"/img": frames},
+                    compressed=compressed)
     decoded = [_stamp(m) for m in _messages(bag, "/img", IMAGE_TYPES)]
     np.testing.assert_array_equal(image_times(bag, "/img"), decoded)
     np.testing.assert_allclose(decoded, [t for t, _ in frames], atol=1e-6)
     assert [int(image[0, 0, 0]) for _, image in iter_images(bag, "/img")] == [0, 10, 20]
+
+
+def test_a_video_with_a_frame_rate_is_perceived_like_its_frames(tmp_path):
+    """The same rendered frames as PNG files (times file) and as an MJPG video (rate, start) give the
+    same steps and nearly the same identified detections."""
+    import cv2
+
+    run = simulate(get_scenario("table1", steps=5, noise=False), seed=0)
+    rig = write_robot_data(run, tmp_path / "rec", odometry="tum", images=True)
+    png_log, _ = build_log(read_rig(rig))
+    frames = sorted((tmp_path / "rec" / "frames" / "A0" / "cam0").glob("*.png"))
+    first = cv2.imread(str(frames[0]))
+    video = cv2.VideoWriter(str(tmp_path / "rec" / "cam0.avi"), cv2.VideoWriter_fourcc(*"MJPG"), 5.0,
+                            (first.shape[1], first.shape[0]))
+    for f in frames:
+        video.write(cv2.imread(str(f)))
+    video.release()
+    text = rig.read_text().replace('frames = "frames/A0/cam0/*.png"', 'video = "cam0.avi"')
+    rig.write_text(text.replace('times = "A0_cam0.times.txt"', f"rate = 5.0\nstart = {run.log.steps[0].t}"))
+    video_log, report = build_log(read_rig(rig))
+    assert report.frames["A0/cam0"] == len(frames) and not report.unmatched_frames["A0/cam0"]
+    ids = lambda log: {(k, d.node) for k, s in enumerate(log.steps) for d in s.detections.get("A0/cam0", ())}  # noqa: E731
+    assert len(ids(video_log) & ids(png_log)) >= 0.8 * len(ids(png_log)) > 0
