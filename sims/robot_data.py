@@ -12,6 +12,7 @@ rebuilt log lacks odometry into and out of that step).
 from __future__ import annotations
 
 import os
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -81,8 +82,12 @@ def write_bag(path: str | os.PathLike, version: int, odometry: dict[str, Traject
     store = get_typestore(Stores.ROS1_NOETIC if version == 1 else Stores.ROS2_HUMBLE)
     T = store.types
     path = Path(path)
-    if path.exists():
-        raise InputError("exists already", source=str(path))
+    if not path.parent.is_dir():
+        raise InputError("output folder does not exist", source=str(path))
+    staging = path.with_name(f".{path.name}.part")  # the bag is written whole in here, then moved over ``path``
+    shutil.rmtree(staging, ignore_errors=True)
+    staging.mkdir()
+    tmp = staging / path.name
 
     def header(t: float, frame: str):
         sec = int(np.floor(t))
@@ -133,17 +138,21 @@ def write_bag(path: str | os.PathLike, version: int, odometry: dict[str, Traject
     if version == 1:
         from rosbags.rosbag1 import Writer
 
-        writer, serialize = Writer(path), store.serialize_ros1
+        writer, serialize = Writer(tmp), store.serialize_ros1
     else:
         from rosbags.rosbag2 import Writer
 
-        writer, serialize = Writer(path, version=9), store.serialize_cdr
+        writer, serialize = Writer(tmp, version=9), store.serialize_cdr
     with writer:
         conns = {}
         for t, topic, kind, msg in messages:
             if topic not in conns:
                 conns[topic] = writer.add_connection(topic, kind, typestore=store)
             writer.write(conns[topic], int(round(t * 1e9)) + 1, serialize(msg, kind))
+    if path.is_dir():
+        shutil.rmtree(path)
+    tmp.replace(path)
+    staging.rmdir()
     return path
 
 
