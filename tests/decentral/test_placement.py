@@ -69,6 +69,6 @@ def test_admm_reasons_match_the_centralized_ones():
     central = estimate_log(log, EstimatorConfig(window=3))
     from sims.admm_run import AdmmRunConfig
 
-    admm = run_admm(log, config=AdmmRunConfig(window=3)).estimate
+    admm = run_admm(log, config=AdmmRunConfig(window=3, max_rounds=30)).estimate  # A2, A3 never settle
     for a, b in zip(central.steps[1:], admm.steps[1:]):
         assert a.unplaced == b.unplaced
