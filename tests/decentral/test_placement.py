@@ -72,3 +72,13 @@ def test_admm_reasons_match_the_centralized_ones():
     admm = run_admm(log, config=AdmmRunConfig(window=3, max_rounds=30)).estimate  # A2, A3 never settle
     for a, b in zip(central.steps[1:], admm.steps[1:]):
         assert a.unplaced == b.unplaced
+
+
+def test_bearing_baseline_says_why_too():
+    """The bearing baseline lists targets the reference never sees as 'no_data'."""
+    from decentral.bearing import BearingConfig, estimate_log_bearing
+
+    est = estimate_log_bearing(split_scene(), BearingConfig(window=3))
+    for step in est.steps:
+        assert step.unplaced.get("A4") == "no_data" and set(step.poses).isdisjoint(step.unplaced)
+    assert est.stats["unplaced"] == count_reasons(step.unplaced for step in est.steps)
