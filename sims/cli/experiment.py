@@ -16,7 +16,7 @@ from sims.cli import feedback
 
 __all__ = ["HELP", "add_arguments", "run"]
 
-HELP = "reproduce seed 000's Table I or Fig. 4 on rendered frames (writes JSON and a PNG plot)"
+HELP = "reproduce Table I or Fig. 4 of Liu et al. (2024) on rendered frames (writes JSON and a PNG plot)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

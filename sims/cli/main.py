@@ -32,6 +32,8 @@ COMMANDS: dict[str, str] = {
     "experiment": "sims.cli.experiment",
     "make-ensemble": "sims.cli.make_ensemble",
     "ensemble": "sims.cli.ensemble",
+    "export": "sims.cli.export",
+    "build-log": "sims.cli.build_log",
 }
 
 EXIT_BAD_INPUT = 2

@@ -23,8 +23,11 @@ from decentral.observations import (
     PlanarPose,
     Pose,
     Step,
+    require_estimate,
+    require_log,
 )
 from sims.io.atomic import write_json_atomic
+from sims.io.text import read_text
 from sims.io.validate import (
     require_int,
     require_list,
@@ -40,6 +43,8 @@ __all__ = [
     "LOG_FORMAT",
     "ESTIMATE_FORMAT",
     "load_json",
+    "parse_pose",
+    "parse_camera_matrix",
     "read_log",
     "parse_log",
     "log_to_dict",
@@ -56,17 +61,9 @@ ESTIMATE_FORMAT = "decentral.estimate/1"
 
 def load_json(path: str | os.PathLike) -> Any:
     """Load a JSON file, turning unreadable or malformed files into :class:`InputError`."""
+    text = read_text(path)
     try:
-        with open(path, encoding="utf-8") as fh:
-            return json.load(fh)  # NaN/Infinity parse as floats; validators reject them by field
-    except FileNotFoundError:
-        raise InputError("file not found", source=str(path)) from None
-    except IsADirectoryError:
-        raise InputError("is a directory, not a file", source=str(path)) from None
-    except OSError as err:
-        raise InputError(f"cannot read file ({err.strerror})", source=str(path)) from None
-    except UnicodeDecodeError:
-        raise InputError("not a UTF-8 text file", source=str(path)) from None
+        return json.loads(text)  # NaN/Infinity parse as floats; validators reject them by field
     except json.JSONDecodeError as err:
         raise InputError(f"not valid JSON ({err.msg} at line {err.lineno})", source=str(path)) from None
 
@@ -90,7 +87,7 @@ def read_log(path: str | os.PathLike) -> ObservationLog:
         raise err.located(str(path)) from None
 
 
-def _parse_pose(value: Any, field: str) -> Pose:
+def parse_pose(value: Any, field: str) -> Pose:
     value = require_mapping(value, field)
     for key in ("R", "p"):
         if key not in value:
@@ -98,7 +95,7 @@ def _parse_pose(value: Any, field: str) -> Pose:
     return Pose(require_rotation(value["R"], f"{field}.R"), require_vector(value["p"], f"{field}.p", 3))
 
 
-def _parse_K(value: Any, field: str) -> np.ndarray:
+def parse_camera_matrix(value: Any, field: str) -> np.ndarray:
     K = require_matrix(value, field, 3, 3)
     if abs(np.linalg.det(K)) < 1e-9 or K[0, 0] <= 0 or K[1, 1] <= 0:
         raise InputError("camera matrix is singular or has non-positive focal lengths", field=field)
@@ -121,9 +118,9 @@ def _parse_cameras(assemblies: dict) -> dict[str, Camera]:
             camera = Camera(
                 assembly=name,
                 name=cam_name,
-                K=_parse_K(cam["K"], f"{field}.K"),
-                strut_in_root=_parse_pose(cam["strut_in_root"], f"{field}.strut_in_root"),
-                cam_in_strut=_parse_pose(cam["cam_in_strut"], f"{field}.cam_in_strut"),
+                K=parse_camera_matrix(cam["K"], f"{field}.K"),
+                strut_in_root=parse_pose(cam["strut_in_root"], f"{field}.strut_in_root"),
+                cam_in_strut=parse_pose(cam["cam_in_strut"], f"{field}.cam_in_strut"),
             )
             cameras[camera.key] = camera
     return cameras
@@ -195,7 +192,7 @@ def _parse_mounts(value: Any, field: str, cameras: dict[str, Camera]) -> dict[st
     for key, pose in value.items():
         if key not in cameras:
             raise InputError("mount for an undeclared camera", field=f"{field}.{key}")
-        mounts[key] = _parse_pose(pose, f"{field}.{key}")
+        mounts[key] = parse_pose(pose, f"{field}.{key}")
     return mounts
 
 
@@ -244,6 +241,7 @@ def _pose_to_dict(pose: Pose) -> dict:
 
 def log_to_dict(log: ObservationLog) -> dict:
     """Return the ``decentral.log/1`` document of ``log`` (inverse of :func:`parse_log`)."""
+    log = require_log(log)
     assemblies: dict[str, dict] = {name: {} for name in log.assemblies}
     for camera in log.cameras.values():
         cams = assemblies[camera.assembly].setdefault("cameras", {})
@@ -279,6 +277,7 @@ def write_log(path: str | os.PathLike, log: ObservationLog) -> None:
 
 def estimate_to_dict(estimate: Estimate) -> dict:
     """Return the ``decentral.estimate/1`` document of ``estimate``."""
+    estimate = require_estimate(estimate)
     return {
         "format": ESTIMATE_FORMAT,
         "reference": estimate.reference,
@@ -289,6 +288,7 @@ def estimate_to_dict(estimate: Estimate) -> dict:
                     name: {"p": [float(x) for x in pose.p], "theta": float(pose.theta)}
                     for name, pose in step.poses.items()
                 },
+                "unplaced": dict(step.unplaced),
             }
             for step in estimate.steps
         ],
@@ -316,7 +316,11 @@ def parse_estimate(doc: Any) -> Estimate:
                 require_vector(pose.get("p"), f"steps[{k}].poses.{name}.p", 3),
                 require_number(pose.get("theta"), f"steps[{k}].poses.{name}.theta"),
             )
-        steps.append(EstimateStep(require_number(raw.get("t"), f"steps[{k}].t"), poses))
+        unplaced = require_mapping(raw.get("unplaced", {}), f"steps[{k}].unplaced")
+        for name, reason in unplaced.items():
+            if not isinstance(reason, str):
+                raise InputError("expected a reason string", field=f"steps[{k}].unplaced.{name}")
+        steps.append(EstimateStep(require_number(raw.get("t"), f"steps[{k}].t"), poses, dict(unplaced)))
     return Estimate(doc["reference"], tuple(steps), doc.get("stats", {}))
 
 
