@@ -27,6 +27,7 @@ COMMANDS: dict[str, str] = {
     "experiment": "sims.cli.experiment",
     "make-ensemble": "sims.cli.make_ensemble",
     "ensemble": "sims.cli.ensemble",
+    "keys": "sims.cli.keys",
 }
 
 EXIT_BAD_INPUT = 2
