@@ -128,6 +128,25 @@ class TransportStats:
             "rejected": dict(self.rejected),
         }
 
+    @classmethod
+    def from_dict(cls, data: Mapping) -> "TransportStats":
+        """The inverse of :meth:`as_dict` (e.g. to merge the stats each agent process printed as JSON).
+
+        Raises ``KeyError``/``TypeError``/``ValueError`` on a dict that is not an :meth:`as_dict` result.
+        """
+        def table(name: str, key=lambda k: k) -> Mapping:
+            return MappingProxyType({key(k): Counts(**v) for k, v in data.get(name, {}).items()})
+
+        return cls(
+            total=Counts(**data["total"]),
+            per_sender=table("per_sender"),
+            per_receiver=table("per_receiver"),
+            per_link=table("per_link", lambda k: tuple(k.split("->", 1))),
+            per_kind=table("per_kind"),
+            drop_reasons=MappingProxyType({str(k): int(v) for k, v in data.get("drop_reasons", {}).items()}),
+            rejected=MappingProxyType({str(k): int(v) for k, v in data.get("rejected", {}).items()}),
+        )
+
 
 class Transport(abc.ABC):
     """What an agent needs from a network: send, poll its inbox, and counters.
