@@ -221,12 +221,13 @@ class ZmqTransport(Transport):
             self._ledger.count(a, b, kind, ("sent", 1), ("bytes_sent", size))
             socket = self._out.get(b)
             if socket is None:
-                self._ledger.drop(a, b, kind, size, "unknown_receiver" if b not in self._peers else "no_address")
+                reason = "unknown_receiver" if b not in self._peers else "no_address"
+                self._ledger.drop(self._ledger.keys(a, b, kind), size, reason)
                 continue
             try:
                 socket.send(frame, zmq.NOBLOCK)
             except zmq.Again:
-                self._ledger.drop(a, b, kind, size, "queue_full")
+                self._ledger.drop(self._ledger.keys(a, b, kind), size, "queue_full")
                 continue
             self._ledger.count(a, b, kind, ("in_flight", 1))
 
@@ -344,7 +345,7 @@ class ZmqTransport(Transport):
         # a fixed number of draws per admitted copy keeps each link's pattern independent of the rest
         u_drop, u_dup, u_jit, u_jit2 = self._link_rng(a, b).random(4) if self._random(cfg) else (1.0, 1.0, 0.0, 0.0)
         if u_drop < cfg.drop:
-            self._ledger.drop(a, b, kind, size, "loss", ("in_flight", -1))
+            self._ledger.drop(self._ledger.keys(a, b, kind), size, "loss", ("in_flight", -1))
             return
         self._hold(ep, _Held(now + cfg.latency + u_jit * cfg.jitter, message, env.sent_at, size, False))
         if u_dup < cfg.duplicate:
