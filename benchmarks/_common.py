@@ -18,7 +18,7 @@ from sims.io.atomic import write_atomic  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
-__all__ = ["RESULTS", "machine", "save", "save_figure", "timed"]
+__all__ = ["RESULTS", "machine", "median_seconds", "save", "save_figure", "timed"]
 
 
 def machine() -> dict:
@@ -39,6 +39,20 @@ def machine() -> dict:
         "versions": versions,
         "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }
+
+
+def median_seconds(fn, reps: int, warmup: int) -> float:
+    """Median wall time (s) of ``reps`` calls of ``fn()`` after ``warmup`` untimed calls."""
+    import numpy as np
+
+    for _ in range(warmup):
+        fn()
+    out = np.empty(reps)
+    for i in range(reps):
+        t0 = time.perf_counter()
+        fn()
+        out[i] = time.perf_counter() - t0
+    return float(np.median(out))
 
 
 def timed(fn, *args, **kwargs):

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import ClassVar
 
-from _common import machine  # noqa: I001  (pins threads before numpy)
+from _common import machine, median_seconds  # noqa: I001  (pins threads before numpy)
 
 import numpy as np
 
@@ -77,8 +77,8 @@ def _kinds():
 
 
 # ---------------------------------------------------------------------------- echo processes
-def _raw_echo(addresses, ready, n_pings: int, n_frames: int) -> None:
-    """Raw pyzmq side: PULL bound here, PUSH to the parent; echo ``n_pings`` frames, then count ``n_frames``."""
+def _raw_pair():
+    """The raw side's sockets, as ZmqTransport sets them up: a bound PULL and a PUSH (unbounded queues here)."""
     import zmq
 
     ctx = zmq.Context()
@@ -88,6 +88,14 @@ def _raw_echo(addresses, ready, n_pings: int, n_frames: int) -> None:
         s.setsockopt(zmq.SNDHWM, 0)
         s.setsockopt(zmq.RCVHWM, 0)
     pull.bind("tcp://127.0.0.1:*")
+    return ctx, pull, push
+
+
+def _raw_echo(addresses, ready, n_pings: int, n_frames: int) -> None:
+    """Raw pyzmq side: PULL bound here, PUSH to the parent; echo ``n_pings`` frames, then count ``n_frames``."""
+    import zmq
+
+    ctx, pull, push = _raw_pair()
     push.connect(addresses["P"])
     ready.put(pull.getsockopt_string(zmq.LAST_ENDPOINT))
     for _ in range(n_pings):
@@ -132,13 +140,7 @@ def raw_run(size: int, pings: int, warmup: int, frames: int) -> dict:
 
     ctx = multiprocessing.get_context("spawn")
     frame = blob(size).to_bytes()
-    zctx = zmq.Context()
-    pull, push = zctx.socket(zmq.PULL), zctx.socket(zmq.PUSH)
-    for s in (pull, push):
-        s.setsockopt(zmq.LINGER, 0)
-        s.setsockopt(zmq.SNDHWM, 0)
-        s.setsockopt(zmq.RCVHWM, 0)
-    pull.bind("tcp://127.0.0.1:*")
+    zctx, pull, push = _raw_pair()
     ready = ctx.Queue()
     child = ctx.Process(target=_raw_echo, args=({"P": pull.getsockopt_string(zmq.LAST_ENDPOINT)}, ready,
                                                  pings + warmup, frames))
@@ -228,14 +230,7 @@ def _summary(size, message_bytes, rtt, frames, send_s, recv_s, dropped, wire_byt
 
 
 def median_us(fn, reps: int) -> float:
-    for _ in range(max(50, reps // 10)):
-        fn()
-    out = np.empty(reps)
-    for i in range(reps):
-        t0 = time.perf_counter()
-        fn()
-        out[i] = time.perf_counter() - t0
-    return 1e6 * float(np.median(out))
+    return 1e6 * median_seconds(fn, reps, max(50, reps // 10))
 
 
 def signing_overhead(size: int, reps: int) -> dict:
@@ -250,7 +245,7 @@ def signing_overhead(size: int, reps: int) -> dict:
     gate = Gate("E", {"P": public_key_bytes(key)}, window=len(frames) + 1)
     it = iter(frames)
     inner = msg.to_bytes()
-    public, signature = key.public_key(), key.sign(inner)
+    public, signature = key.verify_key, key.sign(inner).signature
     out = {
         "payload_bytes": size,
         "encode_us": median_us(msg.to_bytes, reps),
@@ -258,7 +253,7 @@ def signing_overhead(size: int, reps: int) -> dict:
         "seal_us": median_us(lambda: signer.seal(msg, 0.0), reps),
         "admit_us": median_us(lambda: gate.admit(next(it)), reps),
         "sign_only_us": median_us(lambda: key.sign(inner), reps),
-        "verify_only_us": median_us(lambda: public.verify(signature, inner), reps),
+        "verify_only_us": median_us(lambda: public.verify(inner, signature), reps),
     }
     out["ratio_signed_to_unsigned"] = (out["seal_us"] + out["admit_us"]) / (out["encode_us"] + out["decode_us"])
     out["overhead_us_per_frame"] = out["seal_us"] + out["admit_us"] - out["encode_us"] - out["decode_us"]
@@ -272,7 +267,7 @@ def main(argv: list[str] | None = None) -> int:
     from sims.io.atomic import write_json_atomic
 
     info = machine()
-    info["versions"].update({p: metadata.version(p) for p in ("pyzmq", "cryptography")})
+    info["versions"].update({p: metadata.version(p) for p in ("pyzmq", "pynacl")})
     import zmq
 
     info["versions"]["libzmq"] = zmq.zmq_version()

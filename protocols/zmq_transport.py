@@ -54,7 +54,7 @@ from typing import Mapping
 
 import numpy as np
 import zmq
-from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
+from nacl.signing import SigningKey
 
 from decentral.errors import InputError, ProtocolError
 from protocols.auth import Gate, Rejected, Signer, new_private_key, public_key_bytes
@@ -103,7 +103,7 @@ class ZmqTransport(Transport):
 
     Parameters
     ----------
-    keys : Mapping[str, Ed25519PrivateKey]
+    keys : Mapping[str, SigningKey]
         The local agents (usually one) and their signing keys; each must be in ``peers`` with the
         matching public key.
     peers : Mapping[str, Peer]
@@ -130,7 +130,7 @@ class ZmqTransport(Transport):
 
     def __init__(
         self,
-        keys: Mapping[str, Ed25519PrivateKey],
+        keys: Mapping[str, SigningKey],
         peers: Mapping[str, Peer],
         *,
         rng: np.random.Generator | None = None,
