@@ -151,6 +151,9 @@ class ZmqTransport(Transport):
             if public_key_bytes(key) != self._peers[name].public_key:
                 raise InputError(f"the key of {name!r} does not match its public key in the peers file",
                                  field=f"peers.{name}.public_key")
+        stray = set(bind or {}) - set(keys)
+        if stray:
+            raise InputError(f"bind names agents that are not local: {sorted(stray)}", field="bind")
         self._links = dict(links or {})
         _check_faults(faults, "faults")
         for pair, cfg in self._links.items():
