@@ -125,7 +125,8 @@ class ZmqTransport(Transport):
     max_frame_bytes : int
         Larger inbound frames are refused by the socket.
     max_batch : int
-        At most this many frames are read per :meth:`poll` (a flood cannot stall the caller).
+        At most this many frames are read per :meth:`poll` (a flood cannot stall the caller's loop;
+        about 50 ms of checks at most).
     """
 
     def __init__(
@@ -140,7 +141,7 @@ class ZmqTransport(Transport):
         hwm: int = 2000,
         window: int = 1024,
         max_frame_bytes: int = DEFAULT_MAX_FRAME,
-        max_batch: int = 10_000,
+        max_batch: int = 1000,
     ):
         if not keys:
             raise InputError("needs at least one local agent", field="keys")
@@ -168,6 +169,7 @@ class ZmqTransport(Transport):
         self._order = 0
         self._closed = False
         self._context = zmq.Context()
+        self._sockets: list[zmq.Socket] = []  # every socket made, so close() closes even a half-built one
         self._out: dict[str, zmq.Socket] = {}
         self._local: dict[str, _Endpoint] = {}
         public = {name: p.public_key for name, p in self._peers.items()}
@@ -288,6 +290,7 @@ class ZmqTransport(Transport):
             old = self._out.pop(name, None)
             if old is not None:
                 old.close(linger=0)
+                self._sockets.remove(old)
             self._connect(name)
 
     def close(self, linger: float = 0.0) -> None:
@@ -300,10 +303,9 @@ class ZmqTransport(Transport):
             return
         self._closed = True
         deadline = time.monotonic() + max(0.0, linger)
-        for socket in self._out.values():
-            socket.close(linger=int(1000 * max(0.0, deadline - time.monotonic())))
-        for ep in self._local.values():
-            ep.socket.close(linger=0)
+        outbound = set(self._out.values())
+        for socket in self._sockets:
+            socket.close(linger=int(1000 * max(0.0, deadline - time.monotonic())) if socket in outbound else 0)
         self._context.term()
 
     def __enter__(self) -> "ZmqTransport":
@@ -315,7 +317,9 @@ class ZmqTransport(Transport):
     # ------------------------------------------------------------------ internals
     def _socket(self, kind: int) -> zmq.Socket:
         socket = self._context.socket(kind)
+        self._sockets.append(socket)
         socket.setsockopt(zmq.LINGER, 0)
+        socket.setsockopt(zmq.IPV6, 1)  # tcp://[::1]:PORT and IPv4 addresses alike
         return socket
 
     def _connect(self, name: str) -> None:

@@ -287,3 +287,39 @@ def test_counts_match_the_simulated_network_for_the_same_traffic(trio):
         assert (r.sent, r.delivered, r.dropped, r.in_flight) == (c.sent, c.delivered, c.dropped, c.in_flight)
         assert r.bytes_sent - c.bytes_sent == c.sent * (98 + len(link[0]))
     assert {k: v.sent for k, v in real.per_kind.items()} == {k: v.sent for k, v in ref.per_kind.items()}
+
+
+def test_an_address_in_use_is_an_input_error_without_hanging(trio):
+    """Binding where another agent listens raises InputError at once, and the half-built transport leaks nothing."""
+    key = new_private_key()
+    peers = {"A9": Peer("A9", trio["A0"].addresses["A0"], public_key_bytes(key))}
+    start = time.monotonic()
+    with pytest.raises(InputError, match="cannot listen"):
+        ZmqTransport({"A9": key}, peers)
+    assert time.monotonic() - start < 5.0
+
+
+def test_bind_must_name_local_agents():
+    """A bind override for an agent that is not local is refused."""
+    key = new_private_key()
+    peers = {"A0": Peer("A0", "tcp://127.0.0.1:0", public_key_bytes(key))}
+    with pytest.raises(InputError, match="not local"):
+        ZmqTransport({"A0": key}, peers, bind={"A1": "tcp://127.0.0.1:0"})
+
+
+def test_ipv6_loopback_round_trip():
+    """Bracketed IPv6 addresses work like IPv4 ones."""
+    import socket
+
+    try:
+        with socket.socket(socket.AF_INET6) as probe:
+            probe.bind(("::1", 0))
+    except OSError:
+        pytest.skip("this machine has no IPv6 loopback")
+    keys = {n: new_private_key() for n in ("A0", "A1")}
+    peers = {n: Peer(n, "tcp://[::1]:0", public_key_bytes(k)) for n, k in keys.items()}
+    with ZmqTransport({"A1": keys["A1"]}, peers) as a1:
+        peers["A1"] = Peer("A1", a1.addresses["A1"], peers["A1"].public_key)
+        with ZmqTransport({"A0": keys["A0"]}, peers) as a0:
+            a0.send(hb("A0", "A1", 4), 0.0)
+            assert [d.message.round for d in collect({"A1": a1}, 1)["A1"]] == [4]
