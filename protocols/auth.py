@@ -31,9 +31,9 @@ So the envelope adds ``98 + L`` bytes to a frame. A receiver accepts a frame onl
 5. the inner frame decodes -- else ``malformed``;
 6. the inner message names the envelope's sender as its sender -- else ``bad_signature`` (a member
    speaking for another member is a forgery, even when signed with its own key);
-7. the message is addressed to the receiving agent or to everyone, and the sender is not the
-   receiving agent itself -- else ``replay`` (a genuine frame that shows up at an agent it was not
-   meant for can only be a copy of someone else's traffic, or of the agent's own, reflected back).
+7. the message is addressed to the receiving agent, or to everyone but is not the receiving agent's
+   own broadcast -- else ``replay`` (a genuine frame that shows up at an agent it was not meant for
+   can only be a copy of someone else's traffic, or of the agent's own, reflected back).
 
 Step 4 only looks: the window remembers (epoch, seq) once the frame has passed every step, so a
 refused frame never moves a sender's window.
@@ -347,7 +347,7 @@ class Gate:
             raise Rejected("malformed", f"inner frame: {err}") from None
         if message.sender != env.sender:
             raise Rejected("bad_signature", f"{env.sender!r} signed a message from {message.sender!r}")
-        if env.sender == self.name or message.receiver not in (self.name, BROADCAST):
+        if message.receiver not in (self.name, BROADCAST) or (env.sender == self.name and message.is_broadcast):
             raise Rejected("replay", f"a frame from {env.sender!r} to {message.receiver!r} reached {self.name!r}")
         window.mark(env.epoch, env.seq)  # only a frame admitted whole moves the window
         return env, message

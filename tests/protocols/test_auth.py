@@ -102,7 +102,8 @@ def test_a_member_cannot_speak_for_another():
 
 
 def test_replays_misdirected_and_reflected_frames_are_replays():
-    """The same frame twice, a frame addressed to someone else, and an agent's own frame are refused as replay."""
+    """The same frame twice, a frame addressed to someone else, and an agent's own broadcast are refused as
+    replay (a message an agent sends to itself is not)."""
     signer = Signer("A0", KEYS["A0"])
     gate = Gate("A1", PUBLIC)
     frame = signer.seal(hb("A0"), 0.0)
@@ -110,6 +111,7 @@ def test_replays_misdirected_and_reflected_frames_are_replays():
     assert refusal(gate, frame) == "replay"
     assert refusal(gate, signer.seal(hb("A0", "A2"), 0.0)) == "replay"
     assert refusal(gate, Signer("A1", KEYS["A1"]).seal(hb("A1"), 0.0)) == "replay"
+    assert gate.admit(Signer("A1", KEYS["A1"], epoch=1).seal(hb("A1", "A1"), 0.0))[1] == hb("A1", "A1")  # to itself
 
 
 def test_malformed_inner_frame_of_a_member_is_malformed():

@@ -28,6 +28,15 @@ def hb(a: str, b: str, k: int) -> Heartbeat:
     return Heartbeat(sender=a, receiver=b, round=k, t=0.0)
 
 
+def stop(proc: subprocess.Popen) -> None:
+    """Let a child process finish for up to 10 s, then kill it: no test leaves a process behind."""
+    try:
+        proc.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+
+
 def collect(transports: dict, n: int, timeout: float = 10.0) -> dict[str, list]:
     """Poll every transport (as wall-clock runtimes would) until ``n`` copies arrived in all or ``timeout``."""
     got: dict[str, list] = {name: [] for name in transports}
@@ -241,7 +250,7 @@ def test_echo_across_processes(tmp_path):
             child.stdin.flush()
             child_total = json.loads(child.stdout.readline())
         finally:
-            child.kill() if child.poll() is None and child.wait(timeout=10) is None else None
+            stop(child)
         assert [d.message.round for d in got] == list(range(25)) and {d.sender for d in got} == {"C"}
         mine = parent.stats().total
         assert child_total["sent"] == child_total["delivered"] == mine.sent == mine.delivered == 25
@@ -323,3 +332,59 @@ def test_ipv6_loopback_round_trip():
         with ZmqTransport({"A0": keys["A0"]}, peers) as a0:
             a0.send(hb("A0", "A1", 4), 0.0)
             assert [d.message.round for d in collect({"A1": a1}, 1)["A1"]] == [4]
+
+
+MESH_CHILD = textwrap.dedent("""
+    import json, sys, time
+    from protocols.messages import BROADCAST, Heartbeat
+    from protocols.peers import load_peers, load_private_key
+    from protocols.zmq_transport import ZmqTransport
+    name, key = load_private_key(sys.argv[1])
+    n = int(sys.argv[3])
+    with ZmqTransport({name: key}, load_peers(sys.argv[2]), bind={name: "tcp://127.0.0.1:0"}) as net:
+        print(net.addresses[name], flush=True)
+        peers = load_peers(sys.stdin.readline().strip())
+        net.connect({other: p.address for other, p in peers.items() if other != name})
+        for k in range(n):
+            net.send(Heartbeat(sender=name, receiver=BROADCAST, round=k, t=0.0), time.time())
+        got, deadline = [], time.monotonic() + 30
+        while len(got) < n * (len(peers) - 1) and time.monotonic() < deadline:
+            net.wait(0.05)
+            got += [(d.sender, d.message.round) for d in net.poll(name, time.time())]
+        print(json.dumps(sorted(got)), flush=True)
+        sys.stdin.readline()  # every process has everything: now close
+        print(json.dumps(net.stats().as_dict()), flush=True)
+""")
+
+
+def test_broadcast_mesh_of_processes_and_merged_books(tmp_path):
+    """Three agent processes made from `write_keys` files broadcast to each other; each hears every other
+    once per round, and the books they print merge into balanced stats with nothing in flight."""
+    from sims.io.keyfiles import write_keys
+
+    names, n = ["A0", "A1", "A2"], 20
+    keys = write_keys(tmp_path, names, base_port=1)  # placeholder ports: each process binds a free one
+    procs = {name: subprocess.Popen([sys.executable, "-c", MESH_CHILD, str(keys.private[name]), str(keys.peers),
+                                     str(n)], cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+             for name in names}
+    try:
+        doc = json.loads(keys.peers.read_text())
+        for name, p in procs.items():
+            doc["peers"][name]["address"] = p.stdout.readline().strip()
+        (tmp_path / "final.json").write_text(json.dumps(doc))
+        for p in procs.values():
+            p.stdin.write(f"{tmp_path / 'final.json'}\n")
+            p.stdin.flush()
+        heard = {name: json.loads(p.stdout.readline()) for name, p in procs.items()}
+        for p in procs.values():
+            p.stdin.write("close\n")
+            p.stdin.flush()
+        books = [TransportStats.from_dict(json.loads(p.stdout.readline())) for p in procs.values()]
+    finally:
+        for p in procs.values():
+            stop(p)
+    for name in names:
+        assert heard[name] == sorted([other, k] for other in names if other != name for k in range(n))
+    s = merge_stats(books)
+    assert s.total.sent == s.total.delivered == 6 * n and s.total.in_flight == 0 and s.rejected == {}
+    assert all(c.balanced() and c.sent == n for c in s.per_link.values()) and len(s.per_link) == 6
