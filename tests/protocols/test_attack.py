@@ -87,3 +87,28 @@ def test_raw_tcp_garbage_does_not_disturb_the_transport():
                 a1.wait(0.01)
                 got = a1.poll("A1", 0.0)
         assert [d.message.round for d in got] == [1] and set(a1.stats().rejected) <= {"malformed"}
+
+
+def test_attacker_command_line(tmp_path):
+    """`python -m protocols.testing.attacker` floods an agent named in a peers file and prints what to expect."""
+    import json
+    import subprocess
+    import sys
+
+    from protocols.peers import peers_json
+
+    keys = {name: new_private_key() for name in ("A0", "A1")}
+    peers = {n: Peer(n, "tcp://127.0.0.1:0", public_key_bytes(k)) for n, k in keys.items()}
+    with ZmqTransport({"A1": keys["A1"]}, peers) as a1:
+        table = {**peers, "A1": Peer("A1", a1.addresses["A1"], peers["A1"].public_key),
+                 "A0": Peer("A0", "tcp://127.0.0.1:1", peers["A0"].public_key)}
+        (tmp_path / "peers.json").write_text(json.dumps(peers_json(table)))
+        out = subprocess.run([sys.executable, "-m", "protocols.testing.attacker", a1.addresses["A1"], "--peers",
+                              str(tmp_path / "peers.json"), "--frames", "300", "--seed", "3"],
+                             capture_output=True, text=True, timeout=120, check=True)
+        report = json.loads(out.stdout)
+        deadline = time.monotonic() + 30
+        while sum(a1.stats().rejected.values()) < 300 and time.monotonic() < deadline:
+            a1.wait(0.01)
+            assert a1.poll("A1", 0.0) == []
+        assert report["sent"] == 300 and a1.stats().rejected == report["expected"]
