@@ -23,8 +23,8 @@ Envelope, version 1 (all integers little-endian; ``L`` = sender name length, ``N
 So the envelope adds ``98 + L`` bytes to a frame. A receiver accepts a frame only if, in this order
 (the first failing check names the reason it is refused with, see :data:`REJECT_REASONS`):
 
-1. it parses exactly: magic, a known version, a valid name, and a total length of exactly
-   ``98 + L + N`` -- else ``malformed`` (a truncated or padded frame is malformed);
+1. it parses exactly: magic, a known version, a valid name, a finite ``sent_at`` and a total length
+   of exactly ``98 + L + N`` -- else ``malformed`` (a truncated or padded frame is malformed);
 2. the sender is in the peers file -- else ``unknown_sender``;
 3. the signature verifies with that sender's public key -- else ``bad_signature``;
 4. the pair (epoch, seq) is fresh for that sender (:class:`ReplayWindow`) -- else ``replay``;
@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import base64
 import binascii
+import math
 import struct
 import time
 from dataclasses import dataclass
@@ -219,6 +220,8 @@ def parse(frame: bytes) -> Opened:
     if len(frame) != head + n_inner + SIGNATURE_SIZE:
         expect = head + n_inner + SIGNATURE_SIZE
         raise Rejected("malformed", f"length {len(frame)} does not match the header's {expect}")
+    if not math.isfinite(sent_at):
+        raise Rejected("malformed", "sent_at is not a finite time")
     end = head + n_inner
     return Opened(sender, epoch, seq, sent_at, bytes(frame[head:end]), bytes(frame[:end]), bytes(frame[end:]))
 

@@ -80,6 +80,12 @@ def test_padded_bad_magic_and_other_versions_are_malformed():
     assert gate.admit(frame)[1] == hb("A0")  # none of that touched the window
 
 
+def test_non_finite_send_time_is_malformed():
+    """A member's validly signed envelope whose sent_at is NaN or infinite is refused as malformed."""
+    for t in (float("nan"), float("inf")):
+        assert refusal(Gate("A1", PUBLIC), seal(KEYS["A0"], "A0", 1, 0, t, hb("A0").to_bytes())) == "malformed"
+
+
 def test_unknown_sender_is_refused():
     """A well-signed frame from a name not in the peers file is refused as unknown_sender."""
     frame = Signer("X", new_private_key()).seal(hb("X"), 0.0)

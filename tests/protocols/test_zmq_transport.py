@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import math
 import subprocess
 import sys
 import textwrap
@@ -37,11 +36,18 @@ def stop(proc: subprocess.Popen) -> None:
         proc.wait()
 
 
-def collect(transports: dict, n: int, timeout: float = 10.0) -> dict[str, list]:
-    """Poll every transport (as wall-clock runtimes would) until ``n`` copies arrived in all or ``timeout``."""
+def collect(transports: dict, n: int | None = None, timeout: float = 10.0) -> dict[str, list]:
+    """Poll every transport (as wall-clock runtimes would) until ``n`` copies arrived in all (``None``: until
+    the merged books have nothing in flight) or ``timeout``."""
     got: dict[str, list] = {name: [] for name in transports}
     deadline = time.monotonic() + timeout
-    while sum(map(len, got.values())) < n and time.monotonic() < deadline:
+
+    def done() -> bool:
+        if n is None:
+            return merge_stats([t.stats() for t in transports.values()]).total.in_flight == 0
+        return sum(map(len, got.values())) >= n
+
+    while not done() and time.monotonic() < deadline:
         for name, t in transports.items():
             t.wait(0.005)
             got[name] += t.poll(name, time.monotonic())
@@ -100,14 +106,11 @@ def test_sender_must_be_local_and_receiver_known(trio):
 def lossy_history(seed: int, n: int = 300, **faults) -> tuple[list, object]:
     """Send ``n`` frames A0 -> A1 with receive-side ``faults``; return A1's (round, duplicate) copies and the merged books."""
     transports, _ = open_loopback(["A0", "A1"], seed=seed, faults=LinkConfig(**faults))
-    got = []
     try:
         for k in range(n):
             transports["A0"].send(hb("A0", "A1", k), 0.0)
-        deadline = time.monotonic() + 10
-        while (s := merge_stats([t.stats() for t in transports.values()])).total.in_flight and time.monotonic() < deadline:
-            transports["A1"].wait(0.01)
-            got += transports["A1"].poll("A1", math.inf)
+        got = collect(transports)["A1"]
+        s = merge_stats([t.stats() for t in transports.values()])
     finally:
         for t in transports.values():
             t.close()
@@ -388,3 +391,18 @@ def test_broadcast_mesh_of_processes_and_merged_books(tmp_path):
     s = merge_stats(books)
     assert s.total.sent == s.total.delivered == 6 * n and s.total.in_flight == 0 and s.rejected == {}
     assert all(c.balanced() and c.sent == n for c in s.per_link.values()) and len(s.per_link) == 6
+
+
+def test_per_link_faults_override_the_default():
+    """A lossy override on one inbound link drops there only; the other link stays lossless."""
+    transports, _ = open_loopback(["A0", "A1", "A2"], seed=5, links={("A0", "A2"): LinkConfig(drop=0.5)})
+    try:
+        for k in range(100):
+            transports["A0"].send(hb("A0", BROADCAST, k), 0.0)
+        got = collect(transports)
+        s = merge_stats([t.stats() for t in transports.values()])
+    finally:
+        for t in transports.values():
+            t.close()
+    assert len(got["A1"]) == 100 and s.per_link[("A0", "A1")].dropped == 0
+    assert len(got["A2"]) == 100 - s.per_link[("A0", "A2")].dropped and 25 <= len(got["A2"]) <= 75
