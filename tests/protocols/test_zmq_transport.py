@@ -406,3 +406,22 @@ def test_per_link_faults_override_the_default():
             t.close()
     assert len(got["A1"]) == 100 and s.per_link[("A0", "A1")].dropped == 0
     assert len(got["A2"]) == 100 - s.per_link[("A0", "A2")].dropped and 25 <= len(got["A2"]) <= 75
+
+
+def test_a_restarted_receiver_gets_what_was_sent_while_it_was_down():
+    """Frames sent to a peer while its process is down wait in the sender's queue and reach its restarted process."""
+    transports, peers = open_loopback(["A0", "A1"])
+    a0, a1 = transports["A0"], transports["A1"]
+    try:
+        a0.send(hb("A0", "A1", 0), 0.0)
+        assert len(collect({"A1": a1}, 1)["A1"]) == 1
+        key = a1._local["A1"].signer._key
+        a1.close()
+        time.sleep(0.2)  # the sender notices the dead connection
+        for k in range(1, 6):
+            a0.send(hb("A0", "A1", k), 0.0)
+        with ZmqTransport({"A1": key}, peers) as fresh:
+            got = collect({"A1": fresh}, 5)["A1"]
+        assert [d.message.round for d in got] == [1, 2, 3, 4, 5]
+    finally:
+        a0.close()
