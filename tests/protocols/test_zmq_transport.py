@@ -425,3 +425,20 @@ def test_a_restarted_receiver_gets_what_was_sent_while_it_was_down():
         assert [d.message.round for d in got] == [1, 2, 3, 4, 5]
     finally:
         a0.close()
+
+
+def test_a_process_that_never_closes_its_transport_still_exits_at_once():
+    """Frames queued to an absent peer do not keep a process alive that exits without close() (linger 0)."""
+    code = textwrap.dedent("""
+        from protocols.auth import new_private_key, public_key_bytes
+        from protocols.messages import Heartbeat
+        from protocols.peers import Peer
+        from protocols.zmq_transport import ZmqTransport
+        key = new_private_key()
+        peers = {"A0": Peer("A0", "tcp://127.0.0.1:0", public_key_bytes(key)),
+                 "A1": Peer("A1", "tcp://127.0.0.1:9", public_key_bytes(new_private_key()))}
+        net = ZmqTransport({"A0": key}, peers)
+        for k in range(100):
+            net.send(Heartbeat(sender="A0", receiver="A1", round=k, t=0.0), 0.0)
+    """)
+    subprocess.run([sys.executable, "-c", code], cwd=ROOT, check=True, timeout=30)
