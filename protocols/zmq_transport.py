@@ -222,19 +222,20 @@ class ZmqTransport(Transport):
         frame = ep.signer.seal(message, float(now))
         a, kind, size = ep.name, message.KIND, len(frame)
         receivers = [b for b in self._peers if b != a] if message.is_broadcast else [message.receiver]
+        ledger = self._ledger
         for b in receivers:
-            self._ledger.count(a, b, kind, ("sent", 1), ("bytes_sent", size))
+            keys = ledger.keys(a, b, kind)
             socket = self._out.get(b)
             if socket is None:
                 reason = "unknown_receiver" if b not in self._peers else "no_address"
-                self._ledger.drop(self._ledger.keys(a, b, kind), size, reason)
+                ledger.drop(keys, size, reason, ("sent", 1), ("bytes_sent", size))
                 continue
             try:
                 socket.send(frame, zmq.NOBLOCK)
             except zmq.Again:
-                self._ledger.drop(self._ledger.keys(a, b, kind), size, "queue_full")
+                ledger.drop(keys, size, "queue_full", ("sent", 1), ("bytes_sent", size))
                 continue
-            self._ledger.count(a, b, kind, ("in_flight", 1))
+            ledger.bump(keys, ("sent", 1), ("bytes_sent", size), ("in_flight", 1))
 
     def poll(self, agent: str, now: float) -> list[Delivery]:
         """Read what has arrived for ``agent`` (never blocks), admit it, and return the copies due by ``now``."""
