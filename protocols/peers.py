@@ -31,7 +31,14 @@ from typing import Any, Mapping
 from nacl.signing import SigningKey
 
 from decentral.errors import InputError
-from protocols.auth import b64decode_key, b64encode, private_key_bytes, private_key_from_bytes, public_key_bytes
+from protocols.auth import (
+    b64decode_key,
+    b64encode,
+    check_public_key,
+    private_key_bytes,
+    private_key_from_bytes,
+    public_key_bytes,
+)
 from protocols.messages import BROADCAST
 
 __all__ = [
@@ -157,7 +164,7 @@ def load_peers(path: str | os.PathLike) -> dict[str, Peer]:
         if address in addresses:
             raise InputError(f"same address as {addresses[address]!r}", source=source, field=f"{where}.address")
         addresses[address] = name
-        key = _field(entry, "public_key", source, where, b64decode_key)
+        key = _field(entry, "public_key", source, where, lambda v: check_public_key(b64decode_key(v)))
         out[name] = Peer(name, address, key)
     return out
 

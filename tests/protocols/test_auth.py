@@ -38,7 +38,8 @@ def refusal(gate: Gate, frame: bytes) -> str:
 
 
 def test_envelope_layout_matches_the_documented_offsets():
-    """Magic, version, name, epoch, seq, sent_at and inner length sit at the documented offsets; the size is inner + 98 + L."""
+    """Magic, version, name, epoch, seq, sent_at and inner length sit at the documented offsets; the size
+    is inner + 98 + L."""
     inner = hb("A0").to_bytes()
     frame = seal(KEYS["A0"], "A0", 7, 42, 3.25, inner)
     assert frame[:4] == b"DCSE" and frame[4] == ENVELOPE_VERSION and frame[5] == 2 and frame[6:8] == b"A0"

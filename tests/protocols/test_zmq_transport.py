@@ -81,7 +81,8 @@ def test_unicast_and_broadcast_arrive_once_in_order(trio):
 
 
 def test_merged_counts_balance_and_bytes_include_the_envelope(trio):
-    """Merged over processes, sent + duplicated == delivered + dropped + in_flight per link, and bytes are envelope bytes."""
+    """Merged over processes, sent + duplicated == delivered + dropped + in_flight per link, and bytes are
+    envelope bytes."""
     for k in range(10):
         trio["A0"].send(hb("A0", BROADCAST, k), time.monotonic())
     got = collect(trio, 20)
@@ -104,7 +105,8 @@ def test_sender_must_be_local_and_receiver_known(trio):
 
 
 def lossy_history(seed: int, n: int = 300, **faults) -> tuple[list, object]:
-    """Send ``n`` frames A0 -> A1 with receive-side ``faults``; return A1's (round, duplicate) copies and the merged books."""
+    """Send ``n`` frames A0 -> A1 with receive-side ``faults``; return A1's (round, duplicate) copies and
+    the merged books."""
     transports, _ = open_loopback(["A0", "A1"], seed=seed, faults=LinkConfig(**faults))
     try:
         for k in range(n):
@@ -194,7 +196,8 @@ def test_close_is_prompt_and_idempotent_with_frames_queued():
 
 
 def test_a_restarted_agent_rejoins_and_its_dead_process_frames_are_refused():
-    """A fresh transport for the same agent (same key, new epoch) is heard; a replay of the old process's frame is not."""
+    """A fresh process for the same agent (same key and address, new epoch) is heard at once, nothing refused
+    (the gate tests show its old process's frames are then replays)."""
     transports, peers = open_loopback(["A0", "A1"])
     a0, a1 = transports["A0"], transports["A1"]
     try:

@@ -24,7 +24,8 @@ def test_keys_writes_loadable_keys_and_a_peers_skeleton(tmp_path, capsys):
         assert stat.S_IMODE(path.stat().st_mode) == 0o600
         loaded, key = load_private_key(path)
         assert loaded == name and public_key_bytes(key) == peer.public_key
-        assert json.loads((out / f"{name}.pub.json").read_text())["public_key"] == json.loads(path.read_text())["public_key"]
+        public = json.loads((out / f"{name}.pub.json").read_text())["public_key"]
+        assert public == json.loads(path.read_text())["public_key"]
     assert len({p.public_key for p in peers.values()}) == 3
 
 
