@@ -175,3 +175,27 @@ def test_window_survives_reordering_of_a_lossy_burst():
     seqs = rng.permutation(np.flatnonzero(rng.random(2000) < 0.7))
     w = ReplayWindow(4096)
     assert all(w.accept(9, int(s)) for s in seqs)
+
+
+GENUINE = Signer("A0", KEYS["A0"], epoch=3).seal(hb("A0", "A1", 9), 1.0)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=400))
+def test_any_byte_string_is_refused_never_raised(data):
+    """Arbitrary bytes are refused with one of the four reasons; no other exception ever escapes the gate."""
+    with pytest.raises(Rejected) as err:
+        Gate("A1", PUBLIC).admit(data)
+    assert err.value.reason in ("malformed", "unknown_sender", "bad_signature")
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, len(GENUINE) - 1), st.integers(1, 255), st.integers(0, len(GENUINE)))
+def test_every_flipped_byte_and_every_cut_of_a_genuine_frame_is_refused(pos, xor, cut):
+    """Changing any byte of a genuine frame, or cutting it anywhere, gets it refused (and the original still passes)."""
+    gate = Gate("A1", PUBLIC)
+    for bad in (GENUINE[:pos] + bytes([GENUINE[pos] ^ xor]) + GENUINE[pos + 1:], GENUINE[:cut] if cut < len(GENUINE)
+                else GENUINE + b"\x00"):
+        with pytest.raises(Rejected):
+            gate.admit(bad)
+    assert gate.admit(GENUINE)[1] == hb("A0", "A1", 9)
