@@ -46,8 +46,8 @@ over that epoch's sequence numbers: a frame of a newer epoch resets the window (
 accepted), a frame of an older epoch is a replay (so captured frames of a dead process stay dead,
 and so do its own frames still in flight when it was killed). The scheme needs each sender's wall
 clock not to step back across its own restart by more than the restart took. A receiver that itself
-restarts has no memory: it accepts each genuine frame of a sender's current epoch at most once, and
-refuses everything more than one window older than the newest it has seen.
+restarts has no memory: it accepts each genuine frame of a sender's current epoch at most once more
+(any of them until the sender's next frame arrives, then only those within one window of the newest).
 """
 
 from __future__ import annotations
