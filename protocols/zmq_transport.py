@@ -12,9 +12,11 @@ Every frame is a signed envelope (:mod:`protocols.auth`); a receiver refuses for
 malformed and unknown-sender frames, counts them by reason in ``stats().rejected`` and goes on.
 Loss, duplication and delay can be injected *at the receiving side*, after a frame is admitted,
 with the behaviour of a :class:`protocols.network.LinkConfig` (``drop``, ``duplicate``,
-``latency``, ``jitter``) and each link's random stream derived as the simulated network derives it
-(:func:`protocols.network.link_stream`), so every process given the same ``rng`` seed draws the
-same fates for the same link: the ``k``-th frame admitted on a link always meets the same fate.
+``latency``, ``jitter``), each link's random stream derived and drawn as the simulated network
+derives and draws it (:func:`protocols.network.link_stream`, six draws per copy in its order): every
+process given the same ``rng`` seed draws the same fates for the same link, and the ``k``-th frame
+admitted on a link meets the fate the ``k``-th copy sent on that link meets in a
+:class:`~protocols.network.SimulatedNetwork` of the same seed.
 
 Counting follows :mod:`protocols.transport`: the sending process counts ``sent``/``bytes_sent``
 (the envelope's size: framing included) and one copy in flight per receiving link; the receiving
@@ -350,8 +352,12 @@ class ZmqTransport(Transport):
             return
         a, b, kind, size = env.sender, ep.name, message.KIND, len(frame)
         cfg = self._links.get((a, b), self._faults)
-        # a fixed number of draws per admitted copy keeps each link's pattern independent of the rest
-        u_drop, u_dup, u_jit, u_jit2 = self._link_rng(a, b).random(4) if self._random(cfg) else (1.0, 1.0, 0.0, 0.0)
+        # the simulated network's six draws per copy, in its order (drop, corrupt, duplicate, jitter, jitter of
+        # the duplicate, corrupt position): the k-th copy on a link meets the fate it meets in a simulation
+        if self._random(cfg):
+            u_drop, _, u_dup, u_jit, u_jit2, _ = self._link_rng(a, b).random(6)
+        else:
+            u_drop, u_dup, u_jit, u_jit2 = 1.0, 1.0, 0.0, 0.0
         if u_drop < cfg.drop:
             self._ledger.drop(self._ledger.keys(a, b, kind), size, "loss", ("in_flight", -1))
             return

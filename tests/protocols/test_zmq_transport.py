@@ -445,3 +445,26 @@ def test_a_process_that_never_closes_its_transport_still_exits_at_once():
             net.send(Heartbeat(sender="A0", receiver="A1", round=k, t=0.0), 0.0)
     """)
     subprocess.run([sys.executable, "-c", code], cwd=ROOT, check=True, timeout=30)
+
+
+def test_receive_side_faults_equal_the_simulated_networks_for_the_same_seed():
+    """With the same seed and the same sends, each link loses and duplicates exactly the copies the simulated
+    network loses and duplicates (the real transport draws each link's stream as the simulation does)."""
+    faults = LinkConfig(drop=0.3, duplicate=0.2)
+    names = ("A0", "A1", "A2")
+    sim = SimulatedNetwork(NetworkConfig(agents=names, link=faults), np.random.default_rng(11))
+    transports, _ = open_loopback(list(names), seed=11, faults=faults)
+    traffic = [hb(a, BROADCAST, k) for k in range(60) for a in names]
+    try:
+        for m in traffic:
+            sim.send(m, 0.0)
+            transports[m.sender].send(m, 0.0)
+        got = collect(transports)
+    finally:
+        for t in transports.values():
+            t.close()
+    ref = sim.deliver(1.0)
+    for name in names:
+        real = sorted((d.sender, d.message.round, d.duplicate) for d in got[name])
+        assert real == sorted((d.sender, d.message.round, d.duplicate) for d in ref[name])
+        assert 0 < sum(dup for *_, dup in real) and len(real) != 120
