@@ -16,7 +16,7 @@ Three measurements per payload size (default 100 B, 1 kB and 30 kB of message fr
   same message; ratio = (seal + admit) / (encode + decode).
 
 Usage: ``python benchmarks/transport.py [--out DIR] [--sizes 100 1000 30000] [--pings N] [--frames N]``;
-writes ``DIR/transport.json`` (default ``out/benchmarks``) and prints a table.
+prints a line per size, and writes and prints ``DIR/transport.json`` (default ``out/benchmarks``).
 """
 
 from __future__ import annotations
@@ -26,26 +26,23 @@ import multiprocessing
 import sys
 import time
 from dataclasses import dataclass
-from pathlib import Path
 from typing import ClassVar
 
-from _common import machine, median_seconds  # noqa: I001  (pins threads before numpy)
+from _common import machine, median_seconds, parser, save  # noqa: I001  (pins threads before numpy)
 
 import numpy as np
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="benchmarks/transport.py", description=__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", type=Path, default=Path("out/benchmarks"), help="folder for transport.json")
-    parser.add_argument("--sizes", type=int, nargs="+", default=[100, 1000, 30000],
-                        help="message frame sizes in bytes (default 100 1000 30000)")
-    parser.add_argument("--pings", type=int, default=2000, help="round trips per size (default 2000)")
-    parser.add_argument("--warmup", type=int, default=200, help="round trips not timed (default 200)")
-    parser.add_argument("--frames", type=int, default=20000, help="frames per throughput run (default 20000; "
-                                                                   "a tenth for sizes over 10 kB)")
-    parser.add_argument("--reps", type=int, default=3000, help="repetitions of the signing timings (default 3000)")
-    return parser
+    ap = parser(__doc__)
+    ap.add_argument("--sizes", type=int, nargs="+", default=[100, 1000, 30000],
+                    help="message frame sizes in bytes (default 100 1000 30000)")
+    ap.add_argument("--pings", type=int, default=2000, help="round trips per size (default 2000)")
+    ap.add_argument("--warmup", type=int, default=200, help="round trips not timed (default 200)")
+    ap.add_argument("--frames", type=int, default=20000, help="frames per throughput run (default 20000; "
+                                                               "a tenth for sizes over 10 kB)")
+    ap.add_argument("--reps", type=int, default=3000, help="repetitions of the signing timings (default 3000)")
+    return ap
 
 
 # ---------------------------------------------------------------------------- the payload
@@ -264,8 +261,6 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     from importlib import metadata
 
-    from sims.io.atomic import write_json_atomic
-
     info = machine()
     info["versions"].update({p: metadata.version(p) for p in ("pyzmq", "pynacl")})
     import zmq
@@ -285,12 +280,8 @@ def main(argv: list[str] | None = None) -> int:
               f"{ours['messages_per_s']:8.0f} ({rows[-1]['throughput_ratio']:.2f}x)   seal {sig['seal_us']:.1f} us"
               f" admit {sig['admit_us']:.1f} us vs encode+decode {sig['encode_us'] + sig['decode_us']:.1f} us"
               f" ({sig['ratio_signed_to_unsigned']:.1f}x)", flush=True)
-    payload = {"benchmark": "transport", "parameters": vars(args) | {"out": str(args.out)}, "machine": info,
-               "rows": rows}
-    args.out.mkdir(parents=True, exist_ok=True)
-    info["loadavg_end"] = list(__import__("os").getloadavg())
-    write_json_atomic(args.out / "transport.json", payload)
-    print(f"wrote {args.out / 'transport.json'}")
+    save("transport", {"benchmark": "transport", "parameters": {**vars(args), "out": str(args.out)}, "machine": info,
+                       "rows": rows}, args.out)
     return 0
 
 

@@ -15,6 +15,7 @@ it comes back (it must catch up from its peers); a partition only cuts links.
 from __future__ import annotations
 
 import time
+from typing import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -141,7 +142,7 @@ def _agent_config(log: ObservationLog, name: str, reference: str, config: AdmmRu
 
 
 def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunConfig = AdmmRunConfig(),
-             seed: int = 0) -> AdmmRun:
+             seed: int = 0, progress: Callable[..., None] | None = None) -> AdmmRun:
     """Run the decentralized estimator over ``log`` and return the reference agent's estimate.
 
     Parameters
@@ -154,6 +155,9 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
         Network, ADMM and schedule parameters.
     seed : int
         Seed of the network's randomness (losses, duplicates, jitter); the run is deterministic in it.
+    progress : callable, optional
+        Called after each log step as ``progress(steps_done, steps_total, rounds=..., messages=...,
+        unconverged=...)`` (running totals: rounds, copies sent, steps that hit ``max_rounds``).
     """
     reference = reference or log.assemblies[0]
     if reference not in log.assemblies:
@@ -175,11 +179,15 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
     tick_seconds = 0.0
     position = {n: i for i, n in enumerate(names)}
     per_step: list[dict] = []  # per step: kind -> copies sent by each agent (names order)
+    sent_total = 0
 
     def send(message, when, counts):
+        nonlocal sent_total
         net.send(message, when)
         row = counts.setdefault(message.KIND, [0] * len(names))
-        row[position[message.sender]] += len(names) - 1 if message.is_broadcast else 1
+        copies = len(names) - 1 if message.is_broadcast else 1
+        row[position[message.sender]] += copies
+        sent_total += copies
     for k in range(len(log.steps)):
         t = now()
         counts: dict[str, list[int]] = {}
@@ -225,6 +233,9 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
         per_agent.append({n: agents[n].estimates() for n in live})
         ref_poses = agents[reference].estimates() if reference in live else {}
         est_steps.append(EstimateStep(log.steps[k].t, ref_poses))
+        if progress is not None:
+            progress(k + 1, len(log.steps), rounds=int(sum(rounds)), messages=sent_total,
+                     unconverged=converged.count(False))
     transport = net.stats().as_dict()
     seconds = time.perf_counter() - start
     total_rounds = int(sum(rounds))

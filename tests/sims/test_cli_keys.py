@@ -32,6 +32,7 @@ def test_keys_writes_loadable_keys_and_a_peers_skeleton(tmp_path, capsys):
 def test_keys_refuses_to_overwrite_and_force_replaces(tmp_path, capsys):
     """An existing key set is kept (exit 2, one line naming the file) unless --force, which makes new keys."""
     assert main(["keys", "A0", "-o", str(tmp_path)]) == 0
+    assert "1 key pairs" in capsys.readouterr().err  # the summary line, on stderr
     before = (tmp_path / "A0.key.json").read_text()
     assert main(["keys", "A0", "B", "-o", str(tmp_path)]) == 2
     err = capsys.readouterr().err
