@@ -42,7 +42,7 @@ def test_keys_refuses_to_overwrite_and_force_replaces(tmp_path, capsys):
     assert (tmp_path / "A0.key.json").read_text() != before
 
 
-@pytest.mark.parametrize("argv", [["A0", "A0"], [".hidden"], ["a/b"], ["*"], ["A0", "A1", "--base-port", "65535"],
+@pytest.mark.parametrize("argv", [["A0", "A0"], [""], ["*"], ["x" * 256], ["A0", "A1", "--base-port", "65535"],
                                   ["A0", "--host", "bad host"]])
 def test_keys_bad_arguments_exit_2_and_write_nothing(tmp_path, capsys, argv):
     """Repeated or unusable names, ports past 65535 and bad hosts end in one line, exit 2, and no files."""
@@ -50,3 +50,13 @@ def test_keys_bad_arguments_exit_2_and_write_nothing(tmp_path, capsys, argv):
     assert main(["keys", *argv, "-o", str(out)]) == 2
     assert capsys.readouterr().err.count("\n") == 1
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_any_agent_name_gets_its_own_plain_key_file(tmp_path):
+    """Names with spaces, slashes or a leading dot get percent-encoded file names in DIR holding the real name."""
+    names = ["robot 1", "a/b", ".hidden", "Ä"]
+    assert main(["keys", *names, "-o", str(tmp_path)]) == 0
+    files = sorted(p.name for p in tmp_path.glob("*.key.json"))
+    assert files == sorted(["robot%201.key.json", "a%2Fb.key.json", "%2Ehidden.key.json", "%C3%84.key.json"])
+    assert sorted(load_private_key(tmp_path / f)[0] for f in files) == sorted(names)
+    assert list(load_peers(tmp_path / "peers.json")) == names
