@@ -34,6 +34,7 @@ COMMANDS: dict[str, str] = {
     "ensemble": "sims.cli.ensemble",
     "export": "sims.cli.export",
     "build-log": "sims.cli.build_log",
+    "keys": "sims.cli.keys",
 }
 
 EXIT_BAD_INPUT = 2
