@@ -78,6 +78,7 @@ from decentral.errors import InputError
 from decentral.factors import NoiseModel, detection_weights
 from decentral.geometry import backproject, rot2, wrap_angle
 from decentral.observations import Camera, Detection, Odometry, PlanarPose, Pose
+from decentral.placement import unplaced_reasons
 from protocols.admm_messages import (ConfigAnnounce, ConfigRequest, FactorShare, FormAck, FormBundle, pack_bundle,
                                      pack_forms)
 from protocols.aggregation import TreeAggregation, choose_parent, tree_from_edges
@@ -260,6 +261,7 @@ class AssemblyAgent:
         self._seeds: dict[tuple[str, int], tuple] = {}  # (assembly, step) -> Pose2 of a known joint solution
         self._seeds_complete = False  # the seeds come from every agent's forms
         self._placeable: frozenset = frozenset()  # (assembly, step) keys the joint test places
+        self._why: dict[str, str] = {}  # assembly -> why the joint test does not place it (this step)
         self._boot: dict | None = None  # cold-start state while sharing the first step's pair forms
         self._own_forms: tuple | None = None  # (step, keys, forms, pin) last shared (answers late askers)
         self._table_changed = 0  # last round the gossip table changed by more than the tolerances
@@ -289,6 +291,7 @@ class AssemblyAgent:
         self._seeds = {}
         self._seeds_complete = False
         self._placeable = frozenset()
+        self._why = {}
         self._expected = set()
         self._form_sig = None
         if cfg.share_forms == "every" or (cfg.share_forms == "first" and first):
@@ -803,7 +806,11 @@ class AssemblyAgent:
         self._seeds_complete = len(boot["records"]) == len(self.config.assemblies)
         if self._seeds_complete:
             limit = self.config.max_yaw_std if self.config.noise.weighting == "information" else np.inf
-            self._placeable = joint.placeable((self.name, self._step), limit)
+            self._placeable, stds = joint.placement((self.name, self._step), limit)
+            self._why = unplaced_reasons(
+                self.config.assemblies, self.name, {name for name, _ in self._placeable},
+                with_data={name for prob in problems if len({k[0] for k in prob.keys}) > 1 for name, _ in prob.keys},
+                connected={name for name, step in joint.index if step == self._step}, solved=True, yaw_std=stds)
             # the joint solution already gives every assembly's pose of this step: the gossip table need
             # not cross the view graph before the convergence flag can settle (rounds flat in the diameter)
             me = self._index[self.name]
@@ -1059,6 +1066,17 @@ class AssemblyAgent:
     def ages(self) -> dict[str, int]:
         """Rounds since the newest value used from each neighbour (0 or 1: fresh)."""
         return dict(self._last_ages)
+
+    def unplaced(self, placed: dict[str, PlanarPose] | None = None) -> dict[str, str]:
+        """Why each assembly missing from :meth:`estimates` (or ``placed``) is missing (a reason code of
+        :data:`decentral.placement.REASONS`).
+
+        The joint placement test's reason when this agent holds every agent's forms of the step;
+        otherwise ``no_consensus`` (it cannot tell a lost row from an assembly nobody saw).
+        """
+        placed = self.estimates() if placed is None else placed
+        return {name: (self._why.get(name, "no_consensus") if self._seeds_complete else "no_consensus")
+                for name in self.config.assemblies if name != self.name and name not in placed}
 
     def estimates(self) -> dict[str, PlanarPose]:
         """Pose of every assembly it can place at the current step, in its own root frame (eq. (19)).

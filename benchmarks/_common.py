@@ -29,7 +29,7 @@ RESULTS = Path(__file__).resolve().parent / "results"
 #: where benchmark runs write by default (relative to the working directory; ``out/`` is git-ignored)
 DEFAULT_OUT = Path("out") / "benchmarks"
 
-__all__ = ["RESULTS", "DEFAULT_OUT", "parser", "output", "machine", "save", "save_figure", "timed"]
+__all__ = ["RESULTS", "DEFAULT_OUT", "parser", "output", "machine", "median_seconds", "save", "save_figure", "timed"]
 
 
 def parser(doc: str) -> argparse.ArgumentParser:
@@ -66,6 +66,20 @@ def machine() -> dict:
         "versions": versions,
         "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }
+
+
+def median_seconds(fn, reps: int, warmup: int) -> float:
+    """Median wall time (s) of ``reps`` calls of ``fn()`` after ``warmup`` untimed calls."""
+    import numpy as np
+
+    for _ in range(warmup):
+        fn()
+    out = np.empty(reps)
+    for i in range(reps):
+        t0 = time.perf_counter()
+        fn()
+        out[i] = time.perf_counter() - t0
+    return float(np.median(out))
 
 
 def timed(fn, *args, **kwargs):

@@ -67,7 +67,7 @@ def plot(result: dict, path) -> None:
     import matplotlib.pyplot as plt
 
     names = list(result["table_mean_over_seeds"])
-    fig, axes = plt.subplots(1, 3, figsize=(11, 3.2))
+    fig, axes = plt.subplots(1, 3, figsize=(8.2, 3.0))  # ~900 px wide: readable at README width
     for ax, key, label in zip(axes, ("position_m", "relative_position_pct", "yaw_deg"),
                               ("positional error [m]", "relative positional error [%]", "angular error [deg]")):
         values = [result["table_mean_over_seeds"][n][key] for n in names]
@@ -75,6 +75,7 @@ def plot(result: dict, path) -> None:
         ax.set_xticks(range(len(names)), [n.split(" (")[0] for n in names], fontsize=8)
         ax.set_yscale("log")
         ax.set_title(label, fontsize=9)
+        ax.tick_params(axis="y", labelsize=8)
     fig.suptitle("Table I on the geometry simulator (mean over seeds)", fontsize=10)
     fig.tight_layout()
     save_figure(fig, path)

@@ -196,7 +196,7 @@ def plot(result: dict, path: Path) -> None:
     n = np.array([r["n"] for r in rows], float)
     y = np.array([r["messages_per_module"] for r in rows])
     ncol = 3 if cubes else 2
-    fig, axes = plt.subplots(1, ncol, figsize=(5.2 * ncol, 4.4), gridspec_kw={"width_ratios": [1.6] + [1] * (ncol - 1)})
+    fig, axes = plt.subplots(ncol, 1, figsize=(8.2, 4.2 * ncol))  # stacked, ~900 px wide: readable at README width
     ax1 = axes[0]
     ax1.plot(n, y, "o-", label="measured (mean per module)")
     xs = np.geomspace(n.min(), n.max(), 50)
@@ -225,14 +225,14 @@ def plot(result: dict, path: Path) -> None:
     ax1.xaxis.set_minor_formatter(NullFormatter())
     ax1.set_xlabel("modules N (2D triple)")
     ax1.set_ylabel("messages sent per module")
-    ax1.set_title("seed 003 Fig. 11: messages per module", fontsize=10)
-    ax1.legend(fontsize=7, loc="upper left")
+    ax1.set_title("messages per module (cf. Funiak et al. 2008, Fig. 11)", fontsize=10)
+    ax1.legend(fontsize=8, loc="upper left")
     ax1.set_ylim(0, 1.35 * y.max())
     picks = [rows[0], rows[-1]] if len(rows) > 1 else rows
     _split_bars(axes[1], picks, [f"N={r['n']}" for r in picks], "Fig. 12: split by phase (2D)")
     if cubes:
         _split_bars(axes[2], cubes, [r["case"] for r in cubes], "Fig. 12: split by phase (3D cubic)")
-    axes[-1].legend(fontsize=7, loc="center left", bbox_to_anchor=(1.0, 0.5))
+    axes[-1].legend(fontsize=8, loc="best")
     fig.tight_layout()
     save_figure(fig, path)
 

@@ -216,7 +216,7 @@ def plot(payload: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(1, 3, figsize=(16, 4.8))
+    fig, ax = plt.subplots(3, 1, figsize=(8.2, 13))  # stacked, ~900 px wide: readable at README width
     styles = {"default": "-", "no_coarse": "--", "mmd_order": "-.", "full_levels": ":"}
     for dim, marker in ((2, "o"), (3, "s")):
         floor_done = False
@@ -235,7 +235,7 @@ def plot(payload: dict, path: Path) -> None:
     ax[0].axhline(5, color="gray", lw=0.8)
     ax[0].axhline(120, color="gray", lw=0.8)
     ax[0].set(xlabel="modules", ylabel="CPU seconds (one core)", title="time (targets: 5 s @10k, 120 s @100k)")
-    ax[1].set(xlabel="modules", ylabel="refinement iterations per module", title="seed 003 Fig. 6 analogue")
+    ax[1].set(xlabel="modules", ylabel="refinement iterations per module", title="refinement iterations (cf. Funiak et al. 2008, Fig. 6)")
     labels, cpu, floor, colors, low, high = [], [], [], [], [], []
     for r in payload["targets"]["4x"]:
         labels.append(f"{r['dim']}D {r['from'] / 1000:.3g}k-{r['to'] / 1000:.3g}k\n{r['config']}")
@@ -251,10 +251,10 @@ def plot(payload: dict, path: Path) -> None:
     ax[2].bar(x + 0.2, floor, 0.4, color="C1", alpha=0.6, label="floor: Laplacian factor+solve")
     ax[2].axhline(4.6, color="red", lw=1, label="target 4.6")
     ax[2].axhline(4.0, color="gray", lw=0.8, ls="--", label="linear (4.0)")
-    ax[2].set_xticks(x, labels, fontsize=7)
+    ax[2].set_xticks(x, labels, fontsize=8)
     ax[2].set(ylabel="time ratio for 4x the modules", title="4x the modules")
     for a in ax:
-        a.legend(fontsize=7)
+        a.legend(fontsize=8)
         a.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
     save_figure(fig, path)

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import time
 
-from _common import machine, parser, save  # noqa: I001  (pins threads before numpy)
+from _common import machine, median_seconds, parser, save  # noqa: I001  (pins threads before numpy)
 
 import numpy as np
 
@@ -52,14 +52,7 @@ def samples() -> dict:
 
 
 def median_time(fn, reps: int = REPS) -> float:
-    for _ in range(WARM):
-        fn()
-    out = np.empty(reps)
-    for i in range(reps):
-        t0 = time.perf_counter()
-        fn()
-        out[i] = time.perf_counter() - t0
-    return float(np.median(out))
+    return median_seconds(fn, reps, WARM)
 
 
 def network_rate(msg: AdmmPrimal, n_agents: int = 8, rounds: int = 200) -> dict:

@@ -983,10 +983,13 @@ class JointSolution:
         null space of the yaw Hessian and its Laplace standard deviation is at most ``max_yaw_std``);
         nothing when ``reference`` is not tied to the gauge variable.
         """
+        return self.placement(reference, max_yaw_std)[0]
+
+    def placement(self, reference, max_yaw_std: float) -> tuple[frozenset, dict]:
+        """:meth:`placeable` and the relative-yaw standard deviations (assembly -> rad) it tested."""
         if reference not in self.index or len(self.index) == 1:
-            return frozenset()
-        placed, _ = placeable_yaws(self.Q, self.theta, self.index, reference, max_yaw_std)
-        return placed
+            return frozenset(), {}
+        return placeable_yaws(self.Q, self.theta, self.index, reference, max_yaw_std)
 
 
 def solve_joint(problems: list[LocalProblem], fixed_key, fixed_value: Pose2 | None = None) -> JointSolution:

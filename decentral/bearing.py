@@ -29,7 +29,8 @@ import numpy as np
 from decentral.errors import InputError
 from decentral.factors import NoiseModel, StepMeasurements, measure_log
 from decentral.geometry import rotz, wrap_angle
-from decentral.observations import Estimate, EstimateStep, ObservationLog, PlanarPose
+from decentral.observations import Estimate, EstimateStep, ObservationLog, PlanarPose, require_log, resolve_reference
+from decentral.placement import count_reasons
 
 __all__ = ["BearingConfig", "estimate_log_bearing", "solve_bearing_window"]
 
@@ -121,28 +122,33 @@ def estimate_log_bearing(log: ObservationLog, config: BearingConfig = BearingCon
 
     ``progress``, when given, is called after each step as ``progress(steps_done, steps_total)``.
     """
-    reference = reference or log.assemblies[0]
-    if reference not in log.assemblies:
-        raise InputError(f"unknown reference assembly {reference!r}", field="reference")
+    log = require_log(log)
+    if not isinstance(config, BearingConfig):
+        raise InputError(f"expected a BearingConfig, got {type(config).__name__}", field="config")
+    reference = resolve_reference(log, reference)
     start = time.perf_counter()
     measurements = measure_log(log, config.noise)
     steps = []
     targets = [a for a in log.assemblies if a != reference]
     for k in range(len(measurements)):
-        poses = {}
+        poses, unplaced = {}, {}
         for target in targets:
             pose = _estimate_target(measurements, reference, target, k, config)
-            if pose is not None:
+            if isinstance(pose, str):
+                unplaced[target] = pose
+            else:
                 poses[target] = pose
-        steps.append(EstimateStep(measurements[k].t, poses))
+        steps.append(EstimateStep(measurements[k].t, poses, unplaced))
         if progress is not None:
             progress(k + 1, len(measurements))
     stats = {"estimator": "bearing", "window": config.window, "nodes": config.nodes,
-             "seconds": time.perf_counter() - start}
+             "unplaced": count_reasons(step.unplaced for step in steps), "seconds": time.perf_counter() - start}
     return Estimate(reference, tuple(steps), stats)
 
 
-def _estimate_target(measurements, reference, target, k, config) -> PlanarPose | None:
+def _estimate_target(measurements, reference, target, k, config) -> PlanarPose | str:
+    """The target's pose at step ``k`` relative to the reference, or why there is none (a reason code of
+    :data:`decentral.placement.REASONS`: no bearing of it, or bearings that do not determine it)."""
     span = _odometry_span(measurements, (reference, target), k, config.window)
     yaw_o, pos_o = _dead_reckon(measurements, reference, span)
     yaw_a, pos_a = _dead_reckon(measurements, target, span)
@@ -158,11 +164,13 @@ def _estimate_target(measurements, reference, target, k, config) -> PlanarPose |
             xs.append(pos_a[j] + rotz(yaw_a[j]) @ q)
             cs.append(pos_o[j] + rotz(yaw_o[j]) @ vis.origin[i])
             bs.append(rotz(yaw_o[j]) @ vis.bearing[i])
+    if not xs:
+        return "no_data"
     if len(xs) < 3:
-        return None  # two bearings fit (alpha, tau) exactly, with spurious solutions; need redundancy
+        return "yaw_unobservable"  # two bearings fit (alpha, tau) exactly, with spurious solutions
     solved = solve_bearing_window(np.array(xs), np.array(cs), np.array(bs))
     if solved is None:
-        return None
+        return "yaw_unobservable"
     alpha, tau = solved
     # target root at the last step, in the observer's frame at the last step (seed 000 eq. (19))
     p_world = rotz(alpha) @ pos_a[-1] + tau

@@ -24,7 +24,8 @@ import numpy as np
 from decentral.errors import InputError
 from decentral.factors import NoiseModel, StepMeasurements, measure_log
 from decentral.geometry import wrap_angle
-from decentral.observations import Estimate, EstimateStep, ObservationLog, PlanarPose
+from decentral.observations import Estimate, EstimateStep, ObservationLog, PlanarPose, require_log, resolve_reference
+from decentral.placement import count_reasons, unplaced_reasons
 from decentral.relaxation import RelaxationResult, recover_positions, reduce_rotations, solve_relaxation, yaw_hessian
 from decentral.window import WindowProblem, build_window
 
@@ -182,12 +183,21 @@ def estimate_log(log: ObservationLog, config: EstimatorConfig = EstimatorConfig(
     Returns
     -------
     Estimate
-        Per step, the poses of every placeable assembly; ``stats`` reports certificates, solver use,
-        skipped detections and timings.
+        Per step, the poses of every placeable assembly and, in ``unplaced``, why each other one is
+        not placed; ``stats`` reports certificates, solver use, skipped detections, reason counts
+        (``stats["unplaced"]``) and timings.
+
+    Raises
+    ------
+    InputError
+        If ``log`` is not a well-formed :class:`ObservationLog` (e.g. a decoded JSON dict: read files
+        with :func:`sims.io.log_json.read_log`), ``config`` not an :class:`EstimatorConfig`, or
+        ``reference`` not one of its assemblies.
     """
-    reference = reference or log.assemblies[0]
-    if reference not in log.assemblies:
-        raise InputError(f"unknown reference assembly {reference!r}", field="reference")
+    log = require_log(log)
+    if not isinstance(config, EstimatorConfig):
+        raise InputError(f"expected an EstimatorConfig, got {type(config).__name__}", field="config")
+    reference = resolve_reference(log, reference)
     start = time.perf_counter()
     measurements = measure_log(log, config.noise)
     steps, windows = [], []
@@ -196,20 +206,27 @@ def estimate_log(log: ObservationLog, config: EstimatorConfig = EstimatorConfig(
         span = range(max(0, k - config.window + 1), k + 1)
         problem = build_window(measurements, span, reference)
         poses: dict[str, PlanarPose] = {}
+        connected, usable, yaw_std = set(), False, {}
         if problem is not None:
             theta0 = _warm_start(previous, problem, measurements) if config.warm_start else None
             solved = solve_window(problem, (reference, k), config, theta0)
             usable = solved.relaxation.status in ("optimal", "optimal_inaccurate", "uncertified")
             for key in sorted(solved.placeable) if usable else ():
                 poses[key[0]] = solved.relative(key, (reference, k))
+            connected = {name for name, step in problem.variables if step == k}
+            yaw_std = solved.yaw_std
             windows.append(_window_stats(k, solved))
             previous = solved
         else:
             previous = None
-        steps.append(EstimateStep(measurements[k].t, poses))
+        seen = {name for j in span for name in measurements[j].visual.observer + measurements[j].visual.target}
+        unplaced = unplaced_reasons(log.assemblies, reference, poses, with_data=seen, connected=connected,
+                                    solved=usable, yaw_std=yaw_std)
+        steps.append(EstimateStep(measurements[k].t, poses, unplaced))
         if progress is not None:
             progress(k + 1, len(measurements), certified=sum(w["certified"] for w in windows))
     stats = _summary(measurements, windows, config, time.perf_counter() - start)
+    stats["unplaced"] = count_reasons(step.unplaced for step in steps)
     return Estimate(reference, tuple(steps), stats)
 
 

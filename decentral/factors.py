@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from decentral.geometry import backproject, rot2
-from decentral.observations import ObservationLog
+from decentral.observations import ObservationLog, require_log
 
 __all__ = [
     "NoiseModel",
@@ -151,6 +151,7 @@ def measure_log(log: ObservationLog, noise: NoiseModel = NoiseModel()) -> list[S
     Detections whose id belongs to no assembly at that step (stray tags) are skipped and counted;
     so are detections of an observer's own nodes (they carry no relative information).
     """
+    log = require_log(log)
     w_p, w_R = noise.odometry_weights()
     out = []
     for step in log.steps:

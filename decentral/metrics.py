@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from decentral.errors import InputError
-from decentral.observations import Estimate
+from decentral.observations import Estimate, require_estimate
 
 __all__ = ["GroundTruth", "AssemblyScore", "Score", "relative_truth", "score_estimate", "estimate_gap"]
 
@@ -159,6 +159,9 @@ def score_estimate(truth: GroundTruth, estimate: Estimate, *, time_tol: float = 
         One :class:`AssemblyScore` per truth assembly other than the reference, and the pooled one.
         Estimate steps with no matching truth time are counted in ``unmatched_steps``.
     """
+    estimate = require_estimate(estimate)
+    if not isinstance(truth, GroundTruth):
+        raise InputError(f"expected a GroundTruth, got {type(truth).__name__}", field="truth")
     ref = estimate.reference
     if ref not in truth.R:
         raise InputError(f"reference {ref!r} is not in the truth", field="reference")
@@ -215,6 +218,7 @@ def estimate_gap(a: Estimate, b: Estimate) -> tuple[float, float, int]:
     difference (rad, wrapped) over the assemblies both place, and the number of (step, assembly)
     placements only one of them makes.
     """
+    a, b = require_estimate(a), require_estimate(b)
     dp = dth = 0.0
     mismatched = 0
     for sa, sb in zip(a.steps, b.steps):

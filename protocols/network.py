@@ -3,8 +3,8 @@
 Every message really goes over the wire: :meth:`SimulatedNetwork.send` encodes it
 (:meth:`Message.to_bytes`), the link may corrupt the frame, and the receiver decodes it on
 :meth:`~SimulatedNetwork.poll` (a corrupted frame fails its CRC and is counted as dropped, reason
-``"corrupt"``; an intact frame whose body is not a valid message, reason ``"malformed"``). Per
-directed link ``(a, b)`` a copy sent at time ``t``:
+``"corrupt"``; an intact frame whose body is not a valid message, reason ``"malformed"``; both are
+also refused: ``stats().rejected``). Per directed link ``(a, b)`` a copy sent at time ``t``:
 
 1. is refused if ``a`` is down at ``t`` (``"sender_down"``) or a partition active at ``t`` separates
    ``a`` from ``b`` (``"partition"``);
@@ -46,13 +46,29 @@ import numpy as np
 
 from decentral.errors import InputError, ProtocolError
 from protocols.messages import BROADCAST, Message, decode
-from protocols.transport import Counts, Delivery, Transport, TransportStats, rejection_reason
+from protocols.transport import Counts, Delivery, Ledger, Transport, TransportStats, rejection_reason
 
-__all__ = ["LinkConfig", "Partition", "Crash", "NetworkConfig", "BatchDelivery", "SimulatedNetwork"]
+__all__ = ["link_root", "link_stream", "LinkConfig", "Partition", "Crash", "NetworkConfig", "BatchDelivery",
+           "SimulatedNetwork"]
 
 #: a broadcast is one frame delivered to many receivers; messages are immutable, so decoding the same
 #: bytes once and sharing the result is exact (a corrupted copy has other bytes and fails on its own)
 _decode_frame = functools.lru_cache(maxsize=2048)(decode)
+
+
+def link_root(rng: np.random.Generator) -> list[int]:
+    """Root entropy of the per-link streams, drawn once from ``rng`` (128 bits)."""
+    return [int(x) for x in rng.integers(0, 2**32, size=4, dtype=np.uint64)]
+
+
+def link_stream(root: list[int], a: str, b: str) -> np.random.Generator:
+    """The random stream of the directed link ``a -> b``: ``SeedSequence(root, spawn_key=(crc32(a), crc32(b)))``.
+
+    Keyed by the names, so adding an agent or a link never changes another link's stream, and two
+    processes given the same root draw the same stream for the same link.
+    """
+    seq = np.random.SeedSequence(root, spawn_key=(zlib.crc32(a.encode("utf-8")), zlib.crc32(b.encode("utf-8"))))
+    return np.random.default_rng(seq)
 
 
 def _prob(value: float, name: str) -> None:
@@ -257,13 +273,12 @@ class SimulatedNetwork(Transport):
 
     def __init__(self, config: NetworkConfig, rng: np.random.Generator):
         self.config = config
-        self._root = [int(x) for x in rng.integers(0, 2**32, size=4, dtype=np.uint64)]
+        self._root = link_root(rng)
         self._rngs: dict[tuple[str, str], np.random.Generator] = {}
         self._free_at: dict[tuple[str, str], float] = {}
         self._queues: dict[str, list[_InFlight]] = {a: [] for a in config.agents}
         self._seq = 0
-        self._counters: dict[tuple[str, object], list[int]] = {}
-        self._reasons: dict[str, int] = {}
+        self._ledger = Ledger()
         # batched path: copies in flight as arrays, counters as arrays (merged in stats())
         n, width = len(config.agents), len(_FIELDS)
         self._n = n
@@ -303,10 +318,7 @@ class SimulatedNetwork(Transport):
         key = (a, b)
         gen = self._rngs.get(key)
         if gen is None:
-            seq = np.random.SeedSequence(
-                self._root, spawn_key=(zlib.crc32(a.encode("utf-8")), zlib.crc32(b.encode("utf-8")))
-            )
-            gen = self._rngs[key] = np.random.default_rng(seq)
+            gen = self._rngs[key] = link_stream(self._root, a, b)
         return gen
 
     def send(self, message: Message, now: float) -> None:
@@ -329,18 +341,20 @@ class SimulatedNetwork(Transport):
         out: list[Delivery] = []
         while queue and queue[0].arrival <= now:
             item = heapq.heappop(queue)
-            keys = self._keys(item.sender, agent, item.kind)
+            keys = Ledger.keys(item.sender, agent, item.kind)
             size = len(item.frame)
-            self._bump(keys, ("in_flight", -1))
+            self._ledger.bump(keys, ("in_flight", -1))
             if self.is_down(agent, item.arrival):
-                self._drop(keys, size, "receiver_down")
+                self._ledger.drop(keys, size, "receiver_down")
                 continue
             try:
                 message = _decode_frame(item.frame)
             except ProtocolError as err:
-                self._drop(keys, size, rejection_reason(err))
+                reason = rejection_reason(err)
+                self._ledger.drop(keys, size, reason)
+                self._ledger.reject(reason)
                 continue
-            self._bump(keys, ("delivered", 1), ("bytes_delivered", size))
+            self._ledger.bump(keys, ("delivered", 1), ("bytes_delivered", size))
             out.append(Delivery(message, agent, item.sent_at, item.arrival, size, item.duplicate))
         return out
 
@@ -350,24 +364,10 @@ class SimulatedNetwork(Transport):
         return len(self._queues[agent]) + sum(int(np.count_nonzero(f["receiver"] == k)) for f in self._flight)
 
     def stats(self) -> TransportStats:
-        rows = {key: list(vals) for key, vals in self._counters.items()}
+        rows: dict = {}
         if self._batches:
             self._merge_batched(rows)
-
-        def snap(kind: str) -> Mapping:
-            return MappingProxyType(
-                {key: Counts(*vals) for (k, key), vals in sorted(rows.items(), key=_sort_key) if k == kind}
-            )
-
-        total = rows.get(("total", None), [0] * len(_FIELDS))
-        return TransportStats(
-            total=Counts(*total),
-            per_sender=snap("sender"),
-            per_receiver=snap("receiver"),
-            per_link=snap("link"),
-            per_kind=snap("kind"),
-            drop_reasons=MappingProxyType(dict(sorted(self._reasons.items()))),
-        )
+        return self._ledger.snapshot(rows)
 
     # ------------------------------------------------------------------ batched path
     def send_many(self, kind: str, senders, receivers, sizes, now: float) -> int:
@@ -519,6 +519,8 @@ class SimulatedNetwork(Transport):
             self._bump_many(s[mk], r[mk], kid, ("in_flight", -1))
             for mask, reason in ((mk & down, "receiver_down"), (mk & ~down & ~ok, "corrupt")):
                 self._drop_many(s[mask], r[mask], kid, size[mask], reason)
+            if (n_corrupt := int(np.count_nonzero(mk & ~down & ~ok))):
+                self._ledger.reject("corrupt", n_corrupt)
             good = mk & ~down & ok
             self._bump_many(s[good], r[good], kid, ("delivered", None), ("bytes_delivered", size[good]))
         good = ~down & ok
@@ -553,7 +555,7 @@ class SimulatedNetwork(Transport):
     def _drop_many(self, s: np.ndarray, r: np.ndarray, kid: int, size: np.ndarray, reason: str) -> None:
         if s.size:
             self._bump_many(s, r, kid, ("dropped", None), ("bytes_dropped", size))
-            self._reasons[reason] = self._reasons.get(reason, 0) + int(s.size)
+            self._ledger.add_reason(reason, int(s.size))
 
     def _bump_many(self, s: np.ndarray, r: np.ndarray, kid: int, *changes) -> None:
         """Add each ``(counter name, amounts or None = 1 per copy, or a scalar)`` to every key of the copies."""
@@ -615,36 +617,18 @@ class SimulatedNetwork(Transport):
             add(("link", (agents[code // n], agents[code % n])), vec)
 
     # ------------------------------------------------------------------ internals
-    def _keys(self, a: str, b: str, kind: str) -> tuple:
-        return (("total", None), ("sender", a), ("receiver", b), ("link", (a, b)), ("kind", kind))
-
-    def _bump(self, keys: tuple, *changes: tuple[str, int]) -> None:
-        """Add each ``(counter name, amount)`` of ``changes`` to the rows of every key."""
-        counters = self._counters
-        width = len(_FIELDS)
-        for key in keys:
-            row = counters.get(key)
-            if row is None:
-                row = counters[key] = [0] * width
-            for name, n in changes:
-                row[_IDX[name]] += n
-
-    def _drop(self, keys: tuple, size: int, reason: str) -> None:
-        self._bump(keys, ("dropped", 1), ("bytes_dropped", size))
-        self._reasons[reason] = self._reasons.get(reason, 0) + 1
-
     def _send_copy(self, a: str, b: str, kind: str, frame: bytes, now: float) -> None:
         size = len(frame)
-        keys = self._keys(a, b, kind)
-        self._bump(keys, ("sent", 1), ("bytes_sent", size))
+        keys = Ledger.keys(a, b, kind)
+        self._ledger.bump(keys, ("sent", 1), ("bytes_sent", size))
         if b not in self._queues:
-            self._drop(keys, size, "unknown_receiver")
+            self._ledger.drop(keys, size, "unknown_receiver")
             return
         if self.is_down(a, now):
-            self._drop(keys, size, "sender_down")
+            self._ledger.drop(keys, size, "sender_down")
             return
         if any(p.separates(a, b, now) for p in self.config.partitions):
-            self._drop(keys, size, "partition")
+            self._ledger.drop(keys, size, "partition")
             return
         cfg = self.config.link_config(a, b)
         # fixed number of draws per copy keeps each link's pattern independent of everything else
@@ -653,7 +637,7 @@ class SimulatedNetwork(Transport):
         tx = size / cfg.bandwidth if math.isfinite(cfg.bandwidth) else 0.0
         self._free_at[(a, b)] = start + tx
         if u_drop < cfg.drop:
-            self._drop(keys, size, "loss")
+            self._ledger.drop(keys, size, "loss")
             return
         if u_corrupt < cfg.corrupt:
             pos = min(int(u_pos * size), size - 1)
@@ -661,19 +645,14 @@ class SimulatedNetwork(Transport):
         arrival = start + tx + cfg.latency + u_jit * cfg.jitter
         self._enqueue(b, _InFlight(arrival, self._next_seq(), frame, now, a, kind, False), keys)
         if u_dup < cfg.duplicate:
-            self._bump(keys, ("duplicated", 1))
+            self._ledger.bump(keys, ("duplicated", 1))
             arrival2 = start + tx + cfg.latency + u_jit2 * cfg.jitter
             self._enqueue(b, _InFlight(arrival2, self._next_seq(), frame, now, a, kind, True), keys)
 
     def _enqueue(self, b: str, item: _InFlight, keys: tuple) -> None:
-        self._bump(keys, ("in_flight", 1))
+        self._ledger.bump(keys, ("in_flight", 1))
         heapq.heappush(self._queues[b], item)
 
     def _next_seq(self) -> int:
         self._seq += 1
         return self._seq
-
-
-def _sort_key(item: tuple) -> tuple:
-    (kind, key), _ = item
-    return (kind, str(key))

@@ -24,7 +24,8 @@ from agents.assembly import AgentConfig, AssemblyAgent, OwnStep
 from decentral.admm import AdmmConfig
 from decentral.errors import InputError
 from decentral.factors import NoiseModel
-from decentral.observations import Estimate, EstimateStep, ObservationLog
+from decentral.observations import Estimate, EstimateStep, ObservationLog, require_log, resolve_reference
+from decentral.placement import count_reasons
 from protocols.network import Crash, LinkConfig, NetworkConfig, Partition, SimulatedNetwork
 
 __all__ = ["AdmmRunConfig", "AdmmRun", "own_step", "run_admm"]
@@ -159,9 +160,10 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
         Called after each log step as ``progress(steps_done, steps_total, rounds=..., messages=...,
         unconverged=...)`` (running totals: rounds, copies sent, steps that hit ``max_rounds``).
     """
-    reference = reference or log.assemblies[0]
-    if reference not in log.assemblies:
-        raise InputError(f"unknown reference assembly {reference!r}", field="reference")
+    log = require_log(log)
+    if not isinstance(config, AdmmRunConfig):
+        raise InputError(f"expected an AdmmRunConfig, got {type(config).__name__}", field="config")
+    reference = resolve_reference(log, reference)
     start = time.perf_counter()
     names = tuple(log.assemblies)
     net = SimulatedNetwork(NetworkConfig(
@@ -232,7 +234,9 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
         converged.append(bool(live) and all(agents[n].converged for n in live))
         per_agent.append({n: agents[n].estimates() for n in live})
         ref_poses = agents[reference].estimates() if reference in live else {}
-        est_steps.append(EstimateStep(log.steps[k].t, ref_poses))
+        why = (agents[reference].unplaced(ref_poses) if reference in live
+               else {n: "no_consensus" for n in names if n != reference})
+        est_steps.append(EstimateStep(log.steps[k].t, ref_poses, why))
         if progress is not None:
             progress(k + 1, len(log.steps), rounds=int(sum(rounds)), messages=sent_total,
                      unconverged=converged.count(False))
@@ -263,6 +267,7 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
             for n in names
         },
         "messages": transport,
+        "unplaced": count_reasons(step.unplaced for step in est_steps),
         "seconds": seconds,
         "seconds_per_round": tick_seconds / max(total_rounds, 1),
         "admm": {"rho0": config.admm.rho0, "mu": config.admm.mu, "tau": config.admm.tau,

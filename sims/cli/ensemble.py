@@ -33,12 +33,12 @@ from sims.cli import feedback
 
 __all__ = ["HELP", "METHODS", "add_arguments", "run", "localize"]
 
-HELP = "localize every module of an ensemble from neighbour observations (seed 003)"
+HELP = "localize every module of an ensemble from neighbour observations (Funiak et al. 2008)"
 
 #: method name -> one-line description
 METHODS = {
-    "ncut": "seed 003 Algorithm 1: recursive normalized cut, closed-form merges, refinement",
-    "incremental": "seed 003 §III-B baseline: breadth-first incremental maximum likelihood",
+    "ncut": "Funiak et al. 2008, Algorithm 1: recursive normalized cut, closed-form merges, refinement",
+    "incremental": "Funiak et al. 2008 §III-B baseline: breadth-first incremental maximum likelihood",
     "mds": "baseline: classical MDS of hop counts, then refinement",
     "sdp": "baseline: regularized SDP localization (Clarabel), then refinement (size-guarded)",
     "bottom-up": "baseline: bottom-up merging in order of algebraic connectivity",

@@ -26,7 +26,8 @@ def _plot_atomic(plot, result, target: Path) -> None:
     finally:
         tmp.unlink(missing_ok=True)
 
-HELP = "reproduce seed 000's Table I or Fig. 4 on rendered frames (writes JSON and a PNG plot)"
+
+HELP = "reproduce Table I or Fig. 4 of Liu et al. (2024) on rendered frames (writes JSON and a PNG plot)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

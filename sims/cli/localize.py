@@ -23,8 +23,8 @@ HELP = "estimate every assembly's pose relative to a reference from an observati
 
 #: estimator name -> one-line description (the seed's method and its baselines)
 ESTIMATORS = {
-    "windowed": "seed 000 §IV: radius-depth visual factors + odometry, SDP relaxation, sliding window",
-    "bearing": "seed 000 §V-C 2 baseline: root-node bearings only (no radius) + odometry",
+    "windowed": "Liu et al. 2024 §IV: radius-depth visual factors + odometry, SDP relaxation, sliding window",
+    "bearing": "Liu et al. 2024 §V-C 2 baseline: root-node bearings only (no radius) + odometry",
 }
 
 
@@ -52,7 +52,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--solver", choices=("low-rank", "sdp"), default="low-rank",
                         help="low-rank with certificate (default) or the cvxpy/Clarabel SDP reference")
     parser.add_argument("--weighting", choices=("information", "unit"), default="information",
-                        help="weight factors by their noise (default) or not at all, as the seed's sums")
+                        help="weight factors by their noise (default) or not at all, as the paper's sums")
     parser.add_argument("--sigma-pixel", type=float, default=NoiseModel.sigma_pixel, help="detection centre std, px")
     parser.add_argument("--sigma-radius", type=float, default=NoiseModel.sigma_radius, help="detection radius std, px")
     parser.add_argument("--sigma-odom-p", type=float, default=NoiseModel.sigma_odom_p, help="odometry step std, m")
@@ -104,6 +104,15 @@ def run(args: argparse.Namespace) -> int:
     return _report(estimate, args, n_assemblies=len(log.assemblies))
 
 
+def _not_placed(estimate) -> str:
+    """``; not placed: REASON N, ...`` over every (step, assembly) left out, most frequent first; empty if none."""
+    from decentral.placement import count_reasons
+
+    reasons = count_reasons(step.unplaced for step in estimate.steps)
+    why = ", ".join(f"{code} {n}" for code, n in sorted(reasons.items(), key=lambda kv: -kv[1]))
+    return f"; not placed: {why}" if why else ""
+
+
 def _run_admm(log, args, noise, reference, progress):
     from sims.admm_run import AdmmRunConfig, run_admm
 
@@ -119,7 +128,8 @@ def _report(estimate, args: argparse.Namespace, n_assemblies: int) -> int:
     steps = len(estimate.steps)
     placed = sum(len(step.poses) for step in estimate.steps)
     possible = steps * (n_assemblies - 1)
-    coverage = f"coverage {100 * placed / possible:.0f}% ({placed}/{possible} assembly-steps)" if possible else "coverage -"
+    coverage = (f"coverage {100 * placed / possible:.0f}% ({placed} placements of {possible} assembly-steps"
+                f"{_not_placed(estimate)})" if possible else "coverage -")
     stats = estimate.stats
     if args.mode != "admm":
         certified = (f", {stats['certified_windows']}/{stats['windows_solved']} windows certified"

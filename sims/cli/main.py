@@ -32,6 +32,9 @@ COMMANDS: dict[str, str] = {
     "experiment": "sims.cli.experiment",
     "make-ensemble": "sims.cli.make_ensemble",
     "ensemble": "sims.cli.ensemble",
+    "export": "sims.cli.export",
+    "build-log": "sims.cli.build_log",
+    "keys": "sims.cli.keys",
 }
 
 EXIT_BAD_INPUT = 2

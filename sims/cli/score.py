@@ -2,10 +2,10 @@
 
 Two kinds of input, told apart by content (an ``.npz`` archive or JSON), not by file name:
 
-- a ``decentral.estimate/1`` (JSON) against a ``decentral.truth/1``: seed 000 Table I metrics
+- a ``decentral.estimate/1`` (JSON) against a ``decentral.truth/1``: the Table I metrics of Liu et al. (2024)
   (positional, relative and angular error, coverage), per assembly and overall;
 - an ensemble estimate (``.npz`` with ``position``) against a ``decentral.ensemble_truth/1``
-  (``decentral make-ensemble --truth``): seed 003's global and local RMS centre error in module
+  (``decentral make-ensemble --truth``): Funiak et al.'s global and local RMS centre error in module
   radii (:func:`decentral.ensemble.metrics.evaluate`). The neighbour pairs that fix the scale and
   connect the local regions are the truth file's observed ``pairs``; a truth file without them
   uses the true centres closer than the default infrared sensor's reach.
@@ -36,10 +36,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print the full score as JSON")
 
 
-def format_table(rows: dict[str, dict]) -> str:
-    """A fixed-width table of named overall scores (``Score.overall.to_dict()`` values)."""
+def format_table(rows: dict[str, dict], first: str = "method") -> str:
+    """A fixed-width table of named overall scores (``Score.overall.to_dict()`` values).
+
+    ``first`` heads the column of row names: what the rows are (methods, assemblies, ...).
+    """
     fps = any("fps" in r for r in rows.values())
-    lines = [f"{'method':<28} {'pos [m]':>9} {'rel [%]':>8} {'yaw [deg]':>10} {'coverage':>9}" + (" fps [Hz]" if fps else "")]
+    lines = [f"{first:<28} {'pos [m]':>9} {'rel [%]':>8} {'yaw [deg]':>10} {'coverage':>9}" + (" fps [Hz]" if fps else "")]
     for name, r in rows.items():
         if r["position_m"] is None:
             lines.append(f"{name:<28} {'-':>9} {'-':>8} {'-':>10} {100 * r['coverage']:>8.0f}%")
@@ -74,7 +77,8 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(doc, indent=1, allow_nan=False))
     else:
         per = {name: s.to_dict() for name, s in score.per_assembly.items()}
-        print(format_table({**per, "overall": score.overall.to_dict()}))
+        print(format_table({**per, "overall": score.overall.to_dict()},
+                           first=f"assembly (relative to {score.reference})"))
     o = score.overall.to_dict()
     if o["position_m"] is None:
         feedback.summary(f"no assembly placed (coverage {100 * o['coverage']:.0f}%)")

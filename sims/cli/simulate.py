@@ -15,7 +15,10 @@ HELP = "simulate a scenario: write OUTDIR/log.json (decentral.log/1), OUTDIR/tru
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Attach the command's arguments to ``parser``."""
-    parser.add_argument("scenario", help="scenario name (table1, reconfig, multi, single_node)")
+    from sims.robot_data import ODOMETRY_FORMATS
+    from sims.scenarios import SCENARIOS
+
+    parser.add_argument("scenario", metavar="SCENARIO", help="scenario name: " + ", ".join(SCENARIOS))
     parser.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="output folder (created if needed)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     parser.add_argument("--steps", type=int, default=None, help="number of steps (default: the scenario's)")
@@ -24,6 +27,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="also render camera frames as PNG files or one video per camera (default none)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="params",
                         help="scenario parameter (JSON value), e.g. --set n_assemblies=8 --set pixel_sigma=1.0")
+    parser.add_argument("--robot-data", metavar="DIR",
+                        help="also write the run as a robot would record it: DIR/rig.toml for `decentral build-log`, "
+                             "odometry trajectories and per-camera detections (or images with --robot-images)")
+    parser.add_argument("--robot-odometry", choices=ODOMETRY_FORMATS, default="tum",
+                        help="--robot-data odometry as TUM or CSV files, or nav_msgs/Odometry in a ROS 1 bag "
+                             "(DIR/run.bag) or a ROS 2 bag (DIR/run) (default tum)")
+    parser.add_argument("--robot-images", action="store_true",
+                        help="--robot-data with rendered camera images (PNG files, or sensor_msgs/Image in the bag) "
+                             "for build-log to perceive, instead of detection files")
 
 
 def parse_params(items: list[str]) -> dict:
@@ -55,11 +67,18 @@ def run(args: argparse.Namespace) -> int:
     sim = simulate(scenario, seed=args.seed)
     with feedback.progress("render", unit="frame") as bar:
         saved = save_simulation(sim, args.output, frames=args.frames, seed=args.seed, progress=bar)
+    robot = ""
+    if args.robot_data:
+        from sims.robot_data import write_robot_data
+
+        rig = write_robot_data(sim, args.robot_data, odometry=args.robot_odometry, images=args.robot_images,
+                               seed=args.seed)
+        robot = f"; robot data: {rig}"
     n_frames = len(saved.frames)
     n_det = sum(len(d) for step in sim.log.steps for d in step.detections.values())
     feedback.summary(
         f"{args.scenario}: {len(sim.log.steps)} steps, {len(sim.log.assemblies)} assemblies, "
         f"{len(sim.log.cameras)} cameras, {n_det} detections -> {saved.log}, {saved.truth}"
-        + (f", {n_frames} frame files" if n_frames else "")
+        + (f", {n_frames} frame files" if n_frames else "") + robot
     )
     return 0

@@ -99,7 +99,71 @@ def top_view(
                 axes = tuple(int(min(2 * np.sqrt(max(v, 0.0)) * scale, 4 * size)) for v in vals[::-1])
                 angle = -np.degrees(np.arctan2(vecs[1, 1], vecs[0, 1]))
                 cv2.ellipse(img, p, axes, angle, 0, 360, col, 1, cv2.LINE_AA)
+    _scale_bar(img, scale)
+    _legend(img, with_links=bool(link_loss), with_nodes=bool(nodes),
+            with_ellipses=any(len(it) > 2 for v in (estimates or {}).values() for it in v))
     return img
+
+
+def _nice_length(target: float) -> float:
+    """The largest of 1, 2, 5 x 10^k not above ``target`` (metres)."""
+    base = 10.0 ** np.floor(np.log10(target))
+    return float(max(m * base for m in (1, 2, 5) if m * base <= target))
+
+
+def _scale_bar(img: np.ndarray, scale: float) -> None:
+    """A scale bar of a round length (about a fifth of the view) in the bottom-right corner."""
+    size = img.shape[1]
+    metres = _nice_length(0.2 * size / scale)
+    length = int(round(metres * scale))
+    x1, y = size - 16, img.shape[0] - 18
+    x0 = x1 - length
+    cv2.rectangle(img, (x0 - 6, y - 18), (x1 + 6, y + 8), (255, 255, 255), -1)
+    cv2.line(img, (x0, y), (x1, y), (0, 0, 0), 2)
+    for x in (x0, x1):
+        cv2.line(img, (x, y - 4), (x, y + 4), (0, 0, 0), 1)
+    label = f"{metres:g} m"
+    (tw, _), _ = cv2.getTextSize(label, cv2.FONT_HERSHEY_SIMPLEX, 0.4, 1)
+    cv2.putText(img, label, ((x0 + x1 - tw) // 2, y - 7), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+
+
+def _legend(img: np.ndarray, *, with_links: bool, with_ellipses: bool, with_nodes: bool) -> None:
+    """What the marks mean, in a box in the top-left corner."""
+    grey, dark = (90, 90, 90), (0, 0, 0)
+    rows = [("disc", "robot, true pose (tick: heading)"), ("cross", "estimate (line to its truth = error)")]
+    if with_nodes:
+        rows.append(("node", "node of an assembly"))
+    if with_ellipses:
+        rows.append(("ellipse", "2-sigma position ellipse"))
+    if with_links:
+        rows.append(("link", "radio link: green no loss .. red all lost"))
+    rows.append(("fan", "camera field of view"))
+    font, fs = cv2.FONT_HERSHEY_SIMPLEX, 0.36
+    width = 34 + max(cv2.getTextSize(text, font, fs, 1)[0][0] for _, text in rows)
+    x0, y0, h = 4, 4, 15
+    overlay = img.copy()
+    cv2.rectangle(overlay, (x0, y0), (x0 + width, y0 + 6 + h * len(rows)), (255, 255, 255), -1)
+    img[:] = cv2.addWeighted(overlay, 0.85, img, 0.15, 0)
+    cv2.rectangle(img, (x0, y0), (x0 + width, y0 + 6 + h * len(rows)), (160, 160, 160), 1)
+    for n, (kind, text) in enumerate(rows):
+        cx, cy = x0 + 14, y0 + 11 + h * n
+        if kind == "disc":
+            cv2.circle(img, (cx, cy), 4, grey, -1, cv2.LINE_AA)
+            cv2.line(img, (cx, cy), (cx + 8, cy), dark, 1, cv2.LINE_AA)
+        elif kind == "cross":
+            cv2.drawMarker(img, (cx, cy), grey, cv2.MARKER_CROSS, 7, 1, cv2.LINE_AA)
+            cv2.line(img, (cx, cy), (cx + 9, cy + 3), grey, 1, cv2.LINE_AA)
+        elif kind == "node":
+            cv2.circle(img, (cx, cy), 4, grey, 1, cv2.LINE_AA)
+        elif kind == "ellipse":
+            cv2.ellipse(img, (cx, cy), (8, 4), 20, 0, 360, grey, 1, cv2.LINE_AA)
+        elif kind == "link":
+            cv2.line(img, (cx - 9, cy), (cx, cy), (0, 200, 0), 2, cv2.LINE_AA)
+            cv2.line(img, (cx, cy), (cx + 9, cy), (255, 0, 0), 2, cv2.LINE_AA)
+        else:
+            cv2.fillPoly(img, [np.array([(cx - 9, cy + 5), (cx + 9, cy - 5), (cx + 9, cy + 5)], np.int32)],
+                         (225, 225, 235))
+        cv2.putText(img, text, (x0 + 28, cy + 4), font, fs, dark, 1, cv2.LINE_AA)
 
 
 def camera_view(
@@ -124,18 +188,27 @@ def camera_view(
     return img
 
 
-def compose_frame(top: np.ndarray, cameras: list[np.ndarray], columns: int = 3) -> np.ndarray:
-    """Top view on the left, camera views in a grid of ``columns`` on the right."""
+def compose_frame(top: np.ndarray, cameras: list[np.ndarray], columns: int | None = None) -> np.ndarray:
+    """Top view on the left, camera views in a grid on the right, scaled to the top view's height.
+
+    ``columns`` defaults to the most columns whose grid is no wider than the top view; the tiles keep
+    the cameras' aspect ratio and together fill the canvas's height, so nothing is left blank but the
+    spare cells of the last row.
+    """
     if not cameras:
         return top
+    n = len(cameras)
     ch, cw = cameras[0].shape[:2]
-    rows = -(-len(cameras) // columns)
-    grid = np.full((max(rows * ch, top.shape[0]), columns * cw, 3), 255, np.uint8)
-    for n, cam in enumerate(cameras):
-        r, c = divmod(n, columns)
-        grid[r * ch:(r + 1) * ch, c * cw:(c + 1) * cw] = cam
-    height = max(top.shape[0], grid.shape[0])
-    out = np.full((height, top.shape[1] + grid.shape[1], 3), 255, np.uint8)
-    out[: top.shape[0], : top.shape[1]] = top
-    out[: grid.shape[0], top.shape[1]:] = grid
-    return out
+
+    def tile(cols: int) -> tuple[int, int]:
+        h = top.shape[0] // -(-n // cols)
+        return h, max(int(round(h * cw / ch)), 1)
+
+    if columns is None:
+        columns = max([c for c in range(1, n + 1) if c * tile(c)[1] <= top.shape[1]], default=1)
+    th, tw = tile(columns)
+    grid = np.full((top.shape[0], columns * tw, 3), 40, np.uint8)
+    for k, cam in enumerate(cameras):
+        r, c = divmod(k, columns)
+        grid[r * th:(r + 1) * th, c * tw:(c + 1) * tw] = cv2.resize(cam, (tw, th), interpolation=cv2.INTER_LINEAR)
+    return np.concatenate([top, grid], axis=1)

@@ -275,8 +275,8 @@ def plot_table1(result: dict, path) -> None:
     import matplotlib.pyplot as plt
 
     names = list(result["table_mean_over_seeds"])
-    fig, axes = plt.subplots(1, 4, figsize=(13, 3.2))
-    for ax, key, label in zip(axes, ("position_m", "relative_position_pct", "yaw_deg", "fps"),
+    fig, axes = plt.subplots(2, 2, figsize=(8.2, 5.6))  # ~900 px wide: readable at README width
+    for ax, key, label in zip(axes.ravel(), ("position_m", "relative_position_pct", "yaw_deg", "fps"),
                               ("positional error [m]", "relative positional error [%]", "angular error [deg]", "frames per second")):
         values = [result["table_mean_over_seeds"][n][key] for n in names]
         shown = [v if v is not None else 0.0 for v in values]

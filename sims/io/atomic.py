@@ -23,11 +23,14 @@ from decentral.errors import InputError
 __all__ = ["write_atomic", "write_json_atomic", "remove_stale_parts", "first_non_finite"]
 
 
-def write_atomic(path: str | os.PathLike, write: Callable[[Any], None], *, binary: bool = False) -> None:
+def write_atomic(path: str | os.PathLike, write: Callable[[Any], None], *, binary: bool = False,
+                 mode: int | None = None) -> None:
     """Call ``write(fileobj)`` on a temporary file next to ``path``, then rename it to ``path``.
 
-    Raises :class:`InputError` naming ``path`` if it is a directory or its folder does not exist
-    or is not writable. On any error the temporary file is removed and ``path`` is left as it was.
+    The file gets permission bits ``mode`` (e.g. ``0o600`` for a secret; default: what ``open()``
+    would give). Raises :class:`InputError` naming ``path`` if it is a directory or its folder does
+    not exist or is not writable. On any error the temporary file is removed and ``path`` is left
+    as it was.
     """
     target = Path(path)
     folder = target.parent if str(target.parent) else Path(".")
@@ -43,7 +46,7 @@ def write_atomic(path: str | os.PathLike, write: Callable[[Any], None], *, binar
     try:
         with os.fdopen(fd, "wb" if binary else "w", **({} if binary else {"encoding": "utf-8"})) as fh:
             write(fh)
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the file the mode open() would
+        os.chmod(tmp, 0o666 & ~_umask() if mode is None else mode)  # mkstemp makes 0600
         os.replace(tmp, target)
     except OSError as err:
         _unlink(tmp)
@@ -113,8 +116,8 @@ def first_non_finite(value: Any, where: str = "") -> str | None:
     return None
 
 
-def write_json_atomic(path: str | os.PathLike, payload: Any) -> None:
-    """Write ``payload`` as indented JSON to ``path`` atomically.
+def write_json_atomic(path: str | os.PathLike, payload: Any, *, mode: int | None = None) -> None:
+    """Write ``payload`` as indented JSON to ``path`` atomically, with permission bits ``mode``.
 
     Raises
     ------
@@ -129,4 +132,4 @@ def write_json_atomic(path: str | os.PathLike, payload: Any) -> None:
         if field is None:
             raise
         raise InputError("is not a finite number; nothing was written", source=str(path), field=field) from None
-    write_atomic(path, lambda fh: fh.write(text + "\n"))
+    write_atomic(path, lambda fh: fh.write(text + "\n"), mode=mode)

@@ -8,7 +8,8 @@
                                  "tag": {"id": 5, "hamming": 0, "margin": 61.0,
                                          "corners": [[600.1, 395.0], [620.3, 395.4], [620.0, 410.8], [600.4, 410.2]]}}]}]}
 
-``id`` is the node id (null where neither the tag nor the track names the node), ``track`` the track
+A frame may carry its capture time ``"t"`` in seconds (optional; ``decentral build-log`` uses it to
+place the frame in time). ``id`` is the node id (null where neither the tag nor the track names the node), ``track`` the track
 number (null when untracked). ``tag`` (optional, beyond the contract) is the accepted tag read inside
 the circle: its tag id, hamming distance, decision margin and image corners (canonical order).
 
@@ -26,7 +27,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from decentral.errors import InputError
-from decentral.observations import Detection, ObservationLog
+from decentral.observations import Detection, ObservationLog, require_log
 from sims.io.atomic import write_json_atomic
 from sims.io.log_json import load_json
 from sims.io.validate import (
@@ -80,10 +81,11 @@ class DetectionRecord:
 
 @dataclass(frozen=True)
 class DetectionFrame:
-    """The detections of one frame, and the file (or ``video#index``) it came from."""
+    """The detections of one frame, the file (or ``video#index``) it came from, and its time [s] if known."""
 
     source: str
     detections: tuple[DetectionRecord, ...]
+    t: float | None = None
 
 
 def _finite(x: float) -> float:
@@ -107,7 +109,7 @@ def detections_to_dict(frames: Sequence[DetectionFrame]) -> dict:
                     "corners": [[_finite(x), _finite(y)] for x, y in np.asarray(d.tag.corners).reshape(4, 2)],
                 }
             dets.append(rec)
-        out.append({"source": fr.source, "detections": dets})
+        out.append({"source": fr.source, **({} if fr.t is None else {"t": float(fr.t)}), "detections": dets})
     return {"format": DETECTIONS_FORMAT, "frames": out}
 
 
@@ -156,7 +158,8 @@ def parse_detections(doc: Any) -> list[DetectionFrame]:
                 _optional_int(d.get("track"), f"{f}.track"),
                 tag,
             ))
-        frames.append(DetectionFrame(source, tuple(dets)))
+        t = None if fr.get("t") is None else require_number(fr["t"], f"{where}.t")
+        frames.append(DetectionFrame(source, tuple(dets), t))
     return frames
 
 
@@ -195,6 +198,7 @@ def assemble_log(
     InputError
         If a camera is not declared in the template or the frame count differs from the step count.
     """
+    template = require_log(template)
     for key, frames in detections.items():
         if key not in template.cameras:
             raise InputError(f"camera {key!r} is not declared in the log template", field="--camera")

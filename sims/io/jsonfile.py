@@ -18,6 +18,7 @@ import numpy as np
 
 from decentral.errors import InputError
 from sims.io.limits import Limits, current_limits, over_limit
+from sims.io.text import read_text
 
 __all__ = ["load_json", "loads_json", "json_depth"]
 
@@ -76,25 +77,7 @@ def loads_json(text: str, source: str, limits: Limits | None = None) -> Any:
 
 
 def load_json(path: str | os.PathLike, limits: Limits | None = None) -> Any:
-    """Read and parse the JSON file ``path`` under ``limits``; any defect is an :class:`InputError` naming it."""
+    """Read (:func:`sims.io.text.read_text`) and parse the JSON file ``path`` under ``limits``; any
+    defect is an :class:`InputError` naming it."""
     limits = limits or current_limits()
-    src = str(path)
-    try:
-        with open(path, "rb") as fh:
-            size = os.fstat(fh.fileno()).st_size
-            if size > limits.max_file_mb * 1e6:
-                raise over_limit("file size", round(size / 1e6, 1), "max_file_mb", limits.max_file_mb, " MB", source=src)
-            raw = fh.read(int(limits.max_file_mb * 1e6) + 1)  # bounded even if the file grows meanwhile
-    except FileNotFoundError:
-        raise InputError("file not found", source=src) from None
-    except IsADirectoryError:
-        raise InputError("is a directory, not a file", source=src) from None
-    except OSError as err:
-        raise InputError(f"cannot read file ({err.strerror})", source=src) from None
-    if len(raw) > limits.max_file_mb * 1e6:
-        raise over_limit("file size", round(len(raw) / 1e6, 1), "max_file_mb", limits.max_file_mb, " MB", source=src)
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError:
-        raise InputError("not a UTF-8 text file", source=src) from None
-    return loads_json(text, src, limits)
+    return loads_json(read_text(path, limits), str(path), limits)

@@ -9,7 +9,7 @@ command with one line naming the file, the field and the variable that raises th
 ========================  ======================  ====================================================
 variable                  default                 what it bounds
 ========================  ======================  ====================================================
-DECENTRAL_MAX_FILE_MB     512                     size of a JSON input or an image file on disk
+DECENTRAL_MAX_FILE_MB     512                     size of a text input (JSON, TOML, ...) or image on disk
 DECENTRAL_MAX_JSON_DEPTH  32                      nesting of arrays and objects in a JSON input
 DECENTRAL_MAX_INT_DIGITS  32                      digits of an integer literal in a JSON input
 DECENTRAL_MAX_MODULES     1000000                 module count ``n`` of an ensemble
@@ -39,7 +39,8 @@ class Limits:
     Attributes
     ----------
     max_file_mb : float
-        Largest JSON input or image file, megabytes (10**6 bytes) on disk (videos are streamed).
+        Largest text input (JSON, TOML, trajectory) or image file, megabytes (10**6 bytes) on disk
+        (videos are streamed).
     max_json_depth : int
         Deepest nesting of JSON arrays/objects (a ``decentral.log/1`` needs 6).
     max_int_digits : int

@@ -22,6 +22,8 @@ from decentral.observations import (
     PlanarPose,
     Pose,
     Step,
+    require_estimate,
+    require_log,
 )
 from sims.io.atomic import write_json_atomic
 from sims.io.jsonfile import load_json
@@ -48,6 +50,8 @@ __all__ = [
     "LOG_FORMAT",
     "ESTIMATE_FORMAT",
     "load_json",
+    "parse_pose",
+    "parse_camera_matrix",
     "read_log",
     "parse_log",
     "log_to_dict",
@@ -86,7 +90,7 @@ def read_log(path: str | os.PathLike, limits: Limits | None = None) -> Observati
         raise err.located(str(path)) from None
 
 
-def _parse_pose(value: Any, field: str) -> Pose:
+def parse_pose(value: Any, field: str) -> Pose:
     value = require_mapping(value, field)
     for key in ("R", "p"):
         if key not in value:
@@ -94,7 +98,7 @@ def _parse_pose(value: Any, field: str) -> Pose:
     return Pose(require_rotation(value["R"], f"{field}.R"), require_vector(value["p"], f"{field}.p", 3, MAX_METRES))
 
 
-def _parse_K(value: Any, field: str) -> np.ndarray:
+def parse_camera_matrix(value: Any, field: str) -> np.ndarray:
     K = require_matrix(value, field, 3, 3, MAX_PIXELS)
     if abs(np.linalg.det(K)) < 1e-9 or K[0, 0] < MIN_PIXELS or K[1, 1] < MIN_PIXELS:
         raise InputError("camera matrix is singular or has non-positive focal lengths", field=field)
@@ -117,9 +121,9 @@ def _parse_cameras(assemblies: dict) -> dict[str, Camera]:
             camera = Camera(
                 assembly=name,
                 name=cam_name,
-                K=_parse_K(cam["K"], f"{field}.K"),
-                strut_in_root=_parse_pose(cam["strut_in_root"], f"{field}.strut_in_root"),
-                cam_in_strut=_parse_pose(cam["cam_in_strut"], f"{field}.cam_in_strut"),
+                K=parse_camera_matrix(cam["K"], f"{field}.K"),
+                strut_in_root=parse_pose(cam["strut_in_root"], f"{field}.strut_in_root"),
+                cam_in_strut=parse_pose(cam["cam_in_strut"], f"{field}.cam_in_strut"),
             )
             cameras[camera.key] = camera
     return cameras
@@ -192,7 +196,7 @@ def _parse_mounts(value: Any, field: str, cameras: dict[str, Camera]) -> dict[st
     for key, pose in value.items():
         if key not in cameras:
             raise InputError("mount for an undeclared camera", field=f"{field}.{key}")
-        mounts[key] = _parse_pose(pose, f"{field}.{key}")
+        mounts[key] = parse_pose(pose, f"{field}.{key}")
     return mounts
 
 
@@ -241,6 +245,7 @@ def _pose_to_dict(pose: Pose) -> dict:
 
 def log_to_dict(log: ObservationLog) -> dict:
     """Return the ``decentral.log/1`` document of ``log`` (inverse of :func:`parse_log`)."""
+    log = require_log(log)
     assemblies: dict[str, dict] = {name: {} for name in log.assemblies}
     for camera in log.cameras.values():
         cams = assemblies[camera.assembly].setdefault("cameras", {})
@@ -276,6 +281,7 @@ def write_log(path: str | os.PathLike, log: ObservationLog) -> None:
 
 def estimate_to_dict(estimate: Estimate) -> dict:
     """Return the ``decentral.estimate/1`` document of ``estimate``."""
+    estimate = require_estimate(estimate)
     return {
         "format": ESTIMATE_FORMAT,
         "reference": estimate.reference,
@@ -286,6 +292,7 @@ def estimate_to_dict(estimate: Estimate) -> dict:
                     name: {"p": [float(x) for x in pose.p], "theta": float(pose.theta)}
                     for name, pose in step.poses.items()
                 },
+                "unplaced": dict(step.unplaced),
             }
             for step in estimate.steps
         ],
@@ -313,7 +320,11 @@ def parse_estimate(doc: Any) -> Estimate:
                 require_vector(pose.get("p"), f"steps[{k}].poses.{name}.p", 3, MAX_METRES),
                 require_number(pose.get("theta"), f"steps[{k}].poses.{name}.theta", MAX_ANGLE),
             )
-        steps.append(EstimateStep(require_number(raw.get("t"), f"steps[{k}].t", MAX_SECONDS), poses))
+        unplaced = require_mapping(raw.get("unplaced", {}), f"steps[{k}].unplaced")
+        for name, reason in unplaced.items():
+            if not isinstance(reason, str):
+                raise InputError("expected a reason string", field=f"steps[{k}].unplaced.{name}")
+        steps.append(EstimateStep(require_number(raw.get("t"), f"steps[{k}].t", MAX_SECONDS), poses, dict(unplaced)))
     return Estimate(doc["reference"], tuple(steps), doc.get("stats", {}))
 
 

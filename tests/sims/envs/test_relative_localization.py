@@ -166,3 +166,15 @@ def test_assemblies_reject_swarm_parameters():
     """A swarm-only parameter given to the assemblies scenario raises InputError naming it."""
     with pytest.raises(InputError, match="n_robots"):
         relative_localization_v0.parallel_env(scenario="assemblies", n_robots=3)
+
+
+def test_render_fills_its_canvas_and_draws_a_scale_bar():
+    """The camera grid spans the top view's full height, and the bottom-right scale bar is drawn (dark pixels)."""
+    env = relative_localization_v0.parallel_env(**SMALL, render_mode="rgb_array")
+    env.reset(seed=0)
+    frame = env.render()
+    h = frame.shape[0]
+    right = frame[:, h:]  # the top view is square (h x h); cameras fill the rest
+    assert right.shape[1] > 0 and (right[-3:] != 255).any(axis=2).all()
+    corner = frame[h - 30:h - 5, h - 140:h - 10]
+    assert (corner.max(axis=2) < 60).sum() > 50
