@@ -28,7 +28,14 @@ from decentral.observations import Pose
 from sims.io.log_json import load_json, parse_pose
 from sims.io.text import read_text
 from sims.io.trajectories import Trajectory
-from sims.io.validate import require_int, require_list, require_mapping, require_number, require_vector
+from sims.io.validate import (
+    MAX_METRES,
+    require_int_key,
+    require_list,
+    require_mapping,
+    require_number,
+    require_vector,
+)
 
 __all__ = ["LAYOUT_FORMAT", "Layout", "yaw_from_quaternion", "checked_trajectory", "parse_nodes",
            "read_trajectory_file",
@@ -160,7 +167,8 @@ def parse_nodes(value, field: str) -> dict[int, np.ndarray]:
     value = require_mapping(value, field)
     if not value:
         raise InputError("an assembly needs at least one node", field=field)
-    return {require_int(k, f"{field}.{k}"): require_vector(c, f"{field}.{k}", 3) for k, c in value.items()}
+    return {require_int_key(k, f"{field}.{k}"): require_vector(c, f"{field}.{k}", 3, MAX_METRES)
+            for k, c in value.items()}
 
 
 def read_layout(path: str | os.PathLike) -> Layout:
