@@ -106,6 +106,19 @@ def check_name(name: object) -> str:
     return name
 
 
+class _DuplicateKey(Exception):
+    """A JSON object names a key twice (a peer given twice must not silently be the last one)."""
+
+
+def _unique_keys(pairs: list) -> dict:
+    out: dict = {}
+    for key, value in pairs:
+        if key in out:
+            raise _DuplicateKey(key)
+        out[key] = value
+    return out
+
+
 def _read_json(path: str | os.PathLike, fmt: str) -> dict:
     source = str(path)
     try:
@@ -116,9 +129,13 @@ def _read_json(path: str | os.PathLike, fmt: str) -> dict:
     if len(raw) > _MAX_FILE:
         raise InputError(f"larger than {_MAX_FILE} bytes", source=source)
     try:
-        data = json.loads(raw.decode("utf-8"))
+        data = json.loads(raw.decode("utf-8"), object_pairs_hook=_unique_keys)
+    except _DuplicateKey as err:
+        raise InputError("key given twice in one object", source=source, field=str(err)) from None
     except (UnicodeDecodeError, json.JSONDecodeError) as err:
         raise InputError(f"not valid JSON ({err})", source=source) from None
+    except RecursionError:
+        raise InputError("not valid JSON (nested too deeply)", source=source) from None
     if not isinstance(data, dict):
         raise InputError("must be a JSON object", source=source)
     if data.get("format") != fmt:
