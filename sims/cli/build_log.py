@@ -20,17 +20,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
     from decentral.errors import InputError
     from sims.build_log import build_log
     from sims.io.atomic import write_json_atomic
     from sims.io.log_json import write_log
+    from sims.io.paths import check_output
     from sims.io.rig import read_rig
 
-    for out in (args.output, args.report):  # fail before the work, not half-way through the writes
-        if out is not None and not Path(out).resolve().parent.is_dir():
-            raise InputError("output folder does not exist", source=str(out))
+    check_output(args.output, [args.rig])  # fail before the work, not half-way through the writes
+    if args.report is not None:
+        check_output(args.report, [args.rig, args.output], field="--report")
     rig = read_rig(args.rig)
     try:
         log, report = build_log(rig)
