@@ -113,3 +113,18 @@ def test_numbers_are_never_parsed_out_of_strings():
         Hello(sender="a", receiver="b", round=0, z=("0.05", "0"))
     with pytest.raises(ProtocolError, match="numbers expected"):
         Tracks(sender="a", receiver="b", round=0, t=0.0, camera="a/c", ids=[1], uvr=[["1", "2", "3"]])
+
+
+def test_every_registered_kind_has_a_fuzz_sample():
+    """The fuzz corpus holds a valid message of every kind the protocol packages register (add new kinds
+    to ``tests/protocols/frame_fuzz.py::sample_messages``)."""
+    import importlib
+    import pkgutil
+
+    import protocols
+    from protocols.messages import registered_kinds
+
+    for module in pkgutil.walk_packages(protocols.__path__, "protocols."):
+        importlib.import_module(module.name)
+    covered = {type(m).KIND for m in sample_messages()}
+    assert set(registered_kinds()) <= covered, sorted(set(registered_kinds()) - covered)
