@@ -256,6 +256,8 @@ def read_rig(path: str | os.PathLike) -> Rig:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise InputError(f"not valid TOML ({err})", source=str(path)) from None
+    except RecursionError:  # arrays or tables nested past the parser's recursion limit
+        raise InputError("not valid TOML (nested too deeply)", source=str(path)) from None
     try:
         return parse_rig(doc, Path(path).parent, str(path))
     except InputError as err:

@@ -80,6 +80,15 @@ def test_assembly_count_is_bounded(log_doc, tmp_path, monkeypatch):
     assert "DECENTRAL_MAX_ASSEMBLIES" in out.lines[0]
 
 
+def test_a_deeply_nested_rig_file_is_refused(tmp_path):
+    """A TOML rig nested 100,000 deep is refused in one line (no RecursionError)."""
+    rig = tmp_path / "rig.toml"
+    rig.write_text("a = " + "[" * 100_000 + "]" * 100_000 + "\n")
+    out = run_in_process(["build-log", rig, "-o", tmp_path / "log.json"], tmp_path)
+    assert_refused(out, "rig.toml")
+    assert "nested too deeply" in out.lines[0]
+
+
 def test_a_node_id_given_twice_in_one_assembly_is_refused(log_doc, tmp_path):
     """Duplicate JSON keys (a node listed twice) are refused, not silently the last one."""
     text = json.dumps(log_doc).replace('"A1": {"10": [0.0, 0.0, 0.0]}', '"A1": {"10": [0.0, 0.0, 0.0], "10": [9, 9, 9]}', 1)
