@@ -126,5 +126,6 @@ def test_every_registered_kind_has_a_fuzz_sample():
 
     for module in pkgutil.walk_packages(protocols.__path__, "protocols."):
         importlib.import_module(module.name)
+    shipped = {kind for kind, cls in registered_kinds().items() if cls.__module__.startswith("protocols.")}
     covered = {type(m).KIND for m in sample_messages()}
-    assert set(registered_kinds()) <= covered, sorted(set(registered_kinds()) - covered)
+    assert shipped <= covered, sorted(shipped - covered)  # kinds registered by tests are not shipped
