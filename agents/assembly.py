@@ -264,7 +264,7 @@ class AssemblyAgent:
         self._own_forms: tuple | None = None  # (step, keys, forms, pin) last shared (answers late askers)
         self._table_changed = 0  # last round the gossip table changed by more than the tolerances
         self._hold = 0  # the ADMM of this window starts at this round (after the forms are shared)
-        self._tree: dict[str, tuple[int, int, int]] = {}  # neighbour -> (hop, parent index, round heard)
+        self._tree: dict[str, tuple[int, int, int, int]] = {}  # neighbour -> (hop, parent index, round heard, step)
         self._hop: int | None = 0 if config.name == config.reference else None
         self._parent: int | None = None
         self._tree_depth = 1  # depth of the aggregation tree in the last down bundle
@@ -276,14 +276,23 @@ class AssemblyAgent:
         self._table_version = 0  # bumped on every material change of the gossip table
         self._expected: set[str] = set()  # observers whose first values a seeded start waits for
         self._table_sent: dict[str, tuple[int, int]] = {}  # neighbour -> (version, round) last sent
+        #: set by the runtime's local rule (:class:`agents.runtime.LocalAgent`) once this agent's window is done:
+        #: its ADMM values then carry a ``done`` block, so that quiet neighbours do not answer them
+        self.window_done = False
 
     # ------------------------------------------------------------------ sensing
     @property
     def name(self) -> str:
         return self.config.name
 
-    def on_step(self, own: OwnStep) -> None:
-        """Take the assembly's own observations of a new step and slide the window."""
+    def advance(self, round_index: int) -> None:
+        """The runtime's clock: the round under way, also while the agent runs no half rounds (quiet)."""
+        self._round = max(self._round, int(round_index))
+
+    def on_step(self, own: OwnStep, round_index: int | None = None) -> None:
+        """Take the assembly's own observations of a new step (at round ``round_index``) and slide the window."""
+        if round_index is not None:
+            self.advance(round_index)
         cfg = self.config
         first = self._step is None and own.step == 0
         self._seeds = {}
@@ -293,10 +302,10 @@ class AssemblyAgent:
         self._form_sig = None
         if cfg.share_forms == "every" or (cfg.share_forms == "first" and first):
             self._parent, self._hop = self._tree_position()
-            me, fresh = self._index[self.name], self._tree_fresh()
+            me = self._index[self.name]
             agg = TreeAggregation(me, len(cfg.assemblies), root=self.name == cfg.reference, parent=self._parent,
-                                  children={self._index[a] for a, (_, p, r) in self._tree.items()
-                                            if p == me and self._round - r <= fresh},
+                                  children={self._index[a] for a, entry in self._tree.items()
+                                            if entry[1] == me and self._fresh(entry)},
                                   start=self._round + 1, wait=cfg.patience, hop=self._hop or 0)
             self._boot = {"records": agg.records, "agg": agg, "mode": None, "start": None, "sent": -(10**9),
                           "waited": 0, "step": own.step, "pin": None, "start_at": 0}
@@ -408,7 +417,7 @@ class AssemblyAgent:
             b = message.blocks
             tree = b.get("tree")
             if tree is not None and tree.shape == (2,):
-                self._tree[message.sender] = (int(tree[0]), int(tree[1]), self._round)
+                self._tree[message.sender] = (int(tree[0]), int(tree[1]), self._round, self._step)
             self._ask(message.sender, int(message.window))
             x, meta = b.get("x"), b.get("meta")
             if x is None or meta is None or x.ndim != 2 or x.shape[1] != 8 or meta.shape != (4,):
@@ -484,8 +493,14 @@ class AssemblyAgent:
             self._pairs[target] = pair
         self._dirty = False
 
-    def tick(self, round_index: int) -> None:
-        """Run the next phase of ADMM round ``round_index`` (phase 0: pairs; phase 1: consensus)."""
+    def tick(self, round_index: int, phase: int | None = None) -> None:
+        """Run the next phase of ADMM round ``round_index`` (phase 0: pairs; phase 1: consensus).
+
+        ``phase`` names the half round explicitly (a runtime that skips the ticks of a quiet agent,
+        :mod:`agents.runtime`); without it the phases alternate from call to call.
+        """
+        if phase is not None:
+            self._phase = phase
         if self._step is None:
             return
         self._round = round_index
@@ -514,6 +529,12 @@ class AssemblyAgent:
                                               ids=np.array(sorted(self._unknown), dtype=np.int64)))
             self._requested = self._round
 
+    def _fresh(self, entry: tuple[int, int, int, int]) -> bool:
+        """Whether a neighbour's tree entry is recent: heard within :meth:`_tree_fresh` rounds, or in this
+        window or the one before (rounds between windows depend on the pace of the sensor steps, which
+        a process does not choose)."""
+        return self._round - entry[2] <= self._tree_fresh() or entry[3] is not None and entry[3] >= (self._step or 0) - 1
+
     def _tree_fresh(self) -> int:
         """Rounds for which a neighbour's place in the tree is trusted (a window's sharing and ADMM fit in)."""
         return 2 * self.config.share_timeout
@@ -522,8 +543,7 @@ class AssemblyAgent:
         """(parent index, hop count to the reference) from the neighbours' recent hops (distance vector)."""
         if self.name == self.config.reference:
             return None, 0
-        fresh = self._tree_fresh()
-        hops = {self._index[a]: h for a, (h, _, r) in self._tree.items() if self._round - r <= fresh}
+        hops = {self._index[a]: entry[0] for a, entry in self._tree.items() if self._fresh(entry)}
         return choose_parent(hops, len(self.config.assemblies))
 
     def _bootstrap_phase(self) -> None:
@@ -692,7 +712,7 @@ class AssemblyAgent:
                 or (len(message.members) and message.members.max() >= n)):
             self.counters["ignored"] += 1
             return
-        self._tree[message.sender] = (message.hop, message.parent, self._round)
+        self._tree[message.sender] = (message.hop, message.parent, self._round, self._step)
         boot, late = self._boot, self._late
         names = self.config.assemblies
         records = {i: [(keys, LocalProblem(tuple((names[a], s) for a, s in keys), M, b_z, c_z))
@@ -820,7 +840,8 @@ class AssemblyAgent:
             for a, b in edges:
                 other = b if a == me else a if b == me else None
                 if other is not None and other != me and other in hops:
-                    self._tree[self.config.assemblies[other]] = (hops[other], parents.get(other, -1), self._round)
+                    self._tree[self.config.assemblies[other]] = (hops[other], parents.get(other, -1), self._round,
+                                                                 self._step)
         # the seeded duals balance only with every observer's contribution: wait for their first values
         names, me = self.config.assemblies, self._index[self.name]
         self._expected = {names[keys[0][0]] for idx in boot["records"] for keys, _ in boot["records"][idx]
@@ -1010,6 +1031,8 @@ class AssemblyAgent:
     def _with_table(self, blocks: dict, receiver: str) -> dict:
         """``blocks`` plus the sender's place in the aggregation tree (``tree``: hop to the reference, parent;
         -1 for none) and the gossip table if it changed since it last went to ``receiver`` (or is due)."""
+        if self.window_done:
+            blocks = dict(blocks, done=_DONE)
         if self.config.aggregation == "tree":
             blocks = dict(blocks, tree=np.array([-1 if self._hop is None else self._hop,
                                                  -1 if self._parent is None else self._parent], float))
@@ -1090,6 +1113,9 @@ class AssemblyAgent:
             p = np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1], d[2]])  # seed 000 eq. (19)
             out[self.config.assemblies[i]] = PlanarPose(p, float(wrap_angle(row[6] - me[6])))
         return out
+
+
+_DONE = np.ones(1)
 
 
 def _packed(metric: tuple[np.ndarray, float]) -> list[float]:

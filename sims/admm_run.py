@@ -3,10 +3,13 @@
 The runner is the simulator, not a participant: it hands each agent its own sensors' data step by
 step (:func:`own_step`, never another assembly's data nor ground truth), moves messages through a
 seeded :class:`protocols.SimulatedNetwork`, and runs ADMM rounds (two phases each, half a round
-period apart) until every live agent reports convergence for ``settle`` consecutive rounds or
-``max_rounds`` is reached; then the next log step comes. The estimate it returns is the reference
-agent's own (:meth:`AssemblyAgent.estimates`), in ``decentral.estimate/1`` form, with message, byte
-and round counts per kind and per agent in ``stats``.
+period apart) through the same :class:`agents.runtime.AgentHost` a process uses. Each agent decides
+alone when its window is done (:class:`agents.runtime.WindowRule`: its own convergence flag held for
+``settle`` rounds, or the round budget ``max_rounds``) and freezes its estimate of the step then; the
+next log step comes once every live agent has gone quiet and nothing is in flight (nothing would
+happen before the next sensor step) or after ``max_rounds``. The estimate it returns is the reference
+agent's own frozen estimates, in ``decentral.estimate/1`` form, with message, byte and round counts
+per kind and per agent in ``stats``.
 
 A crashed agent (:class:`protocols.Crash`) is skipped while down and restarts with empty state when
 it comes back (it must catch up from its peers); a partition only cuts links.
@@ -20,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from agents.assembly import AgentConfig, AssemblyAgent, OwnStep
+from agents.runtime import AgentHost, LocalAgent, WindowRule
 from decentral.admm import AdmmConfig
 from decentral.errors import InputError
 from decentral.factors import NoiseModel
@@ -48,8 +52,9 @@ class AdmmRunConfig:
     round_period : float
         Simulated seconds per ADMM round.
     max_rounds, min_rounds, settle : int
-        Rounds per log step: at most ``max_rounds``; stop after ``min_rounds`` once every live agent
-        has reported convergence ``settle`` rounds in a row.
+        Each agent's local window rule (:class:`agents.runtime.WindowRule`): its window is done once its
+        own convergence flag held ``settle`` rounds in a row (after ``min_rounds``), or after the round
+        budget ``max_rounds`` between sensor steps.
     crashes, partitions : tuple
         Fault schedule in simulated network time (``round * round_period``).
     announce_every : int
@@ -60,6 +65,10 @@ class AdmmRunConfig:
     aggregation : {"tree", "broadcast"}
         How the forms travel once agents know their route to the reference: up and down a spanning
         tree of the view graph (default) or broadcast by every agent (the cold start's way).
+    fast_forward : bool
+        Start the next step as soon as every live agent is quiet and nothing is in flight (default:
+        nothing would happen before it); ``False`` runs every step's whole round budget, as processes at
+        a fixed pace do (the estimates and message counts are the same).
     """
 
     window: int = 5
@@ -78,6 +87,7 @@ class AdmmRunConfig:
     announce_every: int = 5
     share_forms: str = "every"
     aggregation: str = "tree"
+    fast_forward: bool = True
 
     def __post_init__(self) -> None:
         if not (isinstance(self.window, int) and self.window >= 1):
@@ -165,7 +175,18 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
         link=LinkConfig(drop=config.loss, latency=config.latency, jitter=config.jitter, duplicate=config.duplicate),
         partitions=config.partitions, crashes=config.crashes, round_period=config.round_period,
     ), np.random.default_rng(seed))
-    agents = {n: AssemblyAgent(_agent_config(log, n, reference, config)) for n in names}
+    rule = WindowRule(min_rounds=config.min_rounds, settle=config.settle, budget=config.max_rounds)
+    position = {n: i for i, n in enumerate(names)}
+    per_step: list[dict] = []  # per step: kind -> copies sent by each agent (names order)
+
+    def count(message):
+        row = per_step[-1].setdefault(message.KIND, [0] * len(names))
+        row[position[message.sender]] += len(names) - 1 if message.is_broadcast else 1
+
+    def host(n: str) -> AgentHost:
+        return AgentHost(LocalAgent(AssemblyAgent(_agent_config(log, n, reference, config)), rule), net, count)
+
+    hosts = {n: host(n) for n in names}
     was_down = {n: False for n in names}
     half = 0
     rounds_global = 0
@@ -173,58 +194,44 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
     rounds, converged, per_agent, est_steps = [], [], [], []
     restarts = {n: 0 for n in names}
     tick_seconds = 0.0
-    position = {n: i for i, n in enumerate(names)}
-    per_step: list[dict] = []  # per step: kind -> copies sent by each agent (names order)
-
-    def send(message, when, counts):
-        net.send(message, when)
-        row = counts.setdefault(message.KIND, [0] * len(names))
-        row[position[message.sender]] += len(names) - 1 if message.is_broadcast else 1
     for k in range(len(log.steps)):
         t = now()
-        counts: dict[str, list[int]] = {}
-        per_step.append(counts)
+        per_step.append({})
         for n in names:
             down = net.is_down(n, t)
             if was_down[n] and not down:
-                agents[n] = AssemblyAgent(_agent_config(log, n, reference, config))  # restarts empty
+                hosts[n] = host(n)  # restarts empty
                 restarts[n] += 1
             was_down[n] = down
             if not down:
-                agents[n].on_step(own_step(log, n, k))
-                for m in agents[n].outbox():
-                    send(m, t, counts)
-        streak = r = 0
+                hosts[n].on_step(own_step(log, n, k), t, rounds_global)
+        # the next step comes when every live agent has ended its window by its own rule and nothing is in
+        # flight (what processes do while they wait for the next sensor step), or after the round budget
+        r = 0
         while r < config.max_rounds:
-            for _phase in (0, 1):
+            for phase in (0, 1):
                 half += 1
                 t = now()
                 t0 = time.perf_counter()
                 for n in names:
-                    if net.is_down(n, t):
-                        continue
-                    agent = agents[n]
-                    for delivery in net.poll(n, t):
-                        agent.handle(delivery.message)
-                    agent.tick(rounds_global)
-                    for m in agent.outbox():
-                        send(m, t, counts)
+                    if not net.is_down(n, t):
+                        hosts[n].half_round(t, rounds_global, phase)
                 tick_seconds += time.perf_counter() - t0
             r += 1
             rounds_global += 1
             live = [n for n in names if not net.is_down(n, now())]
-            if r >= config.min_rounds and live and all(agents[n].converged for n in live):
-                streak += 1
-                if streak >= config.settle:
-                    break
-            else:
-                streak = 0
+            if (config.fast_forward and all(hosts[n].agent.quiet for n in live)
+                    and not any(net.pending(n) for n in live)):
+                break
         live = [n for n in names if not net.is_down(n, now())]
+        for n in live:
+            hosts[n].agent.end_window()
         rounds.append(r)
-        converged.append(bool(live) and all(agents[n].converged for n in live))
-        per_agent.append({n: agents[n].estimates() for n in live})
-        ref_poses = agents[reference].estimates() if reference in live else {}
+        converged.append(bool(live) and all(hosts[n].agent.converged for n in live))
+        per_agent.append({n: hosts[n].agent.window_estimate for n in live})
+        ref_poses = hosts[reference].agent.window_estimate if reference in live else {}
         est_steps.append(EstimateStep(log.steps[k].t, ref_poses))
+    agents = {n: h.agent.agent for n, h in hosts.items()}
     transport = net.stats().as_dict()
     seconds = time.perf_counter() - start
     total_rounds = int(sum(rounds))
