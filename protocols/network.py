@@ -47,11 +47,27 @@ from decentral.errors import InputError, ProtocolError
 from protocols.messages import BROADCAST, Message, decode
 from protocols.transport import Counts, Delivery, Transport, TransportStats
 
-__all__ = ["LinkConfig", "Partition", "Crash", "NetworkConfig", "BatchDelivery", "SimulatedNetwork"]
+__all__ = ["link_root", "link_stream", "LinkConfig", "Partition", "Crash", "NetworkConfig", "BatchDelivery",
+           "SimulatedNetwork"]
 
 #: a broadcast is one frame delivered to many receivers; messages are immutable, so decoding the same
 #: bytes once and sharing the result is exact (a corrupted copy has other bytes and fails on its own)
 _decode_frame = functools.lru_cache(maxsize=2048)(decode)
+
+
+def link_root(rng: np.random.Generator) -> list[int]:
+    """Root entropy of the per-link streams, drawn once from ``rng`` (128 bits)."""
+    return [int(x) for x in rng.integers(0, 2**32, size=4, dtype=np.uint64)]
+
+
+def link_stream(root: list[int], a: str, b: str) -> np.random.Generator:
+    """The random stream of the directed link ``a -> b``: ``SeedSequence(root, spawn_key=(crc32(a), crc32(b)))``.
+
+    Keyed by the names, so adding an agent or a link never changes another link's stream, and two
+    processes given the same root draw the same stream for the same link.
+    """
+    seq = np.random.SeedSequence(root, spawn_key=(zlib.crc32(a.encode("utf-8")), zlib.crc32(b.encode("utf-8"))))
+    return np.random.default_rng(seq)
 
 
 def _prob(value: float, name: str) -> None:
@@ -256,7 +272,7 @@ class SimulatedNetwork(Transport):
 
     def __init__(self, config: NetworkConfig, rng: np.random.Generator):
         self.config = config
-        self._root = [int(x) for x in rng.integers(0, 2**32, size=4, dtype=np.uint64)]
+        self._root = link_root(rng)
         self._rngs: dict[tuple[str, str], np.random.Generator] = {}
         self._free_at: dict[tuple[str, str], float] = {}
         self._queues: dict[str, list[_InFlight]] = {a: [] for a in config.agents}
@@ -302,10 +318,7 @@ class SimulatedNetwork(Transport):
         key = (a, b)
         gen = self._rngs.get(key)
         if gen is None:
-            seq = np.random.SeedSequence(
-                self._root, spawn_key=(zlib.crc32(a.encode("utf-8")), zlib.crc32(b.encode("utf-8")))
-            )
-            gen = self._rngs[key] = np.random.default_rng(seq)
+            gen = self._rngs[key] = link_stream(self._root, a, b)
         return gen
 
     def send(self, message: Message, now: float) -> None:

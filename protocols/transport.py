@@ -9,6 +9,14 @@ Counting convention (every implementation keeps it): each copy of a message hand
 *sent* once; a duplicate made by the link counts in *duplicated*; each copy ends *delivered* or
 *dropped*, or is still *in flight*. So for every agent, link and kind,
 ``sent + duplicated == delivered + dropped + in_flight``. A broadcast counts once per receiving link.
+
+A transport whose two ends live in different processes (:class:`protocols.zmq_transport.ZmqTransport`)
+keeps the same books split between them: the sending process counts ``sent`` and one copy
+``in_flight``, the receiving process counts the copy out of ``in_flight`` (so its own ``in_flight``
+goes negative) and into ``delivered``, ``dropped`` or ``duplicated``. Each process's books are half
+of each remote link; :func:`merge_stats` adds the books of every process into the balanced whole.
+Frames a receiver refuses before it can trust who sent them (forged, replayed, malformed, unknown
+sender) are in no link's books: they are counted by reason in ``rejected``.
 """
 
 from __future__ import annotations
@@ -20,7 +28,7 @@ from typing import Mapping
 
 from protocols.messages import Message
 
-__all__ = ["Delivery", "Counts", "TransportStats", "Transport"]
+__all__ = ["Delivery", "Counts", "TransportStats", "Transport", "Ledger", "merge_stats"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -94,7 +102,10 @@ class TransportStats:
         Per message ``KIND``.
     drop_reasons : Mapping[str, int]
         Dropped copies by cause (``"loss"``, ``"partition"``, ``"sender_down"``, ``"receiver_down"``,
-        ``"unknown_receiver"``).
+        ``"unknown_receiver"``, ``"queue_full"``).
+    rejected : Mapping[str, int]
+        Inbound frames refused by reason (``"bad_signature"``, ``"replay"``, ``"unknown_sender"``,
+        ``"malformed"``); counted in no other field. Always empty for the simulated network.
     """
 
     total: Counts
@@ -103,6 +114,7 @@ class TransportStats:
     per_link: Mapping[tuple[str, str], Counts] = field(default_factory=lambda: MappingProxyType({}))
     per_kind: Mapping[str, Counts] = field(default_factory=lambda: MappingProxyType({}))
     drop_reasons: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}))
+    rejected: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}))
 
     def as_dict(self) -> dict:
         """JSON-ready form (links keyed ``"sender->receiver"``)."""
@@ -113,6 +125,7 @@ class TransportStats:
             "per_link": {f"{a}->{b}": v.as_dict() for (a, b), v in self.per_link.items()},
             "per_kind": {k: v.as_dict() for k, v in self.per_kind.items()},
             "drop_reasons": dict(self.drop_reasons),
+            "rejected": dict(self.rejected),
         }
 
 
@@ -146,3 +159,84 @@ class Transport(abc.ABC):
     def deliver(self, now: float) -> dict[str, list[Delivery]]:
         """Poll every agent at ``now``: agent -> its arrivals (agents with none are included, empty)."""
         return {agent: self.poll(agent, now) for agent in self.agents}
+
+
+_FIELDS = Counts.__slots__
+_IDX = {name: i for i, name in enumerate(_FIELDS)}
+_SCOPES = ("sender", "receiver", "link", "kind")
+
+
+class Ledger:
+    """The books of a transport: counters per total, sender, receiver, link and kind, plus drop and
+    rejection reasons, snapshotted as :class:`TransportStats`."""
+
+    def __init__(self) -> None:
+        self._rows: dict[tuple[str, object], list[int]] = {}
+        self._reasons: dict[str, int] = {}
+        self._rejected: dict[str, int] = {}
+
+    def count(self, a: str, b: str, kind: str, *changes: tuple[str, int]) -> None:
+        """Add each ``(counter name, amount)`` to the copy's total, sender, receiver, link and kind rows."""
+        width = len(_FIELDS)
+        for key in (("total", None), ("sender", a), ("receiver", b), ("link", (a, b)), ("kind", kind)):
+            row = self._rows.get(key)
+            if row is None:
+                row = self._rows[key] = [0] * width
+            for name, n in changes:
+                row[_IDX[name]] += n
+
+    def drop(self, a: str, b: str, kind: str, size: int, reason: str, *changes: tuple[str, int]) -> None:
+        """Count one dropped copy of ``size`` bytes (and any further ``changes``) under ``reason``."""
+        self.count(a, b, kind, ("dropped", 1), ("bytes_dropped", size), *changes)
+        self._reasons[reason] = self._reasons.get(reason, 0) + 1
+
+    def reject(self, reason: str) -> None:
+        """Count one refused inbound frame under ``reason``."""
+        self._rejected[reason] = self._rejected.get(reason, 0) + 1
+
+    def snapshot(self, extra_rows: dict | None = None) -> TransportStats:
+        """A frozen :class:`TransportStats` of the books (plus ``extra_rows``: key -> counts, added)."""
+        rows = {key: list(vals) for key, vals in self._rows.items()}
+        for key, vals in (extra_rows or {}).items():
+            row = rows.setdefault(key, [0] * len(_FIELDS))
+            for f, v in enumerate(vals):
+                row[f] += int(v)
+        return _stats_from_rows(rows, self._reasons, self._rejected)
+
+
+def _stats_from_rows(rows: dict, reasons: Mapping[str, int], rejected: Mapping[str, int]) -> TransportStats:
+    def scope(name: str) -> Mapping:
+        picked = sorted(((key, vals) for (k, key), vals in rows.items() if k == name), key=lambda kv: str(kv[0]))
+        return MappingProxyType({key: Counts(*vals) for key, vals in picked})
+
+    return TransportStats(
+        total=Counts(*rows.get(("total", None), [0] * len(_FIELDS))),
+        per_sender=scope("sender"),
+        per_receiver=scope("receiver"),
+        per_link=scope("link"),
+        per_kind=scope("kind"),
+        drop_reasons=MappingProxyType(dict(sorted(reasons.items()))),
+        rejected=MappingProxyType(dict(sorted(rejected.items()))),
+    )
+
+
+def merge_stats(parts: "list[TransportStats] | tuple[TransportStats, ...]") -> TransportStats:
+    """The sum of several transports' books (e.g. of every agent process): each counter added per key."""
+    rows: dict[tuple[str, object], list[int]] = {}
+    reasons: dict[str, int] = {}
+    rejected: dict[str, int] = {}
+
+    def add(key, counts: Counts) -> None:
+        row = rows.setdefault(key, [0] * len(_FIELDS))
+        for f, name in enumerate(_FIELDS):
+            row[f] += getattr(counts, name)
+
+    for part in parts:
+        add(("total", None), part.total)
+        for name, table in zip(_SCOPES, (part.per_sender, part.per_receiver, part.per_link, part.per_kind)):
+            for key, counts in table.items():
+                add((name, key), counts)
+        for book, src in ((reasons, part.drop_reasons), (rejected, part.rejected)):
+            for reason, n in src.items():
+                book[reason] = book.get(reason, 0) + n
+    return _stats_from_rows(rows, reasons, rejected)

@@ -1,0 +1,382 @@
+"""A real transport over ZeroMQ sockets, with signed frames and receive-side fault injection.
+
+Socket pattern: every agent binds one PULL socket at its address (from the peers file) and the
+transport holds one PUSH socket per peer, connected to that peer's address. PUSH/PULL has no
+late-joiner loss (unlike PUB/SUB): a PUSH socket queues frames for a peer that is not up yet (or is
+restarting) and hands them over when the connection comes up. Each queue holds at most ``hwm``
+frames; a send never blocks: a frame that finds its queue full is dropped at once and counted
+(``drop_reasons["queue_full"]``), never dropped silently. Every socket closes with linger 0, so no
+process waits on exit for frames nobody will read.
+
+Every frame is a signed envelope (:mod:`protocols.auth`); a receiver refuses forged, replayed,
+malformed and unknown-sender frames, counts them by reason in ``stats().rejected`` and goes on.
+Loss, duplication and delay can be injected *at the receiving side*, after a frame is admitted,
+with the behaviour of a :class:`protocols.network.LinkConfig` (``drop``, ``duplicate``,
+``latency``, ``jitter``) and each link's random stream derived as the simulated network derives it
+(:func:`protocols.network.link_stream`), so every process given the same ``rng`` seed draws the
+same fates for the same link: the ``k``-th frame admitted on a link always meets the same fate.
+
+Counting follows :mod:`protocols.transport`: the sending process counts ``sent``/``bytes_sent``
+(the envelope's size: framing included) and one copy in flight per receiving link; the receiving
+process moves each admitted copy out of flight into ``delivered`` or ``dropped`` (and counts
+``duplicated`` copies). :func:`protocols.transport.merge_stats` over every process's stats gives the
+balanced books.
+
+How an agent process uses it (``now`` is the runtime's wall clock, seconds)::
+
+    import time
+    import numpy as np
+    from protocols.messages import BROADCAST, Heartbeat
+    from protocols.peers import load_peers, load_private_key
+    from protocols.zmq_transport import ZmqTransport
+
+    name, key = load_private_key("keys/A0.key.json")
+    peers = load_peers("keys/peers.json")
+    with ZmqTransport({name: key}, peers, rng=np.random.default_rng(seed)) as net:
+        while running:
+            net.send(Heartbeat(sender=name, receiver=BROADCAST, round=k), time.time())
+            net.wait(0.01)                      # until a frame is readable, at most 10 ms
+            for d in net.poll(name, time.time()):
+                handle(d.message)               # authenticated and decoded
+        print(net.stats().as_dict())
+
+Several agents can share one transport (one process hosting several agents, e.g. in tests:
+:func:`open_loopback`); their frames still go through the sockets.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from dataclasses import dataclass, field
+from typing import Mapping
+
+import numpy as np
+import zmq
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
+
+from decentral.errors import InputError, ProtocolError
+from protocols.auth import Gate, Rejected, Signer, new_private_key, public_key_bytes
+from protocols.messages import Message
+from protocols.network import LinkConfig, link_root, link_stream
+from protocols.peers import Peer, check_address
+from protocols.transport import Delivery, Ledger, Transport, TransportStats
+
+__all__ = ["ZmqTransport", "open_loopback"]
+
+#: frames above this size are refused by the socket itself (libzmq drops the connection that sent it)
+DEFAULT_MAX_FRAME = 16 * 2**20
+
+
+@dataclass(order=True)
+class _Held:
+    """An admitted copy waiting for its injected delay to pass."""
+
+    arrival: float
+    order: int
+    message: Message = field(compare=False)
+    sent_at: float = field(compare=False)
+    size: int = field(compare=False)
+    duplicate: bool = field(compare=False)
+
+
+class _Endpoint:
+    """One local agent: its bound inbound socket, its signer, its gate, and copies held back by delay."""
+
+    def __init__(self, name: str, socket: zmq.Socket, signer: Signer, gate: Gate):
+        self.name = name
+        self.socket = socket
+        self.signer = signer
+        self.gate = gate
+        self.held: list[_Held] = []
+        self.address = socket.getsockopt_string(zmq.LAST_ENDPOINT)
+
+
+def _check_faults(cfg: LinkConfig, where: str) -> None:
+    if cfg.corrupt > 0 or math.isfinite(cfg.bandwidth):
+        raise InputError("a real transport injects only drop, duplicate, latency and jitter (not corrupt or "
+                         "bandwidth)", field=where)
+
+
+class ZmqTransport(Transport):
+    """:class:`protocols.transport.Transport` over ZeroMQ PUSH/PULL sockets with signed frames.
+
+    Parameters
+    ----------
+    keys : Mapping[str, Ed25519PrivateKey]
+        The local agents (usually one) and their signing keys; each must be in ``peers`` with the
+        matching public key.
+    peers : Mapping[str, Peer]
+        Every agent on the network (the peers file, :func:`protocols.peers.load_peers`).
+    rng : numpy.random.Generator, optional
+        Draws the root of the per-link fault streams (once); required when ``faults`` or ``links``
+        are random. Give every process the same seed.
+    faults : LinkConfig
+        Receive-side faults of every inbound link (default: none).
+    links : Mapping[tuple[str, str], LinkConfig]
+        Per inbound link ``(sender, receiver)`` overrides of ``faults``.
+    bind : Mapping[str, str], optional
+        Bind a local agent somewhere else than its peers-file address (``tcp://127.0.0.1:0`` binds a
+        free port; :attr:`addresses` tells which).
+    hwm : int
+        Frames each outbound and inbound queue holds (ZeroMQ high-water mark).
+    window : int
+        Replay window per sender (:class:`protocols.auth.ReplayWindow`).
+    max_frame_bytes : int
+        Larger inbound frames are refused by the socket.
+    max_batch : int
+        At most this many frames are read per :meth:`poll` (a flood cannot stall the caller).
+    """
+
+    def __init__(
+        self,
+        keys: Mapping[str, Ed25519PrivateKey],
+        peers: Mapping[str, Peer],
+        *,
+        rng: np.random.Generator | None = None,
+        faults: LinkConfig = LinkConfig(),
+        links: Mapping[tuple[str, str], LinkConfig] | None = None,
+        bind: Mapping[str, str] | None = None,
+        hwm: int = 2000,
+        window: int = 1024,
+        max_frame_bytes: int = DEFAULT_MAX_FRAME,
+        max_batch: int = 10_000,
+    ):
+        if not keys:
+            raise InputError("needs at least one local agent", field="keys")
+        self._peers = dict(peers)
+        for name, key in keys.items():
+            if name not in self._peers:
+                raise InputError(f"agent {name!r} is not in the peers file", field="peers")
+            if public_key_bytes(key) != self._peers[name].public_key:
+                raise InputError(f"the key of {name!r} does not match its public key in the peers file",
+                                 field=f"peers.{name}.public_key")
+        self._links = dict(links or {})
+        _check_faults(faults, "faults")
+        for pair, cfg in self._links.items():
+            _check_faults(cfg, f"links.{pair[0]}->{pair[1]}")
+        self._faults = faults
+        if rng is None and any(self._random(cfg) for cfg in (faults, *self._links.values())):
+            raise InputError("random faults need an rng", field="rng")
+        self._root = link_root(rng) if rng is not None else None
+        self._rngs: dict[tuple[str, str], np.random.Generator] = {}
+        self._hwm, self._max_batch = int(hwm), int(max_batch)
+        self._ledger = Ledger()
+        self._order = 0
+        self._closed = False
+        self._context = zmq.Context()
+        self._out: dict[str, zmq.Socket] = {}
+        self._local: dict[str, _Endpoint] = {}
+        public = {name: p.public_key for name, p in self._peers.items()}
+        try:
+            for name, key in keys.items():
+                address = (bind or {}).get(name, self._peers[name].address)
+                socket = self._socket(zmq.PULL)
+                socket.setsockopt(zmq.RCVHWM, self._hwm)
+                socket.setsockopt(zmq.MAXMSGSIZE, int(max_frame_bytes))
+                try:
+                    check_address(address, allow_any_port=True)
+                    socket.bind(address[:-2] + ":*" if address.endswith(":0") else address)
+                except (zmq.ZMQError, ValueError) as err:
+                    raise InputError(f"cannot listen on {address!r}: {err}", field=f"peers.{name}.address") from None
+                self._local[name] = _Endpoint(name, socket, Signer(name, key), Gate(name, public, window))
+                self._peers[name] = Peer(name, self._local[name].address, self._peers[name].public_key)
+            for name in self._peers:
+                self._connect(name)
+        except BaseException:
+            self.close()
+            raise
+
+    # ------------------------------------------------------------------ Transport
+    @property
+    def agents(self) -> tuple[str, ...]:
+        """The local agents (the ones :meth:`poll` serves)."""
+        return tuple(self._local)
+
+    @property
+    def peers(self) -> tuple[str, ...]:
+        """Every agent on the network, local or not."""
+        return tuple(self._peers)
+
+    @property
+    def addresses(self) -> dict[str, str]:
+        """Where each local agent actually listens (a port-0 bind resolved)."""
+        return {name: ep.address for name, ep in self._local.items()}
+
+    def send(self, message: Message, now: float) -> None:
+        """Sign ``message`` once and queue it to its receiver (a broadcast: to every other peer); never blocks."""
+        if not isinstance(message, Message):
+            raise ProtocolError(f"can only send Message objects, got {type(message).__name__}")
+        ep = self._local.get(message.sender)
+        if ep is None:
+            raise ProtocolError(f"sender {message.sender!r} is not a local agent of this transport")
+        self._check_open()
+        frame = ep.signer.seal(message, float(now))
+        a, kind, size = ep.name, message.KIND, len(frame)
+        receivers = [b for b in self._peers if b != a] if message.is_broadcast else [message.receiver]
+        for b in receivers:
+            self._ledger.count(a, b, kind, ("sent", 1), ("bytes_sent", size))
+            socket = self._out.get(b)
+            if socket is None:
+                self._ledger.drop(a, b, kind, size, "unknown_receiver" if b not in self._peers else "no_address")
+                continue
+            try:
+                socket.send(frame, zmq.NOBLOCK)
+            except zmq.Again:
+                self._ledger.drop(a, b, kind, size, "queue_full")
+                continue
+            self._ledger.count(a, b, kind, ("in_flight", 1))
+
+    def poll(self, agent: str, now: float) -> list[Delivery]:
+        """Read what has arrived for ``agent`` (never blocks), admit it, and return the copies due by ``now``."""
+        ep = self._local.get(agent)
+        if ep is None:
+            raise ProtocolError(f"agent {agent!r} is not a local agent of this transport")
+        self._check_open()
+        for _ in range(self._max_batch):
+            try:
+                frame = ep.socket.recv(zmq.NOBLOCK)
+            except zmq.Again:
+                break
+            self._admit(ep, frame, float(now))
+        out = []
+        while ep.held and ep.held[0].arrival <= now:
+            h = heapq.heappop(ep.held)
+            self._ledger.count(h.message.sender, agent, h.message.KIND, ("in_flight", -1), ("delivered", 1),
+                               ("bytes_delivered", h.size))
+            out.append(Delivery(h.message, agent, h.sent_at, h.arrival, h.size, h.duplicate))
+        return out
+
+    def stats(self) -> TransportStats:
+        return self._ledger.snapshot()
+
+    # ------------------------------------------------------------------ runtime helpers
+    def wait(self, timeout: float) -> bool:
+        """Block until a frame is readable on a local agent's socket or ``timeout`` seconds pass.
+
+        Returns whether a frame is readable. Copies held back by injected delay do not wake it: a
+        runtime that injects delay also wakes at :meth:`next_release`.
+        """
+        self._check_open()
+        poller = zmq.Poller()
+        for ep in self._local.values():
+            poller.register(ep.socket, zmq.POLLIN)
+        return bool(poller.poll(max(0, int(math.ceil(timeout * 1000)))))
+
+    def next_release(self, agent: str) -> float | None:
+        """Arrival time of the earliest copy held back by injected delay for ``agent`` (None if none)."""
+        held = self._local[agent].held
+        return held[0].arrival if held else None
+
+    def connect(self, addresses: Mapping[str, str]) -> None:
+        """Point the peers named in ``addresses`` at new addresses (frames already queued are discarded)."""
+        self._check_open()
+        for name, address in addresses.items():
+            if name not in self._peers:
+                raise InputError(f"agent {name!r} is not in the peers file", field="addresses")
+            try:
+                check_address(address)
+            except ValueError as err:
+                raise InputError(str(err), field=f"addresses.{name}") from None
+            if name in self._local:
+                raise InputError(f"agent {name!r} is local: its address is where it is bound", field="addresses")
+            self._peers[name] = Peer(name, address, self._peers[name].public_key)
+            old = self._out.pop(name, None)
+            if old is not None:
+                old.close(linger=0)
+            self._connect(name)
+
+    def close(self) -> None:
+        """Close every socket at once (linger 0: queued frames are discarded); safe to call twice."""
+        if self._closed:
+            return
+        self._closed = True
+        for socket in [*self._out.values(), *(ep.socket for ep in getattr(self, "_local", {}).values())]:
+            socket.close(linger=0)
+        self._context.term()
+
+    def __enter__(self) -> "ZmqTransport":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ internals
+    def _socket(self, kind: int) -> zmq.Socket:
+        socket = self._context.socket(kind)
+        socket.setsockopt(zmq.LINGER, 0)
+        return socket
+
+    def _connect(self, name: str) -> None:
+        """Open the PUSH socket to peer ``name`` if its address is known (port 0 = not yet)."""
+        address = self._peers[name].address
+        if address.endswith(":0"):
+            return
+        socket = self._socket(zmq.PUSH)
+        socket.setsockopt(zmq.SNDHWM, self._hwm)
+        socket.connect(address)
+        self._out[name] = socket
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise ProtocolError("the transport is closed")
+
+    @staticmethod
+    def _random(cfg: LinkConfig) -> bool:
+        return cfg.drop > 0 or cfg.duplicate > 0 or cfg.jitter > 0
+
+    def _admit(self, ep: _Endpoint, frame: bytes, now: float) -> None:
+        """Check one inbound frame; count a refusal by reason, else apply the link's faults and hold it."""
+        try:
+            env, message = ep.gate.admit(frame)
+        except Rejected as err:
+            self._ledger.reject(err.reason)
+            return
+        a, b, kind, size = env.sender, ep.name, message.KIND, len(frame)
+        cfg = self._links.get((a, b), self._faults)
+        # a fixed number of draws per admitted copy keeps each link's pattern independent of the rest
+        u_drop, u_dup, u_jit, u_jit2 = self._link_rng(a, b).random(4) if self._random(cfg) else (1.0, 1.0, 0.0, 0.0)
+        if u_drop < cfg.drop:
+            self._ledger.drop(a, b, kind, size, "loss", ("in_flight", -1))
+            return
+        self._hold(ep, _Held(now + cfg.latency + u_jit * cfg.jitter, 0, message, env.sent_at, size, False))
+        if u_dup < cfg.duplicate:
+            self._ledger.count(a, b, kind, ("duplicated", 1), ("in_flight", 1))
+            self._hold(ep, _Held(now + cfg.latency + u_jit2 * cfg.jitter, 0, message, env.sent_at, size, True))
+
+    def _hold(self, ep: _Endpoint, item: _Held) -> None:
+        self._order += 1
+        item.order = self._order
+        heapq.heappush(ep.held, item)
+
+    def _link_rng(self, a: str, b: str) -> np.random.Generator:
+        gen = self._rngs.get((a, b))
+        if gen is None:
+            gen = self._rngs[(a, b)] = link_stream(self._root, a, b)
+        return gen
+
+
+def open_loopback(
+    names: list[str] | tuple[str, ...], seed: int | None = None, **kwargs
+) -> tuple[dict[str, ZmqTransport], dict[str, Peer]]:
+    """One transport per agent on 127.0.0.1 free ports, keys made fresh, every transport connected to all.
+
+    Each transport gets its own ``np.random.default_rng(seed)`` (as separate processes given the
+    same ``--seed`` would); ``kwargs`` go to every :class:`ZmqTransport`. Returns (name ->
+    transport, the peers table with the bound addresses). The caller closes the transports.
+    """
+    keys = {name: new_private_key() for name in names}
+    peers = {name: Peer(name, "tcp://127.0.0.1:0", public_key_bytes(key)) for name, key in keys.items()}
+    transports: dict[str, ZmqTransport] = {}
+    try:
+        for name in names:
+            rng = None if seed is None else np.random.default_rng(seed)
+            transports[name] = ZmqTransport({name: keys[name]}, peers, rng=rng, **kwargs)
+        table = {name: Peer(name, transports[name].addresses[name], peers[name].public_key) for name in names}
+        for name, t in transports.items():
+            t.connect({other: p.address for other, p in table.items() if other != name})
+    except BaseException:
+        for t in transports.values():
+            t.close()
+        raise
+    return transports, table
