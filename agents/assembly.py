@@ -279,6 +279,7 @@ class AssemblyAgent:
         #: set by the runtime's local rule (:class:`agents.runtime.LocalAgent`) once this agent's window is done:
         #: its ADMM values then carry a ``done`` block, so that quiet neighbours do not answer them
         self.window_done = False
+        self._alive: dict[int, int] = {}  # agent index -> last step at which it (or its records) was heard
 
     # ------------------------------------------------------------------ sensing
     @property
@@ -306,7 +307,8 @@ class AssemblyAgent:
             agg = TreeAggregation(me, len(cfg.assemblies), root=self.name == cfg.reference, parent=self._parent,
                                   children={self._index[a] for a, entry in self._tree.items()
                                             if entry[1] == me and self._fresh(entry)},
-                                  start=self._round + 1, wait=cfg.patience, hop=self._hop or 0)
+                                  start=self._round + 1, wait=cfg.patience, hop=self._hop or 0,
+                                  expected=self._alive_members(own.step))
             self._boot = {"records": agg.records, "agg": agg, "mode": None, "start": None, "sent": -(10**9),
                           "waited": 0, "step": own.step, "pin": None, "start_at": 0}
             self._own_forms = None
@@ -388,6 +390,9 @@ class AssemblyAgent:
     # ------------------------------------------------------------------ messages
     def handle(self, message: Message) -> None:
         """Route one received message by its type (anything else is counted and ignored)."""
+        sender = self._index.get(message.sender)
+        if sender is not None and self._step is not None:
+            self._alive[sender] = self._step
         if isinstance(message, ConfigAnnounce):
             owner = message.owner or message.sender
             if owner == self.name or owner not in self._index:
@@ -534,6 +539,15 @@ class AssemblyAgent:
         window or the one before (rounds between windows depend on the pace of the sensor steps, which
         a process does not choose)."""
         return self._round - entry[2] <= self._tree_fresh() or entry[3] is not None and entry[3] >= (self._step or 0) - 1
+
+    def _alive_members(self, step: int) -> set[int] | None:
+        """Agents heard from (directly or through their records) in this window or the one before: a set of
+        forms is complete once it holds theirs. ``None`` (every agent) without such a history (the first
+        two steps): an agent down for two windows, or one that never started, is then no longer waited
+        for, and the others' windows complete without it."""
+        if not self._alive or step < 2:
+            return None
+        return {i for i, seen in self._alive.items() if seen >= step - 1}
 
     def _tree_fresh(self) -> int:
         """Rounds for which a neighbour's place in the tree is trusted (a window's sharing and ADMM fit in)."""
@@ -713,6 +727,8 @@ class AssemblyAgent:
             self.counters["ignored"] += 1
             return
         self._tree[message.sender] = (message.hop, message.parent, self._round, self._step)
+        for member in message.members.tolist():
+            self._alive[int(member)] = self._step if self._step is not None else 0
         boot, late = self._boot, self._late
         names = self.config.assemblies
         records = {i: [(keys, LocalProblem(tuple((names[a], s) for a, s in keys), M, b_z, c_z))
@@ -820,7 +836,7 @@ class AssemblyAgent:
         seeds = joint.poses
         # every agent's forms: the seeds are the joint estimate of this step (a fixed point of the ADMM),
         # and the centralized estimator's placement test can be run on them
-        self._seeds_complete = len(boot["records"]) == len(self.config.assemblies)
+        self._seeds_complete = agg.complete  # every (live) agent's forms
         if self._seeds_complete:
             limit = self.config.max_yaw_std if self.config.noise.weighting == "information" else np.inf
             self._placeable = joint.placeable((self.name, self._step), limit)

@@ -25,8 +25,8 @@ exchange nothing. An answer that moves it off its own convergence test makes it 
 A simulation therefore predicts what processes do: the simulated runner starts the next step when
 every live agent is quiet and nothing is in flight, which is what processes do while they wait for
 the next sensor step (tested: running the whole budget changes no estimate and no message count).
-The estimate of a step (:attr:`LocalAgent.window_estimate`) is what the agent holds when the next
-step comes.
+The estimate of a step (:attr:`LocalAgent.window_estimate`) is what the agent holds when its window
+is done (again, if an answer made it busy), or when the next step comes before that.
 """
 
 from __future__ import annotations
@@ -155,17 +155,15 @@ class LocalAgent:
             self._finish(converged=False)
 
     def end_window(self) -> None:
-        """The next sensor step is due: the agent's estimate of the step is what it holds now (a window
-        its rule has not ended yet ends here, unconverged)."""
+        """The next sensor step is due: a window its rule has not ended yet ends here, unconverged."""
         if self.step is not None and not self.done:
             self._finish(converged=False)
-        if self.step is not None:
-            self.window_estimate = self.agent.estimates()
 
     def _finish(self, converged: bool) -> None:
         self.done = True
         self.converged = converged
         self.agent.window_done = True
+        self.window_estimate = self.agent.estimates()
 
 
 class AgentHost:

@@ -27,6 +27,8 @@ COMMANDS: dict[str, str] = {
     "experiment": "sims.cli.experiment",
     "make-ensemble": "sims.cli.make_ensemble",
     "ensemble": "sims.cli.ensemble",
+    "agent": "sims.cli.agent",
+    "launch": "sims.cli.launch",
 }
 
 EXIT_BAD_INPUT = 2
