@@ -45,7 +45,7 @@ import numpy as np
 
 from decentral.errors import InputError, ProtocolError
 from protocols.messages import BROADCAST, Message, decode
-from protocols.transport import Counts, Delivery, Transport, TransportStats
+from protocols.transport import Counts, Delivery, Ledger, Transport, TransportStats
 
 __all__ = ["link_root", "link_stream", "LinkConfig", "Partition", "Crash", "NetworkConfig", "BatchDelivery",
            "SimulatedNetwork"]
@@ -277,8 +277,7 @@ class SimulatedNetwork(Transport):
         self._free_at: dict[tuple[str, str], float] = {}
         self._queues: dict[str, list[_InFlight]] = {a: [] for a in config.agents}
         self._seq = 0
-        self._counters: dict[tuple[str, object], list[int]] = {}
-        self._reasons: dict[str, int] = {}
+        self._ledger = Ledger()
         # batched path: copies in flight as arrays, counters as arrays (merged in stats())
         n, width = len(config.agents), len(_FIELDS)
         self._n = n
@@ -341,18 +340,18 @@ class SimulatedNetwork(Transport):
         out: list[Delivery] = []
         while queue and queue[0].arrival <= now:
             item = heapq.heappop(queue)
-            keys = self._keys(item.sender, agent, item.kind)
+            keys = Ledger.keys(item.sender, agent, item.kind)
             size = len(item.frame)
-            self._bump(keys, ("in_flight", -1))
+            self._ledger.bump(keys, ("in_flight", -1))
             if self.is_down(agent, item.arrival):
-                self._drop(keys, size, "receiver_down")
+                self._ledger.drop(keys, size, "receiver_down")
                 continue
             try:
                 message = _decode_frame(item.frame)
             except ProtocolError:
-                self._drop(keys, size, "corrupt")
+                self._ledger.drop(keys, size, "corrupt")
                 continue
-            self._bump(keys, ("delivered", 1), ("bytes_delivered", size))
+            self._ledger.bump(keys, ("delivered", 1), ("bytes_delivered", size))
             out.append(Delivery(message, agent, item.sent_at, item.arrival, size, item.duplicate))
         return out
 
@@ -362,24 +361,10 @@ class SimulatedNetwork(Transport):
         return len(self._queues[agent]) + sum(int(np.count_nonzero(f["receiver"] == k)) for f in self._flight)
 
     def stats(self) -> TransportStats:
-        rows = {key: list(vals) for key, vals in self._counters.items()}
+        rows: dict = {}
         if self._batches:
             self._merge_batched(rows)
-
-        def snap(kind: str) -> Mapping:
-            return MappingProxyType(
-                {key: Counts(*vals) for (k, key), vals in sorted(rows.items(), key=_sort_key) if k == kind}
-            )
-
-        total = rows.get(("total", None), [0] * len(_FIELDS))
-        return TransportStats(
-            total=Counts(*total),
-            per_sender=snap("sender"),
-            per_receiver=snap("receiver"),
-            per_link=snap("link"),
-            per_kind=snap("kind"),
-            drop_reasons=MappingProxyType(dict(sorted(self._reasons.items()))),
-        )
+        return self._ledger.snapshot(rows)
 
     # ------------------------------------------------------------------ batched path
     def send_many(self, kind: str, senders, receivers, sizes, now: float) -> int:
@@ -565,7 +550,7 @@ class SimulatedNetwork(Transport):
     def _drop_many(self, s: np.ndarray, r: np.ndarray, kid: int, size: np.ndarray, reason: str) -> None:
         if s.size:
             self._bump_many(s, r, kid, ("dropped", None), ("bytes_dropped", size))
-            self._reasons[reason] = self._reasons.get(reason, 0) + int(s.size)
+            self._ledger.add_reason(reason, int(s.size))
 
     def _bump_many(self, s: np.ndarray, r: np.ndarray, kid: int, *changes) -> None:
         """Add each ``(counter name, amounts or None = 1 per copy, or a scalar)`` to every key of the copies."""
@@ -627,36 +612,18 @@ class SimulatedNetwork(Transport):
             add(("link", (agents[code // n], agents[code % n])), vec)
 
     # ------------------------------------------------------------------ internals
-    def _keys(self, a: str, b: str, kind: str) -> tuple:
-        return (("total", None), ("sender", a), ("receiver", b), ("link", (a, b)), ("kind", kind))
-
-    def _bump(self, keys: tuple, *changes: tuple[str, int]) -> None:
-        """Add each ``(counter name, amount)`` of ``changes`` to the rows of every key."""
-        counters = self._counters
-        width = len(_FIELDS)
-        for key in keys:
-            row = counters.get(key)
-            if row is None:
-                row = counters[key] = [0] * width
-            for name, n in changes:
-                row[_IDX[name]] += n
-
-    def _drop(self, keys: tuple, size: int, reason: str) -> None:
-        self._bump(keys, ("dropped", 1), ("bytes_dropped", size))
-        self._reasons[reason] = self._reasons.get(reason, 0) + 1
-
     def _send_copy(self, a: str, b: str, kind: str, frame: bytes, now: float) -> None:
         size = len(frame)
-        keys = self._keys(a, b, kind)
-        self._bump(keys, ("sent", 1), ("bytes_sent", size))
+        keys = Ledger.keys(a, b, kind)
+        self._ledger.bump(keys, ("sent", 1), ("bytes_sent", size))
         if b not in self._queues:
-            self._drop(keys, size, "unknown_receiver")
+            self._ledger.drop(keys, size, "unknown_receiver")
             return
         if self.is_down(a, now):
-            self._drop(keys, size, "sender_down")
+            self._ledger.drop(keys, size, "sender_down")
             return
         if any(p.separates(a, b, now) for p in self.config.partitions):
-            self._drop(keys, size, "partition")
+            self._ledger.drop(keys, size, "partition")
             return
         cfg = self.config.link_config(a, b)
         # fixed number of draws per copy keeps each link's pattern independent of everything else
@@ -665,7 +632,7 @@ class SimulatedNetwork(Transport):
         tx = size / cfg.bandwidth if math.isfinite(cfg.bandwidth) else 0.0
         self._free_at[(a, b)] = start + tx
         if u_drop < cfg.drop:
-            self._drop(keys, size, "loss")
+            self._ledger.drop(keys, size, "loss")
             return
         if u_corrupt < cfg.corrupt:
             pos = min(int(u_pos * size), size - 1)
@@ -673,19 +640,14 @@ class SimulatedNetwork(Transport):
         arrival = start + tx + cfg.latency + u_jit * cfg.jitter
         self._enqueue(b, _InFlight(arrival, self._next_seq(), frame, now, a, kind, False), keys)
         if u_dup < cfg.duplicate:
-            self._bump(keys, ("duplicated", 1))
+            self._ledger.bump(keys, ("duplicated", 1))
             arrival2 = start + tx + cfg.latency + u_jit2 * cfg.jitter
             self._enqueue(b, _InFlight(arrival2, self._next_seq(), frame, now, a, kind, True), keys)
 
     def _enqueue(self, b: str, item: _InFlight, keys: tuple) -> None:
-        self._bump(keys, ("in_flight", 1))
+        self._ledger.bump(keys, ("in_flight", 1))
         heapq.heappush(self._queues[b], item)
 
     def _next_seq(self) -> int:
         self._seq += 1
         return self._seq
-
-
-def _sort_key(item: tuple) -> tuple:
-    (kind, key), _ = item
-    return (kind, str(key))

@@ -128,6 +128,25 @@ class TransportStats:
             "rejected": dict(self.rejected),
         }
 
+    @classmethod
+    def from_dict(cls, data: Mapping) -> "TransportStats":
+        """The inverse of :meth:`as_dict` (e.g. to merge the stats each agent process printed as JSON).
+
+        Raises ``KeyError``/``TypeError``/``ValueError`` on a dict that is not an :meth:`as_dict` result.
+        """
+        def table(name: str, key=lambda k: k) -> Mapping:
+            return MappingProxyType({key(k): Counts(**v) for k, v in data.get(name, {}).items()})
+
+        return cls(
+            total=Counts(**data["total"]),
+            per_sender=table("per_sender"),
+            per_receiver=table("per_receiver"),
+            per_link=table("per_link", lambda k: tuple(k.split("->", 1))),
+            per_kind=table("per_kind"),
+            drop_reasons=MappingProxyType({str(k): int(v) for k, v in data.get("drop_reasons", {}).items()}),
+            rejected=MappingProxyType({str(k): int(v) for k, v in data.get("rejected", {}).items()}),
+        )
+
 
 class Transport(abc.ABC):
     """What an agent needs from a network: send, poll its inbox, and counters.
@@ -168,34 +187,51 @@ _SCOPES = ("sender", "receiver", "link", "kind")
 
 class Ledger:
     """The books of a transport: counters per total, sender, receiver, link and kind, plus drop and
-    rejection reasons, snapshotted as :class:`TransportStats`."""
+    rejection reasons, snapshotted as :class:`TransportStats`.
+
+    A copy's rows are named by :meth:`keys` (compute them once per copy on a hot path and pass them
+    to :meth:`bump` and :meth:`drop`); :meth:`count` does both in one call.
+    """
 
     def __init__(self) -> None:
         self._rows: dict[tuple[str, object], list[int]] = {}
         self._reasons: dict[str, int] = {}
         self._rejected: dict[str, int] = {}
 
-    def count(self, a: str, b: str, kind: str, *changes: tuple[str, int]) -> None:
-        """Add each ``(counter name, amount)`` to the copy's total, sender, receiver, link and kind rows."""
-        width = len(_FIELDS)
-        for key in (("total", None), ("sender", a), ("receiver", b), ("link", (a, b)), ("kind", kind)):
-            row = self._rows.get(key)
+    @staticmethod
+    def keys(a: str, b: str, kind: str) -> tuple:
+        """The rows a copy from ``a`` to ``b`` of ``kind`` counts in: total, sender, receiver, link, kind."""
+        return (("total", None), ("sender", a), ("receiver", b), ("link", (a, b)), ("kind", kind))
+
+    def bump(self, keys: tuple, *changes: tuple[str, int]) -> None:
+        """Add each ``(counter name, amount)`` of ``changes`` to every row of ``keys``."""
+        rows = self._rows
+        for key in keys:
+            row = rows.get(key)
             if row is None:
-                row = self._rows[key] = [0] * width
+                row = rows[key] = [0] * len(_FIELDS)
             for name, n in changes:
                 row[_IDX[name]] += n
 
-    def drop(self, a: str, b: str, kind: str, size: int, reason: str, *changes: tuple[str, int]) -> None:
+    def count(self, a: str, b: str, kind: str, *changes: tuple[str, int]) -> None:
+        """:meth:`bump` the rows of one copy from ``a`` to ``b`` of ``kind``."""
+        self.bump(self.keys(a, b, kind), *changes)
+
+    def drop(self, keys: tuple, size: int, reason: str, *changes: tuple[str, int]) -> None:
         """Count one dropped copy of ``size`` bytes (and any further ``changes``) under ``reason``."""
-        self.count(a, b, kind, ("dropped", 1), ("bytes_dropped", size), *changes)
-        self._reasons[reason] = self._reasons.get(reason, 0) + 1
+        self.bump(keys, ("dropped", 1), ("bytes_dropped", size), *changes)
+        self.add_reason(reason)
+
+    def add_reason(self, reason: str, n: int = 1) -> None:
+        """Count ``n`` more drops under ``reason`` (their counters are bumped by the caller)."""
+        self._reasons[reason] = self._reasons.get(reason, 0) + n
 
     def reject(self, reason: str) -> None:
         """Count one refused inbound frame under ``reason``."""
         self._rejected[reason] = self._rejected.get(reason, 0) + 1
 
     def snapshot(self, extra_rows: dict | None = None) -> TransportStats:
-        """A frozen :class:`TransportStats` of the books (plus ``extra_rows``: key -> counts, added)."""
+        """A frozen :class:`TransportStats` of the books (plus ``extra_rows``: row key -> counts, added)."""
         rows = {key: list(vals) for key, vals in self._rows.items()}
         for key, vals in (extra_rows or {}).items():
             row = rows.setdefault(key, [0] * len(_FIELDS))

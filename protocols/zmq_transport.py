@@ -48,7 +48,8 @@ from __future__ import annotations
 
 import heapq
 import math
-from dataclasses import dataclass, field
+import time
+from dataclasses import dataclass
 from typing import Mapping
 
 import numpy as np
@@ -68,16 +69,15 @@ __all__ = ["ZmqTransport", "open_loopback"]
 DEFAULT_MAX_FRAME = 16 * 2**20
 
 
-@dataclass(order=True)
+@dataclass(frozen=True, slots=True)
 class _Held:
-    """An admitted copy waiting for its injected delay to pass."""
+    """An admitted copy waiting for its injected delay to pass (queued as ``(arrival, order, _Held)``)."""
 
     arrival: float
-    order: int
-    message: Message = field(compare=False)
-    sent_at: float = field(compare=False)
-    size: int = field(compare=False)
-    duplicate: bool = field(compare=False)
+    message: Message
+    sent_at: float
+    size: int
+    duplicate: bool
 
 
 class _Endpoint:
@@ -88,7 +88,7 @@ class _Endpoint:
         self.socket = socket
         self.signer = signer
         self.gate = gate
-        self.held: list[_Held] = []
+        self.held: list[tuple[float, int, _Held]] = []
         self.address = socket.getsockopt_string(zmq.LAST_ENDPOINT)
 
 
@@ -183,6 +183,9 @@ class ZmqTransport(Transport):
                 self._peers[name] = Peer(name, self._local[name].address, self._peers[name].public_key)
             for name in self._peers:
                 self._connect(name)
+            self._poller = zmq.Poller()
+            for ep in self._local.values():
+                self._poller.register(ep.socket, zmq.POLLIN)
         except BaseException:
             self.close()
             raise
@@ -218,12 +221,13 @@ class ZmqTransport(Transport):
             self._ledger.count(a, b, kind, ("sent", 1), ("bytes_sent", size))
             socket = self._out.get(b)
             if socket is None:
-                self._ledger.drop(a, b, kind, size, "unknown_receiver" if b not in self._peers else "no_address")
+                reason = "unknown_receiver" if b not in self._peers else "no_address"
+                self._ledger.drop(self._ledger.keys(a, b, kind), size, reason)
                 continue
             try:
                 socket.send(frame, zmq.NOBLOCK)
             except zmq.Again:
-                self._ledger.drop(a, b, kind, size, "queue_full")
+                self._ledger.drop(self._ledger.keys(a, b, kind), size, "queue_full")
                 continue
             self._ledger.count(a, b, kind, ("in_flight", 1))
 
@@ -240,8 +244,8 @@ class ZmqTransport(Transport):
                 break
             self._admit(ep, frame, float(now))
         out = []
-        while ep.held and ep.held[0].arrival <= now:
-            h = heapq.heappop(ep.held)
+        while ep.held and ep.held[0][0] <= now:
+            h = heapq.heappop(ep.held)[2]
             self._ledger.count(h.message.sender, agent, h.message.KIND, ("in_flight", -1), ("delivered", 1),
                                ("bytes_delivered", h.size))
             out.append(Delivery(h.message, agent, h.sent_at, h.arrival, h.size, h.duplicate))
@@ -258,15 +262,12 @@ class ZmqTransport(Transport):
         runtime that injects delay also wakes at :meth:`next_release`.
         """
         self._check_open()
-        poller = zmq.Poller()
-        for ep in self._local.values():
-            poller.register(ep.socket, zmq.POLLIN)
-        return bool(poller.poll(max(0, int(math.ceil(timeout * 1000)))))
+        return bool(self._poller.poll(max(0, int(math.ceil(timeout * 1000)))))
 
     def next_release(self, agent: str) -> float | None:
         """Arrival time of the earliest copy held back by injected delay for ``agent`` (None if none)."""
         held = self._local[agent].held
-        return held[0].arrival if held else None
+        return held[0][0] if held else None
 
     def connect(self, addresses: Mapping[str, str]) -> None:
         """Point the peers named in ``addresses`` at new addresses (frames already queued are discarded)."""
@@ -286,13 +287,20 @@ class ZmqTransport(Transport):
                 old.close(linger=0)
             self._connect(name)
 
-    def close(self) -> None:
-        """Close every socket at once (linger 0: queued frames are discarded); safe to call twice."""
+    def close(self, linger: float = 0.0) -> None:
+        """Close every socket and return within about ``linger`` seconds; safe to call twice.
+
+        Frames still queued to a peer get up to ``linger`` seconds to leave (default 0: discarded
+        at once, so a process never hangs on a peer that is gone). Closing never blocks longer.
+        """
         if self._closed:
             return
         self._closed = True
-        for socket in [*self._out.values(), *(ep.socket for ep in getattr(self, "_local", {}).values())]:
-            socket.close(linger=0)
+        deadline = time.monotonic() + max(0.0, linger)
+        for socket in self._out.values():
+            socket.close(linger=int(1000 * max(0.0, deadline - time.monotonic())))
+        for ep in self._local.values():
+            ep.socket.close(linger=0)
         self._context.term()
 
     def __enter__(self) -> "ZmqTransport":
@@ -337,17 +345,16 @@ class ZmqTransport(Transport):
         # a fixed number of draws per admitted copy keeps each link's pattern independent of the rest
         u_drop, u_dup, u_jit, u_jit2 = self._link_rng(a, b).random(4) if self._random(cfg) else (1.0, 1.0, 0.0, 0.0)
         if u_drop < cfg.drop:
-            self._ledger.drop(a, b, kind, size, "loss", ("in_flight", -1))
+            self._ledger.drop(self._ledger.keys(a, b, kind), size, "loss", ("in_flight", -1))
             return
-        self._hold(ep, _Held(now + cfg.latency + u_jit * cfg.jitter, 0, message, env.sent_at, size, False))
+        self._hold(ep, _Held(now + cfg.latency + u_jit * cfg.jitter, message, env.sent_at, size, False))
         if u_dup < cfg.duplicate:
             self._ledger.count(a, b, kind, ("duplicated", 1), ("in_flight", 1))
-            self._hold(ep, _Held(now + cfg.latency + u_jit2 * cfg.jitter, 0, message, env.sent_at, size, True))
+            self._hold(ep, _Held(now + cfg.latency + u_jit2 * cfg.jitter, message, env.sent_at, size, True))
 
     def _hold(self, ep: _Endpoint, item: _Held) -> None:
-        self._order += 1
-        item.order = self._order
-        heapq.heappush(ep.held, item)
+        self._order += 1  # ties in arrival time leave in admission order
+        heapq.heappush(ep.held, (item.arrival, self._order, item))
 
     def _link_rng(self, a: str, b: str) -> np.random.Generator:
         gen = self._rngs.get((a, b))

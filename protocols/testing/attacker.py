@@ -4,8 +4,8 @@
 frames drawn from :data:`ATTACKS`, each of which the agent must refuse with a known reason; the
 returned :class:`FloodReport` says how many of each to expect in the agent's ``stats().rejected``.
 :class:`Tap` plays a peer that only listens, to capture genuine frames for replay;
-:func:`raw_tcp_garbage` writes bytes that are not even ZeroMQ framing (refused by the socket library
-itself, before any frame exists, so never counted).
+:func:`raw_tcp_garbage` writes bytes that are not ZeroMQ framing on a plain TCP connection (the socket
+library drops the connection, or what it reads as frames the agent refuses as ``malformed``).
 
 To point it at launched agents: list an extra peer (say ``EVE``) in the peers file with a key the
 attacker holds and the address of a :class:`Tap`; every broadcast reaches the tap, and EVE's key

@@ -27,6 +27,7 @@ COMMANDS: dict[str, str] = {
     "experiment": "sims.cli.experiment",
     "make-ensemble": "sims.cli.make_ensemble",
     "ensemble": "sims.cli.ensemble",
+    "keys": "sims.cli.keys",
     "agent": "sims.cli.agent",
     "launch": "sims.cli.launch",
 }

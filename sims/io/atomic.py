@@ -17,11 +17,13 @@ from decentral.errors import InputError
 __all__ = ["write_atomic", "write_json_atomic"]
 
 
-def write_atomic(path: str | os.PathLike, write: Callable[[Any], None], *, binary: bool = False) -> None:
+def write_atomic(path: str | os.PathLike, write: Callable[[Any], None], *, binary: bool = False,
+                 mode: int | None = None) -> None:
     """Call ``write(fileobj)`` on a temporary file next to ``path``, then rename it to ``path``.
 
-    Raises :class:`InputError` naming ``path`` if its folder does not exist or is not writable.
-    On any error the temporary file is removed and ``path`` is left as it was.
+    The file gets permission bits ``mode`` (e.g. ``0o600`` for a secret; default: what ``open()``
+    would give). Raises :class:`InputError` naming ``path`` if its folder does not exist or is not
+    writable. On any error the temporary file is removed and ``path`` is left as it was.
     """
     target = Path(path)
     folder = target.parent if str(target.parent) else Path(".")
@@ -34,7 +36,7 @@ def write_atomic(path: str | os.PathLike, write: Callable[[Any], None], *, binar
     try:
         with os.fdopen(fd, "wb" if binary else "w", **({} if binary else {"encoding": "utf-8"})) as fh:
             write(fh)
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the file the mode open() would
+        os.chmod(tmp, 0o666 & ~_umask() if mode is None else mode)  # mkstemp makes 0600
         os.replace(tmp, target)
     except BaseException:
         try:
@@ -50,7 +52,7 @@ def _umask() -> int:
     return mask
 
 
-def write_json_atomic(path: str | os.PathLike, payload: Any) -> None:
-    """Write ``payload`` as indented JSON to ``path`` atomically (NaN/inf are refused)."""
+def write_json_atomic(path: str | os.PathLike, payload: Any, *, mode: int | None = None) -> None:
+    """Write ``payload`` as indented JSON to ``path`` atomically (NaN/inf are refused), with permission bits ``mode``."""
     text = json.dumps(payload, indent=1, allow_nan=False)
-    write_atomic(path, lambda fh: fh.write(text + "\n"))
+    write_atomic(path, lambda fh: fh.write(text + "\n"), mode=mode)

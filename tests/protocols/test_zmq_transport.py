@@ -18,7 +18,7 @@ from protocols.auth import new_private_key, public_key_bytes
 from protocols.messages import BROADCAST, Heartbeat
 from protocols.network import LinkConfig
 from protocols.peers import Peer, peers_json, private_key_json
-from protocols.transport import Transport, merge_stats
+from protocols.transport import Transport, TransportStats, merge_stats
 from protocols.zmq_transport import ZmqTransport, open_loopback
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -246,3 +246,25 @@ def test_echo_across_processes(tmp_path):
         mine = parent.stats().total
         assert child_total["sent"] == child_total["delivered"] == mine.sent == mine.delivered == 25
         assert mine.in_flight + child_total["in_flight"] == 0
+
+
+def test_stats_survive_a_json_round_trip(trio):
+    """TransportStats.from_dict(as_dict()) gives back the same books (how a launcher reads its agents' stats)."""
+    trio["A0"].send(hb("A0", BROADCAST, 0), 0.0)
+    collect(trio, 2)
+    for t in trio.values():
+        s = t.stats()
+        assert TransportStats.from_dict(json.loads(json.dumps(s.as_dict()))) == s
+
+
+def test_close_with_linger_lets_queued_frames_out():
+    """Frames sent just before close(linger) still reach a live peer."""
+    transports, _ = open_loopback(["A0", "A1"])
+    try:
+        for k in range(200):
+            transports["A0"].send(hb("A0", "A1", k), 0.0)
+        transports["A0"].close(linger=5.0)
+        got = collect({"A1": transports["A1"]}, 200)["A1"]
+        assert [d.message.round for d in got] == list(range(200))
+    finally:
+        transports["A1"].close()
