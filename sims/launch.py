@@ -281,6 +281,7 @@ def _launch(log: ObservationLog, config: LaunchConfig, reference: str, work: Pat
                                         text=True, bufsize=1, env=env)
             finally:
                 err.close()
+            (work / f"{name}.{incarnations[name]}.pid").write_text(str(proc.pid))
             children.procs.append(proc)
             started.append((name, incarnations[name], proc))
             return proc
