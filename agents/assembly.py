@@ -72,7 +72,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from decentral.admm import (AdmmConfig, ConsensusState, LocalProblem, PairState, quadratic_form,
-                            scalar_metric, solve_joint)
+                            scalar_metric, solve_joint, split_by_step)
 from decentral.estimator import EstimatorConfig
 from decentral.errors import InputError
 from decentral.factors import NoiseModel, detection_weights
@@ -279,6 +279,8 @@ class AssemblyAgent:
         #: set by the runtime's local rule (:class:`agents.runtime.LocalAgent`) once this agent's window is done:
         #: its ADMM values then carry a ``done`` block, so that quiet neighbours do not answer them
         self.window_done = False
+        self._busy_seen = -(10**9)  # last round with ADMM values of this window from a neighbour still at work
+        self._watchers: set[str] = set()  # observers named by the last complete set of forms
         self._alive: dict[int, int] = {}  # agent index -> last step at which it (or its records) was heard
 
     # ------------------------------------------------------------------ sensing
@@ -325,7 +327,7 @@ class AssemblyAgent:
             self._reannounced = own.step
         elif own.step - self._reannounced >= cfg.announce_every:
             # repairs a lost announcement: to the current observers only (others ask with a request)
-            for observer in sorted(self._observers):
+            for observer in self.observers:
                 self._outbox.append(self._announcement(observer))
             self._reannounced = own.step
         first = max(0, own.step - cfg.window + 1)
@@ -408,9 +410,11 @@ class AssemblyAgent:
         elif isinstance(message, FormBundle):
             self._on_bundle(message)
         elif isinstance(message, FormAck):
-            boot = self._boot
+            boot, down = self._boot, self._down
             if boot is not None and boot["step"] == message.step and self._index.get(message.sender) == boot["agg"].parent:
                 boot["agg"].acknowledge(message.have.tolist(), self._round)
+            elif down is not None and down["step"] == message.step:
+                down["pending"].pop(self._index.get(message.sender), None)  # a child has the down bundle
         elif isinstance(message, ConfigRequest):
             # every agent answers with its own configuration, owner or not: a requester that holds every
             # assembly's configuration knows that the ids none of them lists are stray tags
@@ -418,6 +422,8 @@ class AssemblyAgent:
                 self._outbox.append(self._announcement(message.sender))
             self._relay(message)
         elif isinstance(message, (AdmmPrimal, AdmmDual)):
+            if "done" not in message.blocks and message.window == self._step:
+                self._busy_seen = self._round  # it runs the ADMM (late names, partial forms): take part
             self._merge_table(message.blocks.get("table"))
             b = message.blocks
             tree = b.get("tree")
@@ -518,11 +524,22 @@ class AssemblyAgent:
                 self._bootstrap_phase()  # when it finishes, the ADMM starts at round `_hold` (at least the next)
             self._phase = 1 - self._phase
             return
-        if self._phase == 0:
+        if self._dirty:
+            self._rebuild()  # (a configuration that arrived may add a pair the joint solution lacks)
+        if self._exact() and self._round - self._busy_seen > 2:
+            # every live agent's forms and this agent's pairs as they described them: the joint solution is the
+            # ADMM's fixed point, and every agent holding the set has it too; no round would change it
+            self._converged = True
+        elif self._phase == 0:
             self._pair_phase()
         else:
             self._consensus_phase()
         self._phase = 1 - self._phase
+
+    def _exact(self) -> bool:
+        """The window started at the joint solution of every live agent's forms, its own pairs among them
+        as they are now, and no node is left to name: the estimate is final without ADMM rounds."""
+        return self._seeds_complete and self._form_sig == self._pair_sig and not self._unresolved()
 
     def _age(self, inbound: _Inbound | None) -> int:
         return 10**9 if inbound is None else max(0, self._round - inbound.round)
@@ -571,11 +588,10 @@ class AssemblyAgent:
         self._request_unknown()
         me = self._index[self.name]
         if self._own_forms is None and (not self._unresolved() or boot["waited"] >= cfg.patience):
-            forms = [tuple((self._index[a], k) for a, k in pair.problem.keys) + (pair.problem,)
-                     for _, pair in sorted(self._pairs.items()) if pair.problem is not None and pair.problem.n]
-            odo = self._consensus.odometry_problem()
-            if odo is not None:
-                forms.append(tuple((me, k[1]) for k in odo.keys) + (odo,))
+            # one form per pair and step, and per odometry link: a window adds only its newest step's forms
+            problems = [part for _, pair in sorted(self._pairs.items()) if pair.problem is not None and pair.problem.n
+                        for part in split_by_step(pair.problem)] + self._consensus.odometry_links()
+            forms = [tuple((self._index[a], k) for a, k in prob.keys) + (prob,) for prob in problems]
             keys, flat = pack_forms([(f[:-1], f[-1].M, f[-1].b_z, f[-1].c_z) for f in forms])
             pin = np.zeros(0)
             cons = self._consensus
@@ -767,6 +783,9 @@ class AssemblyAgent:
             if lost and agg.parent is not None:  # the root timed out without records from here: send them again
                 self._outbox.append(self._bundle(names[agg.parent], lost, down=False))
             self._send_down(exclude=(sender,), start=message.start)  # forwarded at once: one hop per phase
+            # acknowledged: in an exact window no ADMM values come back to tell the parent it arrived
+            self._outbox.append(FormAck(sender=self.name, receiver=message.sender, round=self._round,
+                                        step=boot["step"], have=np.array(sorted(agg.records), dtype=np.int64)))
         else:
             agg.add(records, child=sender, depth=message.depth)
             if agg.final:  # already finished the window's sharing: the child missed the down bundle
@@ -845,7 +864,7 @@ class AssemblyAgent:
             me = self._index[self.name]
             for (name, step), (R, p) in seeds.items():
                 i = self._index.get(name)
-                if step == self._step and i is not None and i != me:
+                if step == self._step and i is not None:  # its own row too: no ADMM round may come
                     self._table[i] = np.array([i, step, self._round, *p, np.arctan2(R[1, 0], R[0, 0])])
             self._table_version += 1
             self._table_changed = self._round
@@ -853,6 +872,10 @@ class AssemblyAgent:
             # the distance vector to cross the graph (the next window's tree is ready at once)
             edges = {(keys[0][0], keys[-1][0]) for idx in boot["records"] for keys, _ in boot["records"][idx]}
             hops, parents = tree_from_edges(edges, len(self.config.assemblies), self._index[self.config.reference])
+            # the complete set is the whole view graph: assemblies no longer adjacent leave the table (with no ADMM
+            # values to refresh it, a stale entry would make a former neighbour wait for a child that never reports)
+            self._tree = {}
+            self._watchers = {self.config.assemblies[a] for a, b in edges if b == me and a != me}
             for a, b in edges:
                 other = b if a == me else a if b == me else None
                 if other is not None and other != me and other in hops:
@@ -1090,9 +1113,15 @@ class AssemblyAgent:
         return self._consensus.ready
 
     @property
+    def observers(self) -> tuple[str, ...]:
+        """Assemblies that observe this one: from their ADMM values, or from the last complete set of forms
+        (its pairs name observer and target; an exact window sends no ADMM values)."""
+        return tuple(sorted(set(self._observers) | self._watchers))
+
+    @property
     def neighbours(self) -> tuple[str, ...]:
         """Assemblies it observes or is observed by in the current window."""
-        return tuple(sorted(set(self._pairs) | set(self._observers)))
+        return tuple(sorted(set(self._pairs) | set(self.observers)))
 
     @property
     def ages(self) -> dict[str, int]:

@@ -118,6 +118,9 @@ class AdmmRun:
         Per log step, message kind -> messages sent by each agent (list in the order of
         ``log.assemblies``; a broadcast counts once per receiver, as in the network's counts). Kept out
         of ``stats`` so that the estimate file stays small on long logs.
+    bytes_per_step : tuple of dict
+        The same in bytes (wire frames as the simulated network sizes them, without a real
+        transport's envelope).
     """
 
     estimate: Estimate
@@ -126,6 +129,7 @@ class AdmmRun:
     agent_estimates: tuple[dict, ...]
     stats: dict
     messages_per_step: tuple[dict, ...] = ()
+    bytes_per_step: tuple[dict, ...] = ()
 
 
 def own_step(log: ObservationLog, name: str, k: int) -> OwnStep:
@@ -178,10 +182,14 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
     rule = WindowRule(min_rounds=config.min_rounds, settle=config.settle, budget=config.max_rounds)
     position = {n: i for i, n in enumerate(names)}
     per_step: list[dict] = []  # per step: kind -> copies sent by each agent (names order)
+    bytes_step: list[dict] = []  # the same in bytes
 
     def count(message):
+        copies = len(names) - 1 if message.is_broadcast else 1
         row = per_step[-1].setdefault(message.KIND, [0] * len(names))
-        row[position[message.sender]] += len(names) - 1 if message.is_broadcast else 1
+        row[position[message.sender]] += copies
+        row = bytes_step[-1].setdefault(message.KIND, [0] * len(names))
+        row[position[message.sender]] += copies * message.size_bytes
 
     def host(n: str) -> AgentHost:
         return AgentHost(LocalAgent(AssemblyAgent(_agent_config(log, n, reference, config)), rule), net, count)
@@ -197,6 +205,7 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
     for k in range(len(log.steps)):
         t = now()
         per_step.append({})
+        bytes_step.append({})
         for n in names:
             down = net.is_down(n, t)
             if was_down[n] and not down:
@@ -268,4 +277,5 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
     }
     estimate = Estimate(reference, tuple(est_steps), stats)
     return AdmmRun(estimate, tuple(rounds), tuple(converged), tuple(per_agent), stats,
-                   tuple({kind: row for kind, row in sorted(c.items())} for c in per_step))
+                   tuple({kind: row for kind, row in sorted(c.items())} for c in per_step),
+                   tuple({kind: row for kind, row in sorted(c.items())} for c in bytes_step))

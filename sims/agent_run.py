@@ -181,6 +181,7 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
     current: int | None = None
     records: list[dict] = []
     max_behind, lagged = 20, 0
+    began, took = now, None
     end = pace.due(part, n - 1) + max(pace.linger, per_step)
 
     def close(step: int) -> None:
@@ -188,7 +189,7 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
         poses = {a: {"p": [float(x) for x in pose.p], "theta": float(pose.theta)}
                  for a, pose in sorted(local.window_estimate.items())}
         record = {"step": step, "t": part.steps[step].t, "poses": poses, "converged": local.converged,
-                  "rounds": local.rounds, "counts": _counts(transport, name), "heard": sorted(heard)}
+                  "rounds": local.rounds, "window_seconds": took, "counts": _counts(transport, name), "heard": sorted(heard)}
         records.append(record)
         if stream is not None:
             stream.write(json.dumps(record) + "\n")
@@ -201,6 +202,7 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
                 close(current)
             host.on_step(own_step(part, name, k), now, max(0, pace.half(now)) // 2)
             current, k = k, k + 1
+            began, took = now, None
         h = pace.half(now)
         if h > done_half and h >= 0 and current is not None:
             # every half round in order, late ones back to back (skipping a phase would break the protocol's
@@ -212,6 +214,8 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
             if nxt <= h:
                 host.half_round(now, nxt // 2, nxt % 2)
                 done_half = nxt
+                if took is None and local.done:
+                    took = clock() - began  # wall time of the window, by the agent's own rule
                 if done_half < h:
                     continue  # still behind: no waiting
         if k >= n and now >= end:

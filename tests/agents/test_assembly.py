@@ -304,7 +304,7 @@ def test_configuration_is_re_announced_to_observers_only(log):
     agents, cold = _tree_agents(log)
     assert sum(isinstance(m, ConfigAnnounce) and m.receiver == BROADCAST for m in cold) == len(log.assemblies)
     a = agents["A1"]
-    observers = set(a._observers)
+    observers = set(a.observers)
     assert observers
     a.on_step(own_step(log, "A1", 1))
     assert not [m for m in a.outbox() if isinstance(m, ConfigAnnounce)]
