@@ -72,7 +72,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from decentral.admm import (AdmmConfig, ConsensusState, LocalProblem, PairState, quadratic_form,
-                            scalar_metric, solve_joint, split_by_step)
+                            scalar_metric, solve_joint)
 from decentral.estimator import EstimatorConfig
 from decentral.errors import InputError
 from decentral.factors import NoiseModel, detection_weights
@@ -82,6 +82,7 @@ from protocols.admm_messages import (ConfigAnnounce, ConfigRequest, FactorShare,
                                      pack_forms)
 from protocols.aggregation import TreeAggregation, choose_parent, tree_from_edges
 from protocols.messages import BROADCAST, AdmmDual, AdmmPrimal, Message
+from protocols.delta_messages import DeltaBundle, JointPoses, form_crc, record_digest
 
 __all__ = ["AgentConfig", "OwnStep", "AssemblyAgent"]
 
@@ -281,6 +282,10 @@ class AssemblyAgent:
         self.window_done = False
         self._busy_seen = -(10**9)  # last round with ADMM values of this window from a neighbour still at work
         self._watchers: set[str] = set()  # observers named by the last complete set of forms
+        self._shared: dict[str, list[LocalProblem]] = {}  # target -> its pair's forms, one per step
+        self._cache: dict[tuple, tuple[int, LocalProblem]] = {}  # (owner, keys) -> (crc, form) of the window
+        self._edges_sent: set = set()  # the view graph in the last solution sent down (the reference)
+        self._up_sent: dict[int, set] = {}  # parent -> (owner, keys, crc) of the forms sent to it
         self._alive: dict[int, int] = {}  # agent index -> last step at which it (or its records) was heard
 
     # ------------------------------------------------------------------ sensing
@@ -332,6 +337,9 @@ class AssemblyAgent:
             self._reannounced = own.step
         first = max(0, own.step - cfg.window + 1)
         self._steps = list(range(first, own.step + 1))
+        # forms of steps that left the window are no longer part of any record
+        self._cache = {key: v for key, v in self._cache.items() if max(k for _, k in key[1]) >= first}
+        self._up_sent = {p: {e for e in sent if max(k for _, k in e[1]) >= first} for p, sent in self._up_sent.items()}
         for store in (self._seen, self._odometry):
             for k in [k for k in store if k < first]:
                 del store[k]
@@ -409,6 +417,10 @@ class AssemblyAgent:
             self._on_factors(message)
         elif isinstance(message, FormBundle):
             self._on_bundle(message)
+        elif isinstance(message, JointPoses):
+            self._on_solution(message)
+        elif isinstance(message, DeltaBundle):
+            self._on_delta(message)
         elif isinstance(message, FormAck):
             boot, down = self._boot, self._down
             if boot is not None and boot["step"] == message.step and self._index.get(message.sender) == boot["agg"].parent:
@@ -484,7 +496,7 @@ class AssemblyAgent:
         self._pair_steps = {k for r in rows.values() for k, *_ in r}
         self._pair_sig = {target: len(facts) for target, facts in rows.items()}
         for target in [t for t in self._pairs if t not in rows]:
-            for store in (self._pairs, self._pair_out, self._last_dual, self._pair_iter):
+            for store in (self._pairs, self._pair_out, self._last_dual, self._pair_iter, self._shared):
                 store.pop(target, None)
         for target, facts in rows.items():
             keys, io, ia, q, t, w = [], [], [], [], [], []
@@ -497,6 +509,16 @@ class AssemblyAgent:
                 ia.append(slot[k] + 1)
                 q.append(qk), t.append(tk), w.append(wk)
             problem = quadratic_form(keys, visual=(np.array(io), np.array(ia), np.array(q), np.array(t), np.array(w)))
+            # the same factors step by step, for sharing: each window adds its newest step's form, and a step's
+            # form is built from that step's detections alone, so it is bit-identical from window to window
+            per_step = {}
+            for k, qk, tk, wk in facts:
+                per_step.setdefault(k, []).append((qk, tk, wk))
+            self._shared[target] = [
+                quadratic_form([(self.name, k), (target, k)], visual=(
+                    np.zeros(len(f), int), np.ones(len(f), int), np.array([x[0] for x in f]),
+                    np.array([x[1] for x in f]), np.array([x[2] for x in f])))
+                for k, f in sorted(per_step.items())]
             pair = self._pairs.get(target) or PairState(self.name, target, self.config.admm)
             pair.set_problem(problem)
             if pair.iterations == 0 and not pair.y and self._seeds:
@@ -589,8 +611,8 @@ class AssemblyAgent:
         me = self._index[self.name]
         if self._own_forms is None and (not self._unresolved() or boot["waited"] >= cfg.patience):
             # one form per pair and step, and per odometry link: a window adds only its newest step's forms
-            problems = [part for _, pair in sorted(self._pairs.items()) if pair.problem is not None and pair.problem.n
-                        for part in split_by_step(pair.problem)] + self._consensus.odometry_links()
+            problems = [part for _, parts in sorted(self._shared.items()) for part in parts] \
+                + self._consensus.odometry_links()
             forms = [tuple((self._index[a], k) for a, k in prob.keys) + (prob,) for prob in problems]
             keys, flat = pack_forms([(f[:-1], f[-1].M, f[-1].b_z, f[-1].c_z) for f in forms])
             pin = np.zeros(0)
@@ -641,7 +663,7 @@ class AssemblyAgent:
             # (a parent that stays silent is dropped at the window's timeout; switching to the broadcast after
             # a few unanswered resends instead cost 180-300 rounds per window at 50 % loss: it fired on loss alone)
             self.counters["retransmits"] += 1
-            self._send_up(agg.take_resend(self._round))
+            self._send_up(agg.take_resend(self._round), whole=True)
 
     def _bundle(self, receiver: str, indices, down: bool, start: int = 0, boot: dict | None = None) -> FormBundle:
         boot = boot or self._boot
@@ -654,9 +676,12 @@ class AssemblyAgent:
                           hop=agg.hop, parent=-1 if agg.parent is None else agg.parent, depth=agg.depth,
                           start=start, members=members, owners=owners, keys=keys, forms=flat, pin=pin)
 
-    def _send_up(self, indices: list[int]) -> None:
+    def _send_up(self, indices: list[int], whole: bool = False) -> None:
+        """Records ``indices`` to the parent: as a delta (what it lacks), or ``whole`` (a resend: it could not
+        rebuild them, or the bundle was lost)."""
         agg = self._boot["agg"]
-        self._outbox.append(self._bundle(self.config.assemblies[agg.parent], indices, down=False))
+        delta = None if whole else self._delta(agg.parent, indices)
+        self._outbox.append(delta or self._bundle(self.config.assemblies[agg.parent], indices, down=False))
 
     def _send_down(self, exclude=(), start: int | None = None) -> None:
         """The final set of this window to the children (the root: when complete or on timeout)."""
@@ -676,12 +701,41 @@ class AssemblyAgent:
         for child in targets:
             self._outbox.append(self._down_bundle(self.config.assemblies[child]))
 
-    def _down_bundle(self, receiver: str) -> FormBundle:
+    def _down_bundle(self, receiver: str) -> FormBundle | JointPoses:
+        """What goes down to ``receiver``: the reference's joint solution when the set was complete there
+        (:class:`protocols.delta_messages.JointPoses`, a few bytes per assembly), else the forms."""
         down = self._down
+        boot = down["boot"]
+        solution = boot.get("solution")
+        if solution is None and self.name == self.config.reference and boot["agg"].complete:
+            joint = self._joint(boot)
+            if joint is not None:
+                solution = boot["solution_out"] = boot.get("solution_out") or self._solution_message(boot, joint)
+        if solution is not None:
+            agg = boot["agg"]
+            return JointPoses(sender=self.name, receiver=receiver, round=self._round, step=solution.step,
+                              hop=agg.hop, parent=-1 if agg.parent is None else agg.parent, depth=solution.depth,
+                              start=down["start"], members=solution.members, index=solution.index,
+                              poses=solution.poses, placeable=solution.placeable, edges=solution.edges)
         if down["bundle"] is None:
             down["bundle"] = self._bundle(BROADCAST, sorted(down["boot"]["records"]), down=True, start=down["start"],
                                           boot=down["boot"])
         return self._readdressed(down["bundle"], receiver)
+
+    def _solution_message(self, boot: dict, joint) -> JointPoses:
+        """The reference's joint solution of the window as it goes down: newest step, float32."""
+        names, step = self.config.assemblies, boot["step"]
+        edges = self._edges(boot)  # sent when the view graph changed (an empty list: as in the last solution)
+        message_edges, self._edges_sent = self._edges_sent, edges
+        rows = sorted((self._index[a], p, _yaw2(R)) for (a, k), (R, p) in joint.poses.items()
+                      if k == step and a in self._index)
+        placeable = sorted({self._index[a] for a, k in self._placeable_of(boot, joint) if k == step})
+        return JointPoses(sender=self.name, receiver=BROADCAST, round=self._round, step=step, hop=0, parent=-1,
+                          depth=boot["agg"].depth, start=0, members=np.array(sorted(boot["records"]), dtype=np.int32),
+                          index=np.array([r[0] for r in rows], dtype=np.int32),
+                          poses=np.array([[*r[1], r[2]] for r in rows], float).reshape(-1, 4),
+                          placeable=np.array(placeable, dtype=np.int32),
+                          edges=np.array(sorted(edges) if edges != message_edges else [], dtype=np.int32).reshape(-1, 2))
 
     def _ask(self, neighbour: str, step: int) -> None:
         """A neighbour sends ADMM values of this window, so it has finished the sharing: ask it for the set
@@ -716,6 +770,8 @@ class AssemblyAgent:
         2 rounds after that gets the bundle again, every 3 rounds, at most 4 times (it may no longer be a
         neighbour; it also asks by itself)."""
         down = self._down
+        if down is not None and (down["boot"].get("solution") or down["boot"].get("solution_out")):
+            return  # an exact window sends no ADMM values to tell it by: the children ask themselves
         if down is None or down["step"] != self._step or not down["pending"]:
             return
         for child, (last, tries) in sorted(down["pending"].items()):
@@ -734,9 +790,11 @@ class AssemblyAgent:
                           members=bundle.members, owners=bundle.owners, keys=bundle.keys, forms=bundle.forms,
                           pin=bundle.pin)
 
-    def _on_bundle(self, message: FormBundle) -> None:
-        """A bundle from a child (records up) or from the parent (the final set, down)."""
+    def _on_bundle(self, message: FormBundle | DeltaBundle, rebuilt: dict | None = None) -> None:
+        """A bundle from a child (records up) or from the parent (the final set, down); ``rebuilt``: the
+        records a delta bundle describes, rebuilt from this agent's cache (:meth:`_on_delta`)."""
         n = len(self.config.assemblies)
+        down = bool(getattr(message, "down", False))
         sender = self._index.get(message.sender)
         if (sender is None or (len(message.keys) and message.keys[:, 1].max() >= n)
                 or (len(message.members) and message.members.max() >= n)):
@@ -747,34 +805,39 @@ class AssemblyAgent:
             self._alive[int(member)] = self._step if self._step is not None else 0
         boot, late = self._boot, self._late
         names = self.config.assemblies
-        records = {i: [(keys, LocalProblem(tuple((names[a], s) for a, s in keys), M, b_z, c_z))
-                       for keys, M, b_z, c_z in forms] for i, forms in message.records().items()}
+        if rebuilt is None:
+            records = {i: [(keys, LocalProblem(tuple((names[a], s) for a, s in keys), M, b_z, c_z))
+                           for keys, M, b_z, c_z in forms] for i, forms in message.records().items()}
+            for i, forms in records.items():
+                self._remember(i, forms)
+        else:
+            records = rebuilt
         if boot is None and late is not None and late["step"] == message.step == self._step:
             # this window finished here without every agent's forms: what arrives late may complete it
             agg = late["agg"]
             if len(message.pin):
                 late["pin"] = np.array(message.pin)
-            new = agg.add(records, child=None if message.down else sender)
-            if not message.down and new and agg.parent is not None:  # the root missed them too: pass them on
+            new = agg.add(records, child=None if down else sender)
+            if not down and new and agg.parent is not None:  # the root missed them too: pass them on
                 self._outbox.append(self._bundle(names[agg.parent], sorted(new), down=False, boot=late))
             if agg.complete:  # start again from the joint solution, and tell the children
                 self._late, self._boot = None, late
                 agg.final = False
-                self._send_down(exclude=(sender,) if message.down else (), start=0)
+                self._send_down(exclude=(sender,) if down else (), start=0)
                 self.counters["late_seeds"] += 1
                 self._finish_bootstrap()
-            elif not message.down and self._down is not None and self._down["step"] == message.step:
+            elif not down and self._down is not None and self._down["step"] == message.step:
                 self._outbox.append(self._down_bundle(message.sender))
             return
         if boot is None or message.step != boot["step"]:
             # finished with this window: a bundle from below means the down bundle was lost: send it again
-            if not message.down and self._down is not None and self._down["step"] == message.step:
+            if not down and self._down is not None and self._down["step"] == message.step:
                 self._outbox.append(self._down_bundle(message.sender))
             return
         agg = boot["agg"]
         if len(message.pin):
             boot["pin"] = np.array(message.pin)
-        if message.down:
+        if down:
             if agg.final:
                 return
             agg.add(records, depth=message.depth)
@@ -796,6 +859,55 @@ class AssemblyAgent:
                                         step=boot["step"], have=np.array(sorted(agg.records), dtype=np.int64)))
             self._tree_progress()
 
+    def _remember(self, owner: int, forms) -> None:
+        """Keep ``owner``'s forms ``[(keys, LocalProblem)]`` of the window (a parent rebuilds delta records from them)."""
+        for keys, prob in forms:
+            self._cache[(owner, tuple(keys))] = (form_crc(prob.M, prob.b_z, prob.c_z), prob)
+
+    def _on_delta(self, message: DeltaBundle) -> None:
+        """A delta bundle from a child: rebuild each member's record of the window from the forms carried and
+        those held here, checked against its digest; a member that cannot be rebuilt exactly is left out (not
+        acknowledged: the child sends it whole)."""
+        n, names = len(self.config.assemblies), self.config.assemblies
+        if self._index.get(message.sender) is None or (len(message.keys) and message.keys[:, 1].max() >= n):
+            self.counters["ignored"] += 1
+            return
+        for owner, keys, M, b_z, c_z in message.carried():
+            self._remember(owner, [(keys, LocalProblem(tuple((names[a], k) for a, k in keys), M, b_z, c_z))])
+        first = message.step - self.config.window + 1
+        held: dict[int, list] = {}
+        for (owner, keys), (crc, prob) in self._cache.items():
+            if min(k for _, k in keys) >= first and max(k for _, k in keys) <= message.step:
+                held.setdefault(owner, []).append((keys, crc, prob))
+        rebuilt = {}
+        for member, (count, crc) in zip(message.members.tolist(), message.digest.tolist()):
+            forms = sorted(held.get(member, []), key=lambda f: f[0])
+            if record_digest([f[1] for f in forms]) == (count, crc):
+                rebuilt[member] = [(keys, prob) for keys, _, prob in forms]
+        self._on_bundle(message, rebuilt)
+
+    def _delta(self, parent: int, indices: list[int]) -> DeltaBundle:
+        """Records ``indices`` for ``parent`` as a delta: the forms not yet sent to it, and each record's digest."""
+        boot, agg = self._boot, self._boot["agg"]
+        sent = self._up_sent.setdefault(parent, set())
+        digest, carried = [], {}
+        for i in indices:
+            crcs = []
+            for keys, prob in agg.records[i]:
+                crc = form_crc(prob.M, prob.b_z, prob.c_z)
+                crcs.append(crc)
+                if (i, tuple(keys), crc) not in sent:
+                    carried.setdefault(i, []).append((keys, prob.M, prob.b_z, prob.c_z))
+                    sent.add((i, tuple(keys), crc))
+            digest.append(record_digest(crcs))
+        _, owners, keys, flat = pack_bundle(carried)
+        ref = self._index[self.config.reference]
+        pin = boot["pin"] if boot["pin"] is not None and ref in indices else np.zeros(0)
+        return DeltaBundle(sender=self.name, receiver=self.config.assemblies[parent], round=self._round,
+                           step=boot["step"], hop=agg.hop, parent=parent, depth=agg.depth,
+                           members=np.array(sorted(indices), dtype=np.int64), owners=owners, keys=keys, forms=flat,
+                           pin=pin, digest=np.array(digest, dtype=np.int64).reshape(-1, 2))
+
     def _factor_share(self, receiver: str) -> FactorShare:
         step, keys, flat, pin = self._own_forms
         have = [self._index[self.name]]
@@ -814,9 +926,10 @@ class AssemblyAgent:
         if boot is not None and message.step == boot["step"]:
             names, agg = self.config.assemblies, boot["agg"]
             if sender not in boot["records"]:
-                agg.add({sender: [(keys, LocalProblem(tuple((names[a], s) for a, s in keys), M, b_z, c_z))
-                                  for keys, M, b_z, c_z in message.unpack()]},
-                        forward=message.sender == self.name)
+                forms = [(keys, LocalProblem(tuple((names[a], s) for a, s in keys), M, b_z, c_z))
+                         for keys, M, b_z, c_z in message.unpack()]
+                self._remember(sender, forms)
+                agg.add({sender: forms}, forward=message.sender == self.name)
                 if len(message.pin):
                     boot["pin"] = np.array(message.pin)
             if (boot["mode"] == "tree" and message.receiver == BROADCAST and agg.parent == sender
@@ -828,73 +941,140 @@ class AssemblyAgent:
                 and message.sender != self.name and self._index[self.name] not in set(message.have.tolist())):
             self._outbox.append(self._factor_share(message.sender))
 
+    def _joint(self, boot: dict):
+        """The joint solution of a window's shared forms (:func:`decentral.admm.solve_joint`, computed once per
+        window), or ``None`` (no forms, or the gauge's value at this window unknown here)."""
+        if "joint" not in boot:
+            boot["joint"] = None
+            problems = [prob for idx in sorted(boot["records"]) for _, prob in boot["records"][idx]]
+            first = self._steps[0]
+            pin = boot["pin"]
+            if problems and (pin is not None and int(pin[0]) == first or first == 0):
+                value = (rot2(float(pin[4])), np.array(pin[1:4])) if pin is not None and int(pin[0]) == first else None
+                boot["joint"] = solve_joint(problems, (self.config.reference, first), value)
+        return boot["joint"]
+
+    def _edges(self, boot: dict) -> set[tuple[int, int]]:
+        """The view graph's observing pairs ``(observer, target)`` the window's forms name (each pair form names
+        its observer first and its target last)."""
+        return {(keys[0][0], keys[-1][0]) for idx in boot["records"] for keys, _ in boot["records"][idx]
+                if keys[0][0] != keys[-1][0]}
+
+    def _placeable_of(self, boot: dict, joint) -> frozenset:
+        if "placeable" not in boot:
+            limit = self.config.max_yaw_std if self.config.noise.weighting == "information" else np.inf
+            boot["placeable"] = joint.placeable((self.name, self._step), limit)
+        return boot["placeable"]
+
+    def _learn_graph(self, edges: set[tuple[int, int]]) -> None:
+        """A complete window reveals the whole view graph: the neighbours' places in the tree (ready for the
+        next window without waiting for the distance vector to cross the graph) and this agent's observers."""
+        me = self._index[self.name]
+        hops, parents = tree_from_edges(edges, len(self.config.assemblies), self._index[self.config.reference])
+        # assemblies no longer adjacent leave the table (with no ADMM values to refresh it, a stale entry would
+        # make a former neighbour wait for a child that never reports)
+        self._tree = {}
+        self._watchers = {self.config.assemblies[a] for a, b in edges if b == me and a != me}
+        for a, b in edges:
+            other = b if a == me else a if b == me else None
+            if other is not None and other != me and other in hops:
+                self._tree[self.config.assemblies[other]] = (hops[other], parents.get(other, -1), self._round,
+                                                             self._step)
+
+    def _fill_table(self, poses: dict) -> None:
+        """The joint solution's poses of the current step into the gossip table (its own row too: in an exact
+        window no ADMM round comes to write it)."""
+        for (name, step), (R, p) in poses.items():
+            i = self._index.get(name)
+            if step == self._step and i is not None:
+                self._table[i] = np.array([i, step, self._round, *p, np.arctan2(R[1, 0], R[0, 0])])
+        self._table_version += 1
+        self._table_changed = self._round
+
+    def _fresh_admm(self) -> None:
+        """A fresh ADMM start at the new window's fixed point: earlier values belong to the old window."""
+        self._targets_z = {a: v for a, v in self._targets_z.items() if v.window >= self._step}
+        self._observers = {a: v for a, v in self._observers.items() if v.window >= self._step}
+        self._iter = 0
+        self._pair_iter, self._waiting, self._pair_out, self._last_dual = {}, {}, {}, {}
+        self._last_primal = None
+        for pair in self._pairs.values():
+            pair.y, pair.y_hat = {}, {}
+
     def _finish_bootstrap(self) -> None:
-        """Solve the joint problem of the shared forms (:func:`decentral.admm.solve_joint`) and seed the ADMM."""
+        """Solve the joint problem of the shared forms (:func:`decentral.admm.solve_joint`) and seed the ADMM,
+        or adopt the joint solution the reference sent down (:class:`protocols.delta_messages.JointPoses`)."""
         boot = self._boot
         self._boot = None
         self._hold = max(boot["start_at"], self._round + 1)  # the ADMM starts with a later round's pair phase
         agg = boot["agg"]
         self._late = None
+        if boot.get("solution") is not None:
+            self._adopt(boot["solution"])
+            return
         if boot["mode"] == "tree" and not agg.complete:
             self._late = dict(boot, asked=0, last=self._round)
             # values from a partial solution would pull the neighbours that have the whole set off the exact
             # fixed point (100-250 rounds per window at 50 % loss): stay silent while the rest may still come
             self._hold = self._round + self.config.share_timeout
-        problems = [prob for idx in sorted(boot["records"]) for _, prob in boot["records"][idx]]
-        if not problems:
-            return
-        first = self._steps[0]
-        ref = self.config.reference
-        value = None
-        pin = boot["pin"]
-        if pin is not None and int(pin[0]) == first:
-            value = (rot2(float(pin[4])), np.array(pin[1:4]))
-        elif first != 0:
-            return  # the gauge's value at this window is unknown here: the ADMM goes on from its own state
-        joint = solve_joint(problems, (ref, first), value)
+        joint = self._joint(boot)
+        if joint is None:
+            return  # no forms, or the gauge's value at this window is unknown here: the ADMM goes on
         seeds = joint.poses
         # every agent's forms: the seeds are the joint estimate of this step (a fixed point of the ADMM),
         # and the centralized estimator's placement test can be run on them
         self._seeds_complete = agg.complete  # every (live) agent's forms
         if self._seeds_complete:
-            limit = self.config.max_yaw_std if self.config.noise.weighting == "information" else np.inf
-            self._placeable = joint.placeable((self.name, self._step), limit)
+            self._placeable = self._placeable_of(boot, joint)
             # the joint solution already gives every assembly's pose of this step: the gossip table need
             # not cross the view graph before the convergence flag can settle (rounds flat in the diameter)
-            me = self._index[self.name]
-            for (name, step), (R, p) in seeds.items():
-                i = self._index.get(name)
-                if step == self._step and i is not None:  # its own row too: no ADMM round may come
-                    self._table[i] = np.array([i, step, self._round, *p, np.arctan2(R[1, 0], R[0, 0])])
-            self._table_version += 1
-            self._table_changed = self._round
-            # they also reveal the whole view graph: the neighbours' places in the tree, without waiting for
-            # the distance vector to cross the graph (the next window's tree is ready at once)
-            edges = {(keys[0][0], keys[-1][0]) for idx in boot["records"] for keys, _ in boot["records"][idx]}
-            hops, parents = tree_from_edges(edges, len(self.config.assemblies), self._index[self.config.reference])
-            # the complete set is the whole view graph: assemblies no longer adjacent leave the table (with no ADMM
-            # values to refresh it, a stale entry would make a former neighbour wait for a child that never reports)
-            self._tree = {}
-            self._watchers = {self.config.assemblies[a] for a, b in edges if b == me and a != me}
-            for a, b in edges:
-                other = b if a == me else a if b == me else None
-                if other is not None and other != me and other in hops:
-                    self._tree[self.config.assemblies[other]] = (hops[other], parents.get(other, -1), self._round,
-                                                                 self._step)
+            self._fill_table(seeds)
+            self._learn_graph(self._edges(boot))
         # the seeded duals balance only with every observer's contribution: wait for their first values
         names, me = self.config.assemblies, self._index[self.name]
         self._expected = {names[keys[0][0]] for idx in boot["records"] for keys, _ in boot["records"][idx]
                           if len(keys) >= 2 and keys[1][0] == me and keys[0][0] != me}
         if self.config.share_forms == "every":
-            # a fresh ADMM start at the new window's fixed point: earlier values belong to the old window
-            self._targets_z = {a: v for a, v in self._targets_z.items() if v.window >= self._step}
-            self._observers = {a: v for a, v in self._observers.items() if v.window >= self._step}
-            self._iter = 0
-            self._pair_iter, self._waiting, self._pair_out, self._last_dual = {}, {}, {}, {}
-            self._last_primal = None
-            for pair in self._pairs.values():
-                pair.y, pair.y_hat = {}, {}
+            self._fresh_admm()
         self.seed(seeds)
+
+    def _adopt(self, solution: JointPoses) -> None:
+        """Start the window from the reference's joint solution: the newest step's poses (older window steps
+        keep this agent's values: an exact window runs no ADMM round that would use them)."""
+        names, me, step = self.config.assemblies, self._index[self.name], solution.step
+        newest = {(names[i], step): (rot2(theta), p) for i, (p, theta) in solution.pose_of().items()
+                  if i < len(names)}
+        self._seeds_complete = True
+        placeable = set(solution.placeable.tolist())
+        # placed relative to the reference; relative to this agent when it is placed itself
+        self._placeable = frozenset((names[i], step) for i in placeable | {me} if i < len(names)) \
+            if me in placeable else frozenset()
+        self._fill_table(newest)
+        if len(solution.edges):
+            self._learn_graph({(int(a), int(b)) for a, b in solution.edges if a != b})
+        self._expected = set()
+        if self.config.share_forms == "every":
+            self._fresh_admm()
+        self.seed(newest)
+
+    def _on_solution(self, message: JointPoses) -> None:
+        """The reference's joint solution coming down: adopt it, forward it to the children, acknowledge it."""
+        boot, late = self._boot, self._late
+        if boot is None and late is not None and late["step"] == message.step == self._step:
+            self._late, self._boot = None, late  # a window that timed out here: complete after all
+            late["agg"].final = False
+            boot = late
+            self.counters["late_seeds"] += 1
+        if boot is None or boot["step"] != message.step or boot["agg"].final:
+            return
+        self._tree[message.sender] = (message.hop, message.parent, self._round, self._step)
+        boot["solution"] = message
+        boot["agg"].depth = max(boot["agg"].depth, message.depth)
+        self._tree_depth = max(1, message.depth)
+        # (not acknowledged: a child still without it after its bundle up was acknowledged sends the bundle again,
+        # and whoever has finished the window answers with the solution)
+        self._send_down(exclude=(self._index.get(message.sender),), start=message.start)
+        self._finish_bootstrap()
 
     def _pair_phase(self) -> None:
         """Phase 0: each owned pair iterates once the target's consensus of its iteration has arrived."""
@@ -1161,6 +1341,10 @@ class AssemblyAgent:
 
 
 _DONE = np.ones(1)
+
+
+def _yaw2(R: np.ndarray) -> float:
+    return float(np.arctan2(R[1, 0], R[0, 0]))
 
 
 def _packed(metric: tuple[np.ndarray, float]) -> list[float]:

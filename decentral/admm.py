@@ -122,7 +122,6 @@ __all__ = [
     "LocalProblem",
     "ProxSolution",
     "quadratic_form",
-    "split_by_step",
     "solve_prox",
     "solve_prox_metric",
     "scalar_metric",
@@ -240,45 +239,6 @@ class LocalProblem:
         X = np.hstack([position[:, :2].T, rot2(theta).transpose(1, 0, 2).reshape(2, 2 * n)])
         pz = position[:, 2]
         return float(np.trace(X @ self.M @ X.T) + pz @ self.M[:n, :n] @ pz - 2 * self.b_z @ pz + self.c_z)
-
-
-def split_by_step(problem: LocalProblem) -> list[LocalProblem]:
-    """Split a form whose variables of different steps do not interact into one form per step.
-
-    A pair's form over a window (keys ``(assembly, step)``) is a sum of per-step terms: each
-    detection ties the observer and the target at one step (seed 000 eq. (4)). Sent per step, a
-    window adds only its newest step's forms, and the forms of older steps stay the same from window
-    to window. The per-step forms sum to ``problem`` (the constant ``c_z`` goes with the first); a
-    form with cross-step terms (an odometry chain) is returned whole.
-
-    Parameters
-    ----------
-    problem : LocalProblem
-        Over ``n`` variables keyed ``(assembly, step)``; ``M`` (3n, 3n) over ``[P_xy | R2_1 .. R2_n]``.
-
-    Returns
-    -------
-    list of LocalProblem
-        One per step, in step order (or ``[problem]``).
-    """
-    n = problem.n
-    steps = sorted({key[1] for key in problem.keys})
-    if len(steps) <= 1:
-        return [problem]
-    cols = lambda idx: np.concatenate([idx, np.stack([n + 2 * idx, n + 2 * idx + 1], 1).ravel()])  # noqa: E731
-    groups = [np.array([i for i, key in enumerate(problem.keys) if key[1] == k]) for k in steps]
-    inside = np.zeros((3 * n, 3 * n), bool)
-    for g in groups:
-        c = cols(g)
-        inside[np.ix_(c, c)] = True
-    if np.any(problem.M[~inside]):
-        return [problem]
-    out = []
-    for j, g in enumerate(groups):
-        c = cols(g)
-        out.append(LocalProblem(tuple(problem.keys[i] for i in g), problem.M[np.ix_(c, c)].copy(),
-                                problem.b_z[g].copy(), problem.c_z if j == 0 else 0.0))
-    return out
 
 
 def quadratic_form(keys, visual=None, odometry=None) -> LocalProblem:

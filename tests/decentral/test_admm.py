@@ -116,13 +116,12 @@ def test_admm_config_rejects_bad_parameters():
         AdmmConfig(eps_pos=-1.0)
 
 
-def test_per_step_forms_sum_to_the_window_form_and_give_the_same_joint_solution():
-    """split_by_step and odometry_links cut a window's pair and odometry forms into per-step forms whose
-    joint solution is bit-identical to the whole forms' (what a window adds is its newest step)."""
+def test_per_step_forms_give_the_window_forms_joint_solution():
+    """The forms agents share (one per pair and step, one per odometry link) have the same joint solution
+    as one form per pair over the window and the odometry chain (a window adds only its newest step)."""
     from agents.assembly import AssemblyAgent
-    from decentral.admm import solve_joint, split_by_step
+    from decentral.admm import solve_joint
     from sims.admm_run import AdmmRunConfig, _agent_config, own_step
-    from sims.scenarios import get_scenario, simulate
 
     log = simulate(get_scenario("multi", n_assemblies=4, steps=4), seed=1).log
     whole, split = [], []
@@ -133,9 +132,9 @@ def test_per_step_forms_sum_to_the_window_form_and_give_the_same_joint_solution(
         agent._configs = {m: [(0, dict(log.steps[0].config[m]))] for m in log.assemblies if m != name}
         agent._rebuild()
         chain = agent._consensus.odometry_problem()
-        for pair in agent._pairs.values():
-            parts = split_by_step(pair.problem)
-            assert len(parts) == len({k for _, k in pair.problem.keys}) and all(p.n == 2 for p in parts)
+        for target, pair in agent._pairs.items():
+            parts = agent._shared[target]
+            assert all(p.n == 2 for p in parts) and len(parts) == len({k for _, k in pair.problem.keys})
             whole.append(pair.problem)
             split += parts
         links = agent._consensus.odometry_links()
@@ -147,12 +146,3 @@ def test_per_step_forms_sum_to_the_window_form_and_give_the_same_joint_solution(
     for key in a.poses:
         assert np.allclose(a.poses[key][0], b.poses[key][0], atol=1e-9)
         assert np.allclose(a.poses[key][1], b.poses[key][1], atol=1e-9)
-
-
-def test_a_form_with_cross_step_terms_is_not_split():
-    """An odometry chain couples consecutive steps: split_by_step returns it whole."""
-    chain = quadratic_form([("A", 0), ("A", 1)], odometry=(np.array([0]), np.array([1]), np.array([[0.1, 0, 0]]),
-                                                          np.array([0.05]), np.array([1.0]), np.array([1.0])))
-    from decentral.admm import split_by_step
-
-    assert split_by_step(chain) == [chain]
