@@ -715,7 +715,7 @@ class AssemblyAgent:
             agg = boot["agg"]
             return JointPoses(sender=self.name, receiver=receiver, round=self._round, step=solution.step,
                               hop=agg.hop, parent=-1 if agg.parent is None else agg.parent, depth=solution.depth,
-                              start=down["start"], members=solution.members, index=solution.index,
+                              start=down["start"], n=solution.n, members=solution.members, index=solution.index,
                               poses=solution.poses, placeable=solution.placeable, edges=solution.edges)
         if down["bundle"] is None:
             down["bundle"] = self._bundle(BROADCAST, sorted(down["boot"]["records"]), down=True, start=down["start"],
@@ -723,19 +723,20 @@ class AssemblyAgent:
         return self._readdressed(down["bundle"], receiver)
 
     def _solution_message(self, boot: dict, joint) -> JointPoses:
-        """The reference's joint solution of the window as it goes down: newest step, float32."""
-        names, step = self.config.assemblies, boot["step"]
-        edges = self._edges(boot)  # sent when the view graph changed (an empty list: as in the last solution)
+        """The reference's joint solution of the window as it goes down: newest step, float32, bit masks."""
+        n, step = len(self.config.assemblies), boot["step"]
+        edges = self._edges(boot)  # sent when the view graph changed (an empty mask: as in the last solution)
         message_edges, self._edges_sent = self._edges_sent, edges
         rows = sorted((self._index[a], p, _yaw2(R)) for (a, k), (R, p) in joint.poses.items()
                       if k == step and a in self._index)
-        placeable = sorted({self._index[a] for a, k in self._placeable_of(boot, joint) if k == step})
+        placeable = {self._index[a] for a, k in self._placeable_of(boot, joint) if k == step}
         return JointPoses(sender=self.name, receiver=BROADCAST, round=self._round, step=step, hop=0, parent=-1,
-                          depth=boot["agg"].depth, start=0, members=np.array(sorted(boot["records"]), dtype=np.int32),
-                          index=np.array([r[0] for r in rows], dtype=np.int32),
+                          depth=boot["agg"].depth, start=0, n=n, members=JointPoses.mask(boot["records"], n),
+                          index=JointPoses.mask([r[0] for r in rows], n),
                           poses=np.array([[*r[1], r[2]] for r in rows], float).reshape(-1, 4),
-                          placeable=np.array(placeable, dtype=np.int32),
-                          edges=np.array(sorted(edges) if edges != message_edges else [], dtype=np.int32).reshape(-1, 2))
+                          placeable=JointPoses.mask(placeable, n),
+                          edges=JointPoses.mask([a * n + b for a, b in edges], n * n) if edges != message_edges
+                          else np.zeros(0, np.uint8))
 
     def _ask(self, neighbour: str, step: int) -> None:
         """A neighbour sends ADMM values of this window, so it has finished the sharing: ask it for the set
@@ -1045,20 +1046,24 @@ class AssemblyAgent:
         newest = {(names[i], step): (rot2(theta), p) for i, (p, theta) in solution.pose_of().items()
                   if i < len(names)}
         self._seeds_complete = True
-        placeable = set(solution.placeable.tolist())
+        ref = self._index[self.config.reference]
+        placeable = set(solution.indices("placeable")) | {ref}
         # placed relative to the reference; relative to this agent when it is placed itself
         self._placeable = frozenset((names[i], step) for i in placeable | {me} if i < len(names)) \
             if me in placeable else frozenset()
         self._fill_table(newest)
         if len(solution.edges):
-            self._learn_graph({(int(a), int(b)) for a, b in solution.edges if a != b})
+            self._learn_graph({(a, b) for a, b in solution.edge_set() if a != b})
         self._expected = set()
         if self.config.share_forms == "every":
             self._fresh_admm()
         self.seed(newest)
 
     def _on_solution(self, message: JointPoses) -> None:
-        """The reference's joint solution coming down: adopt it, forward it to the children, acknowledge it."""
+        """The reference's joint solution coming down: adopt it and forward it to the children."""
+        if message.n != len(self.config.assemblies):
+            self.counters["ignored"] += 1
+            return
         boot, late = self._boot, self._late
         if boot is None and late is not None and late["step"] == message.step == self._step:
             self._late, self._boot = None, late  # a window that timed out here: complete after all

@@ -277,7 +277,7 @@ def test_a_bundle_from_below_after_the_window_is_answered_with_the_down_bundle(l
     parent.handle(up)
     answer = parent.outbox()
     assert len(answer) == 1 and isinstance(answer[0], JointPoses)  # the complete set's solution, compactly
-    assert answer[0].receiver == up.sender and len(answer[0].members) == len(log.assemblies)
+    assert answer[0].receiver == up.sender and answer[0].indices("members") == list(range(len(log.assemblies)))
 
 
 def test_a_broadcast_from_its_parent_turns_a_tree_agent_to_broadcasting(log):
@@ -388,3 +388,22 @@ def test_an_agent_that_cannot_name_a_node_does_not_report_convergence_until_ever
             break
     assert not agents[observer]._unresolved() and target in agents[observer]._pairs
     assert all(a.converged for a in agents.values())
+
+
+def test_a_parent_that_cannot_rebuild_a_delta_gets_the_records_whole():
+    """A parent that lost the forms a delta builds on (its cache emptied) does not acknowledge those members;
+    the child sends them whole (admm.bundle up) and every agent still starts from the same solution."""
+    log = simulate(get_scenario("multi", n_assemblies=3, steps=3), seed=1).log
+    agents, _ = _tree_agents(log)
+    _drive(agents, 1, log, 12)
+    for a in agents.values():
+        a._cache.clear()
+    sent = _drive(agents, 2, log, 20)
+    assert any(isinstance(m, DeltaBundle) for m in sent)
+    assert any(isinstance(m, FormBundle) and not m.down for m in sent)
+    root = agents["A0"]._seeds
+    assert any(key[1] == 2 for key in root)
+    for a in list(agents.values())[1:]:
+        for key, (R, p) in root.items():
+            if key[1] == 2:
+                assert np.allclose(a._seeds[key][1], p, atol=1e-5)
