@@ -797,10 +797,10 @@ class AssemblyAgent:
         n = len(self.config.assemblies)
         down = bool(getattr(message, "down", False))
         sender = self._index.get(message.sender)
-        if (sender is None or (len(message.keys) and message.keys[:, 1].max() >= n)
-                or (len(message.members) and message.members.max() >= n)):
+        if rebuilt is None and (sender is None or (len(message.keys) and message.keys[:, 1].max() >= n)
+                                or (len(message.members) and message.members.max() >= n)):
             self.counters["ignored"] += 1
-            return
+            return  # (a delta's indices were checked by _on_delta)
         self._tree[message.sender] = (message.hop, message.parent, self._round, self._step)
         for member in message.members.tolist():
             self._alive[int(member)] = self._step if self._step is not None else 0
@@ -870,7 +870,8 @@ class AssemblyAgent:
         those held here, checked against its digest; a member that cannot be rebuilt exactly is left out (not
         acknowledged: the child sends it whole)."""
         n, names = len(self.config.assemblies), self.config.assemblies
-        if self._index.get(message.sender) is None or (len(message.keys) and message.keys[:, 1].max() >= n):
+        if (self._index.get(message.sender) is None or (len(message.pairs) and message.pairs.max() >= n)
+                or (len(message.members) and message.members.max() >= n)):
             self.counters["ignored"] += 1
             return
         for owner, keys, M, b_z, c_z in message.carried():
@@ -887,27 +888,30 @@ class AssemblyAgent:
                 rebuilt[member] = [(keys, prob) for keys, _, prob in forms]
         self._on_bundle(message, rebuilt)
 
-    def _delta(self, parent: int, indices: list[int]) -> DeltaBundle:
-        """Records ``indices`` for ``parent`` as a delta: the forms not yet sent to it, and each record's digest."""
+    def _delta(self, parent: int, indices: list[int]) -> DeltaBundle | None:
+        """Records ``indices`` for ``parent`` as a delta: the forms not yet sent to it, and each record's digest
+        (``None`` when a form is not over two poses within 255 steps: then the records go whole)."""
         boot, agg = self._boot, self._boot["agg"]
         sent = self._up_sent.setdefault(parent, set())
-        digest, carried = [], {}
+        digest, carried, new = [], {}, set()
         for i in indices:
             crcs = []
             for keys, prob in agg.records[i]:
+                if len(keys) != 2 or not 0 <= boot["step"] - min(k for _, k in keys) <= 255:
+                    return None
                 crc = form_crc(prob.M, prob.b_z, prob.c_z)
                 crcs.append(crc)
                 if (i, tuple(keys), crc) not in sent:
                     carried.setdefault(i, []).append((keys, prob.M, prob.b_z, prob.c_z))
-                    sent.add((i, tuple(keys), crc))
+                    new.add((i, tuple(keys), crc))
             digest.append(record_digest(crcs))
-        _, owners, keys, flat = pack_bundle(carried)
+        sent |= new
         ref = self._index[self.config.reference]
         pin = boot["pin"] if boot["pin"] is not None and ref in indices else np.zeros(0)
         return DeltaBundle(sender=self.name, receiver=self.config.assemblies[parent], round=self._round,
                            step=boot["step"], hop=agg.hop, parent=parent, depth=agg.depth,
-                           members=np.array(sorted(indices), dtype=np.int64), owners=owners, keys=keys, forms=flat,
-                           pin=pin, digest=np.array(digest, dtype=np.int64).reshape(-1, 2))
+                           members=np.array(sorted(indices), dtype=np.int16), pin=pin,
+                           digest=np.array(digest, dtype=np.int64).reshape(-1, 2), **DeltaBundle.pack(boot["step"], carried))
 
     def _factor_share(self, receiver: str) -> FactorShare:
         step, keys, flat, pin = self._own_forms

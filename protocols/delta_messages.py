@@ -29,7 +29,6 @@ from typing import ClassVar
 import numpy as np
 
 from decentral.errors import ProtocolError
-from protocols.admm_messages import _check_forms, _unpack
 from protocols.messages import Message, _finite_array, _set, as_array, register
 
 __all__ = ["JointPoses", "DeltaBundle", "form_crc", "record_digest"]
@@ -54,20 +53,35 @@ def record_digest(crcs) -> tuple[int, int]:
     return len(crcs), x
 
 
+#: floats of one two-pose form on the wire: upper triangle of the 6 x 6 ``M``, ``b_z`` (2), ``c_z``
+PAIR_FORM = 24
+
+
 @register
 @dataclass(frozen=True, slots=True, eq=False, kw_only=True)
 class DeltaBundle(Message):
-    """Forms of several agents going up the tree, only those the parent lacks, with the window's manifest.
+    """Forms of several agents going up the tree, only those the parent lacks, and a digest per record.
+
+    Every form shared is over two poses (a pair at one step, or an odometry link), so a form travels as
+    its two assemblies, its two steps as lags behind ``step``, and its 24 numbers in float32 (a form's
+    numbers lose nothing the joint solution feels: under a micrometre and 1e-5 degree on a 64-ring).
 
     Attributes
     ----------
     step, hop, parent, depth : int
         As :class:`protocols.admm_messages.FormBundle` (up).
-    members : ndarray, shape (h,), int64
+    members : ndarray, shape (h,), int16
         Agents whose records the bundle describes (sorted, unique).
-    owners, keys, forms, pin
-        The forms carried (those the parent lacks), packed as in ``FormBundle`` but keys in int32
-        and forms in float32.
+    owners : ndarray, shape (F,), int16
+        The member each form carried belongs to.
+    pairs : ndarray, shape (F, 2), int16
+        The assemblies of each form's two poses.
+    lags : ndarray, shape (F, 2), uint8
+        ``step`` minus the steps of each form's two poses.
+    forms : ndarray, shape (24 F,), float32
+        Per form: the upper triangle (row-major) of its ``6 x 6`` xy form, ``b_z`` (2), ``c_z``.
+    pin : ndarray, shape (0,) or (5,), float64
+        As ``FormBundle``.
     digest : ndarray, shape (h, 2), int64
         Per member (in the order of ``members``): the number of forms of its record of the window and
         the XOR of their :func:`form_crc`.
@@ -81,45 +95,73 @@ class DeltaBundle(Message):
     depth: int
     members: np.ndarray
     owners: np.ndarray
-    keys: np.ndarray
+    pairs: np.ndarray
+    lags: np.ndarray
     forms: np.ndarray
     pin: np.ndarray
     digest: np.ndarray
 
     def __post_init__(self) -> None:
         Message.__post_init__(self)
-        for name in ("hop", "depth"):
+        for name in ("step", "hop", "depth"):
             _set(self, name, _count(getattr(self, name), name))
         _set(self, "parent", _count(self.parent, "parent", low=-1))
-        members = as_array(self.members, "members", dtype=np.int64, ndim=1)
+        members = as_array(self.members, "members", dtype=np.int16, ndim=1)
         if len(members) and (members.min() < 0 or np.any(np.diff(members) <= 0)):
             raise ProtocolError("field 'members': must be sorted, unique and non-negative")
         _set(self, "members", members)
-        _check_forms(self)
-        # on the wire: keys int32, forms float32 (a form's numbers lose nothing the joint solution feels:
-        # under a micrometre and 1e-5 degree on a 64-ring)
-        keys = self.keys.astype(np.int32)
-        keys.setflags(write=False)
-        _set(self, "keys", keys)
-        forms = self.forms.astype(np.float32)
-        if not np.all(np.isfinite(forms)):
-            raise ProtocolError("field 'forms': must be finite in float32")
-        forms.setflags(write=False)
-        _set(self, "forms", forms)
-        owners = as_array(self.owners, "owners", dtype=np.int64, ndim=1)
-        n_forms = int(self.keys[:, 0].max()) + 1 if len(self.keys) else 0
-        if len(owners) != n_forms or not np.isin(owners, members).all():
+        owners = as_array(self.owners, "owners", dtype=np.int16, ndim=1)
+        if not np.isin(owners, members).all():
             raise ProtocolError("field 'owners': one member per form expected")
         _set(self, "owners", owners)
+        n = len(owners)
+        pairs = as_array(np.asarray(self.pairs).reshape(-1, 2), "pairs", dtype=np.int16, shape=(n, 2))
+        if n and pairs.min() < 0:
+            raise ProtocolError("field 'pairs': assembly indices must be non-negative")
+        _set(self, "pairs", pairs)
+        lags = as_array(np.asarray(self.lags).reshape(-1, 2), "lags", dtype=np.uint8, shape=(n, 2))
+        if n and int(lags.max()) > self.step:
+            raise ProtocolError("field 'lags': a pose before step 0")
+        _set(self, "lags", lags)
+        forms = as_array(self.forms, "forms", dtype=np.float32, shape=(PAIR_FORM * n,))
+        if not np.all(np.isfinite(forms)):
+            raise ProtocolError("field 'forms': must be finite in float32")
+        _set(self, "forms", forms)
+        pin = _finite_array(self.pin, "pin", ndim=1)
+        if len(pin) not in (0, 5):
+            raise ProtocolError("field 'pin': expected 0 or 5 values")
+        _set(self, "pin", pin)
         digest = as_array(np.asarray(self.digest).reshape(-1, 2), "digest", dtype=np.int64, ndim=2)
         if len(digest) != len(members) or (len(digest) and digest.min() < 0):
             raise ProtocolError("field 'digest': one (count, crc) row per member expected")
         _set(self, "digest", digest)
 
+    @staticmethod
+    def pack(step: int, carried: dict) -> dict:
+        """``owners``, ``pairs``, ``lags`` and ``forms`` fields from member -> ``[(keys, M (6, 6), b_z (2,), c_z)]``
+        (every ``keys`` two ``(assembly, step)``)."""
+        owners, pairs, lags, flat = [], [], [], []
+        for member in sorted(carried):
+            for keys, M, b_z, c_z in carried[member]:
+                (a1, s1), (a2, s2) = keys
+                owners.append(member), pairs.append((a1, a2)), lags.append((step - s1, step - s2))
+                flat += [np.asarray(M, float)[np.triu_indices(6)], np.asarray(b_z, float), [float(c_z)]]
+        return {"owners": np.array(owners, np.int16), "pairs": np.array(pairs, np.int16).reshape(-1, 2),
+                "lags": np.array(lags, np.uint8).reshape(-1, 2),
+                "forms": np.concatenate(flat) if flat else np.zeros(0)}
+
     def carried(self) -> list[tuple[int, tuple, np.ndarray, np.ndarray, float]]:
-        """The forms it carries: ``(owner, keys, M, b_z, c_z)``."""
-        return [(int(o), keys, M, b_z, c_z) for o, (keys, M, b_z, c_z) in zip(self.owners.tolist(),
-                                                                               _unpack(self.keys, self.forms))]
+        """The forms it carries: ``(owner, keys ((assembly, step), (assembly, step)), M (6, 6), b_z (2,), c_z)``."""
+        out = []
+        iu = np.triu_indices(6)
+        for f, owner in enumerate(self.owners.tolist()):
+            row = np.asarray(self.forms[PAIR_FORM * f:PAIR_FORM * (f + 1)], float)
+            M = np.zeros((6, 6))
+            M[iu] = row[:21]
+            M = M + np.triu(M, 1).T
+            keys = tuple((int(a), self.step - int(lag)) for a, lag in zip(self.pairs[f], self.lags[f]))
+            out.append((int(owner), keys, M, row[21:23].copy(), float(row[23])))
+        return out
 
 
 def _count(value, name: str, low: int = 0) -> int:

@@ -4,7 +4,6 @@ import numpy as np
 import pytest
 
 from decentral.errors import ProtocolError
-from protocols.admm_messages import pack_bundle
 from protocols.delta_messages import DeltaBundle, JointPoses, form_crc, record_digest
 from protocols.messages import decode
 
@@ -12,10 +11,9 @@ from protocols.messages import decode
 def _delta(**kw):
     M = np.arange(36.0).reshape(6, 6)
     carried = {0: [(((0, 3), (2, 3)), M + M.T, np.array([1.0, 2.0]), 0.5)]}
-    _, owners, keys, flat = pack_bundle(carried)
     fields = dict(sender="A3", receiver="A1", round=7, step=3, hop=2, parent=1, depth=4,
-                  members=np.array([0, 2]), owners=owners, keys=keys, forms=flat, pin=np.zeros(0),
-                  digest=np.array([[4, 12345], [0, 0]]))
+                  members=np.array([0, 2]), pin=np.zeros(0), digest=np.array([[4, 12345], [0, 0]]),
+                  **DeltaBundle.pack(3, carried))
     fields.update(kw)
     return DeltaBundle(**fields)
 
@@ -31,14 +29,14 @@ def _solution(**kw):
 
 
 def test_a_delta_round_trips_with_float32_forms_and_its_digest():
-    """admm.delta decodes to an equal message; the forms carried come back in float32, int32 keys."""
+    """admm.delta decodes to an equal message; a form comes back with its keys, in float32 (24 numbers)."""
     msg = _delta()
     back = decode(msg.to_bytes())
-    assert back == msg and back.forms.dtype == np.float32 and back.keys.dtype == np.int32
+    assert back == msg and back.forms.dtype == np.float32 and len(back.forms) == 24
     (owner, keys, M, b_z, c_z), = back.carried()
-    assert owner == 0 and keys == ((0, 3), (2, 3)) and np.array_equal(M, np.arange(36.0).reshape(6, 6)
-                                                                      + np.arange(36.0).reshape(6, 6).T)
-    assert back.digest.tolist() == [[4, 12345], [0, 0]]
+    M0 = np.arange(36.0).reshape(6, 6)
+    assert owner == 0 and keys == ((0, 3), (2, 3)) and np.array_equal(M, M0 + M0.T)
+    assert b_z.tolist() == [1.0, 2.0] and c_z == 0.5 and back.digest.tolist() == [[4, 12345], [0, 0]]
 
 
 def test_a_forms_crc_survives_the_float32_trip():
@@ -46,11 +44,10 @@ def test_a_forms_crc_survives_the_float32_trip():
     rng = np.random.default_rng(0)
     A = rng.normal(size=(6, 6)) * 1e4
     M, b_z = A @ A.T, rng.normal(size=2)
-    _, owners, keys, flat = pack_bundle({0: [(((0, 1), (1, 1)), M, b_z, 3.25)]})
-    msg = decode(_delta(members=np.array([0]), owners=owners, keys=keys, forms=flat,
-                        digest=np.array([[1, 0]])).to_bytes())
-    (_, _, M2, b2, c2), = msg.carried()
-    assert form_crc(M, b_z, 3.25) == form_crc(M2, b2, c2)
+    msg = decode(_delta(members=np.array([0]), digest=np.array([[1, 0]]),
+                        **DeltaBundle.pack(3, {0: [(((0, 1), (1, 1)), M, b_z, 3.25)]})).to_bytes())
+    (_, keys, M2, b2, c2), = msg.carried()
+    assert keys == ((0, 1), (1, 1)) and form_crc(M, b_z, 3.25) == form_crc(M2, b2, c2)
     assert record_digest([5, 3]) == (2, 6) and record_digest([]) == (0, 0)
 
 
@@ -62,6 +59,10 @@ def test_malformed_deltas_are_refused():
         _delta(members=np.array([2, 0]))
     with pytest.raises(ProtocolError):
         _delta(members=np.array([1, 2]))
+    with pytest.raises(ProtocolError):
+        _delta(forms=np.zeros(23))
+    with pytest.raises(ProtocolError):
+        _delta(lags=np.array([[4, 0]]))
 
 
 def test_a_solution_round_trips_compactly():
