@@ -11,7 +11,8 @@ Measured, per ring size (``multi`` for n <= 16, ``ring64`` above, scenario seed 
 * **simulated network** (:func:`sims.admm_run.run_admm`, the default agents): bytes per agent, every
   frame plus its envelope; ratio of the total to the flood's total, and of the busiest agent to its
   fair share of the flood (flood total / n), for the cold-start window (step 0) and the steady-state
-  windows (later steps); frames per agent per steady window divided by its view-graph degree;
+  windows (later steps); frames per agent per steady window divided by its view-graph degree; the
+  largest gap to the centralized estimate (the accuracy check);
 * **real processes** (``decentral launch``, small rings): bytes counted by the socket transport at
   the senders (envelope included), same ratios, and the wall time from a sensor step to the agent's
   own end of the window (median over agents and steady windows), with 4, 8 and 16 processes.
@@ -21,8 +22,8 @@ busiest agent within 3x its flood share, frames per agent per window growing no 
 degree.
 
 Usage: ``python benchmarks/wire_budget.py [--out DIR] [--sizes 4 5 8 16 32 64] [--steps 8]
-[--process-sizes 4 5 8] [--wall-sizes 4 8 16] [--quick]``; writes ``DIR/wire_budget.json`` and
-``DIR/wire_budget.png`` (default ``out/benchmarks``).
+[--process-sizes 4 5 8] [--wall-sizes 4 8 16] [--round-period S] [--rounds-per-step 20] [--quick]``;
+writes ``DIR/wire_budget.json`` and ``DIR/wire_budget.png`` (default ``out/benchmarks``).
 """
 
 from __future__ import annotations
@@ -40,16 +41,18 @@ DEFAULT_OUT = Path("out/benchmarks")
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="wire_budget.py", description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder (default out/benchmarks)")
-    parser.add_argument("--sizes", type=int, nargs="+", default=[4, 5, 8, 16, 32, 64],
+    parser.add_argument("--sizes", type=int, nargs="*", default=[4, 5, 8, 16, 32, 64],
                         help="ring sizes on the simulated network")
     parser.add_argument("--steps", type=int, default=8, help="log steps per run (step 0 is the cold start)")
     parser.add_argument("--process-sizes", type=int, nargs="*", default=[4, 5, 8],
                         help="ring sizes also run as real processes (decentral launch)")
     parser.add_argument("--wall-sizes", type=int, nargs="*", default=[4, 8, 16],
                         help="ring sizes whose wall time per window is measured with real processes")
-    parser.add_argument("--rate", type=float, default=0.4,
-                        help="processes: log seconds per wall second (default 0.4 on a loaded 2-core machine)")
-    parser.add_argument("--round-period", type=float, default=0.025, help="processes: seconds per round")
+    parser.add_argument("--round-period", type=float, default=None,
+                        help="processes: seconds per round (default 25 ms up to 8 processes, 25 ms x n / 8 above: "
+                             "what a loaded 2-core machine sustains)")
+    parser.add_argument("--rounds-per-step", type=int, default=20,
+                        help="processes: rounds between two log steps; sets the rate (default 20)")
     parser.add_argument("--quick", action="store_true", help="sizes 4 5 8, 4 steps, processes 4 only")
     return parser
 
@@ -124,13 +127,25 @@ def simulated(n: int, steps: int, raw_cls) -> dict:
     for k in steady:
         for kind, row in run.bytes_per_step[k].items():
             by_kind[kind] = by_kind.get(kind, 0) + int(np.sum(row))
+    from decentral.estimator import EstimatorConfig, estimate_log
+    from decentral.metrics import estimate_gap
+
+    dp, dth, mismatched = estimate_gap(estimate_log(sim.log, EstimatorConfig(window=5)), run.estimate)
     return {"n": n, "steps": steps, "rounds_per_step": list(run.rounds), "converged": bool(all(run.converged)),
+            "gap_to_centralized": {"position_m": float(dp), "yaw_deg": float(np.degrees(dth)),
+                                   "steps_placing_differently": int(mismatched)},
             "seconds": seconds, "cold_start": _ratios(proto, flood, [0]), "steady": _ratios(proto, flood, steady),
             "steady_bytes_by_kind": by_kind,
             "frames_per_window": {"median": float(np.median(per_window)), "max": float(per_window.max())},
             "frames_per_neighbour": {"median": float(np.median(per_window / degree)),
                                      "max": float((per_window / degree).max())},
             "degree": {"median": float(np.median(degree)), "max": int(degree.max())}}
+
+
+def pace(n: int, round_period: float | None, rounds_per_step: int, step_dt: float = 0.2) -> tuple[float, float]:
+    """(rate, round period) of a run of ``n`` processes: ``rounds_per_step`` rounds per log step."""
+    period = round_period or 0.025 * max(1.0, n / 8)
+    return step_dt / (rounds_per_step * period), period
 
 
 def processes(n: int, steps: int, raw_cls, rate: float, round_period: float) -> dict:
@@ -159,7 +174,8 @@ def processes(n: int, steps: int, raw_cls, rate: float, round_period: float) -> 
             "cold_start": _ratios(proto, flood, [0]), "steady": _ratios(proto, flood, steady),
             "window_seconds": {"median": float(np.median(windows)) if windows else None,
                                "max": float(np.max(windows)) if windows else None, "windows": len(windows)},
-            "step_period_wall": float(np.median(np.diff([s.t for s in sim.log.steps]))) / rate}
+            "step_period_wall": float(np.median(np.diff([s.t for s in sim.log.steps]))) / rate,
+            "rate": rate, "round_period": round_period}
 
 
 def plot(result: dict, path: Path) -> None:
@@ -173,8 +189,10 @@ def plot(result: dict, path: Path) -> None:
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     sim = result["simulated"]
     ns = [r["n"] for r in sim]
-    axes[0].plot(ns, [r["steady"]["ratio_total"] for r in sim], "o-", label="simulated: total / flood")
-    axes[0].plot(ns, [r["steady"]["busiest_vs_fair_share"] for r in sim], "s--", label="simulated: busiest / flood share")
+    if sim:
+        axes[0].plot(ns, [r["steady"]["ratio_total"] for r in sim], "o-", label="simulated: total / flood")
+        axes[0].plot(ns, [r["steady"]["busiest_vs_fair_share"] for r in sim], "s--",
+                     label="simulated: busiest / flood share")
     proc = result["processes"]
     if proc:
         axes[0].plot([r["n"] for r in proc], [r["steady"]["ratio_total"] for r in proc], "^", ms=9,
@@ -213,13 +231,16 @@ def main(argv=None) -> int:
         out["simulated"].append(row)
         print(f"sim n={n}: steady {row['steady']['ratio_total']:.3f}x flood, busiest "
               f"{row['steady']['busiest_vs_fair_share']:.2f}x share, cold start {row['cold_start']['ratio_total']:.2f}x, "
-              f"frames/neighbour {row['frames_per_neighbour']['median']:.2f}, rounds {row['rounds_per_step']}", flush=True)
+              f"frames/neighbour {row['frames_per_neighbour']['median']:.2f}, rounds {row['rounds_per_step']}, "
+              f"gap {1000 * row['gap_to_centralized']['position_m']:.4f} mm", flush=True)
     for n in sorted(set(args.process_sizes) | set(args.wall_sizes)):
-        row = processes(n, args.steps, raw_cls, args.rate, args.round_period)
+        row = processes(n, args.steps, raw_cls, *pace(n, args.round_period, args.rounds_per_step))
         if n in args.process_sizes:
             out["processes"].append(row)
         if n in args.wall_sizes:
-            out["wall"].append({"processes": n, **row["window_seconds"], "step_period_wall": row["step_period_wall"]})
+            out["wall"].append({"processes": n, **row["window_seconds"], "step_period_wall": row["step_period_wall"],
+                                "round_period": row["round_period"],
+                                "converged_steps": sum(row["converged_per_step"]), "steps": row["steps"]})
         print(f"processes n={n}: steady {row['steady']['ratio_total']:.3f}x flood, window "
               f"{row['window_seconds']['median']} s median", flush=True)
     targets = {5: 1.0, 16: 0.5, 64: 0.25}

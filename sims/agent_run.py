@@ -207,10 +207,10 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
         if h > done_half and h >= 0 and current is not None:
             # every half round in order, late ones back to back (skipping a phase would break the protocol's
             # alternation); a process more than `max_behind` halves late jumps to the next round's phase 0
-            nxt = done_half + 1
-            if h - nxt > max_behind:
-                nxt = h + (h % 2)
+            if h - (done_half + 1) > max_behind:
+                done_half = h - 1 if h % 2 == 0 else h  # resume at a phase 0: now, or at the next half round
                 lagged += 1
+            nxt = done_half + 1
             if nxt <= h:
                 host.half_round(now, nxt // 2, nxt % 2)
                 done_half = nxt
