@@ -82,7 +82,8 @@ from protocols.admm_messages import (ConfigAnnounce, ConfigRequest, FactorShare,
                                      pack_forms)
 from protocols.aggregation import TreeAggregation, choose_parent, tree_from_edges
 from protocols.messages import BROADCAST, AdmmDual, AdmmPrimal, Message
-from protocols.delta_messages import DeltaBundle, JointPoses, form_crc, record_digest
+from protocols.delta_messages import DeltaBundle, JointPoses
+from protocols.form_cache import DeltaSender, FormCache
 
 __all__ = ["AgentConfig", "OwnStep", "AssemblyAgent"]
 
@@ -246,7 +247,7 @@ class AssemblyAgent:
         self._converged = False
         self._last_ages: dict[str, int] = {}
         self.counters = {"ignored": 0, "timeouts": 0, "retransmits": 0, "uncertified": 0, "unknown_nodes": 0,
-                         "tree_windows": 0, "broadcast_windows": 0, "late_seeds": 0}
+                         "tree_windows": 0, "broadcast_windows": 0, "late_seeds": 0, "joint_failures": 0}
         self._iter = 0  # consensus iterations done
         self._iter_before = 0
         self._step_rounds = 0
@@ -283,9 +284,9 @@ class AssemblyAgent:
         self._busy_seen = -(10**9)  # last round with ADMM values of this window from a neighbour still at work
         self._watchers: set[str] = set()  # observers named by the last complete set of forms
         self._shared: dict[str, list[LocalProblem]] = {}  # target -> its pair's forms, one per step
-        self._cache: dict[tuple, tuple[int, LocalProblem]] = {}  # (owner, keys) -> (crc, form) of the window
+        self._forms = FormCache()  # every agent's forms seen here for the window (rebuilds deltas from below)
         self._edges_sent: set = set()  # the view graph in the last solution sent down (the reference)
-        self._up_sent: dict[int, set] = {}  # parent -> (owner, keys, crc) of the forms sent to it
+        self._delta_sender = DeltaSender()  # per parent, the forms already sent up to it
         self._alive: dict[int, int] = {}  # agent index -> last step at which it (or its records) was heard
 
     # ------------------------------------------------------------------ sensing
@@ -338,8 +339,8 @@ class AssemblyAgent:
         first = max(0, own.step - cfg.window + 1)
         self._steps = list(range(first, own.step + 1))
         # forms of steps that left the window are no longer part of any record
-        self._cache = {key: v for key, v in self._cache.items() if max(k for _, k in key[1]) >= first}
-        self._up_sent = {p: {e for e in sent if max(k for _, k in e[1]) >= first} for p, sent in self._up_sent.items()}
+        self._forms.slide(first)
+        self._delta_sender.slide(first)
         for store in (self._seen, self._odometry):
             for k in [k for k in store if k < first]:
                 del store[k]
@@ -862,13 +863,12 @@ class AssemblyAgent:
 
     def _remember(self, owner: int, forms) -> None:
         """Keep ``owner``'s forms ``[(keys, LocalProblem)]`` of the window (a parent rebuilds delta records from them)."""
-        for keys, prob in forms:
-            self._cache[(owner, tuple(keys))] = (form_crc(prob.M, prob.b_z, prob.c_z), prob)
+        self._forms.remember(owner, forms)
 
     def _on_delta(self, message: DeltaBundle) -> None:
         """A delta bundle from a child: rebuild each member's record of the window from the forms carried and
-        those held here, checked against its digest; a member that cannot be rebuilt exactly is left out (not
-        acknowledged: the child sends it whole)."""
+        those held here (:class:`protocols.form_cache.FormCache`); a member that cannot be rebuilt exactly is
+        left out (not acknowledged: the child sends it whole)."""
         n, names = len(self.config.assemblies), self.config.assemblies
         if (self._index.get(message.sender) is None or (len(message.pairs) and message.pairs.max() >= n)
                 or (len(message.members) and message.members.max() >= n)):
@@ -877,41 +877,27 @@ class AssemblyAgent:
         for owner, keys, M, b_z, c_z in message.carried():
             self._remember(owner, [(keys, LocalProblem(tuple((names[a], k) for a, k in keys), M, b_z, c_z))])
         first = message.step - self.config.window + 1
-        held: dict[int, list] = {}
-        for (owner, keys), (crc, prob) in self._cache.items():
-            if min(k for _, k in keys) >= first and max(k for _, k in keys) <= message.step:
-                held.setdefault(owner, []).append((keys, crc, prob))
         rebuilt = {}
-        for member, (count, crc) in zip(message.members.tolist(), message.digest.tolist()):
-            forms = sorted(held.get(member, []), key=lambda f: f[0])
-            if record_digest([f[1] for f in forms]) == (count, crc):
-                rebuilt[member] = [(keys, prob) for keys, _, prob in forms]
+        for member, digest in zip(message.members.tolist(), message.digest.tolist()):
+            record = self._forms.rebuild(member, tuple(digest), first, message.step)
+            if record is not None:
+                rebuilt[member] = record
         self._on_bundle(message, rebuilt)
 
     def _delta(self, parent: int, indices: list[int]) -> DeltaBundle | None:
-        """Records ``indices`` for ``parent`` as a delta: the forms not yet sent to it, and each record's digest
-        (``None`` when a form is not over two poses within 255 steps: then the records go whole)."""
+        """Records ``indices`` for ``parent`` as a delta (:class:`protocols.form_cache.DeltaSender`): the forms
+        not yet sent to it, and each record's digest (``None``: the records go whole)."""
         boot, agg = self._boot, self._boot["agg"]
-        sent = self._up_sent.setdefault(parent, set())
-        digest, carried, new = [], {}, set()
-        for i in indices:
-            crcs = []
-            for keys, prob in agg.records[i]:
-                if len(keys) != 2 or not 0 <= boot["step"] - min(k for _, k in keys) <= 255:
-                    return None
-                crc = form_crc(prob.M, prob.b_z, prob.c_z)
-                crcs.append(crc)
-                if (i, tuple(keys), crc) not in sent:
-                    carried.setdefault(i, []).append((keys, prob.M, prob.b_z, prob.c_z))
-                    new.add((i, tuple(keys), crc))
-            digest.append(record_digest(crcs))
-        sent |= new
+        packed = self._delta_sender.delta(parent, {i: agg.records[i] for i in indices}, boot["step"])
+        if packed is None:
+            return None
+        carried, digests = packed
         ref = self._index[self.config.reference]
         pin = boot["pin"] if boot["pin"] is not None and ref in indices else np.zeros(0)
         return DeltaBundle(sender=self.name, receiver=self.config.assemblies[parent], round=self._round,
                            step=boot["step"], hop=agg.hop, parent=parent, depth=agg.depth,
                            members=np.array(sorted(indices), dtype=np.int16), pin=pin,
-                           digest=np.array(digest, dtype=np.int64).reshape(-1, 2), **DeltaBundle.pack(boot["step"], carried))
+                           digest=np.array(digests, dtype=np.int64).reshape(-1, 2), **DeltaBundle.pack(boot["step"], carried))
 
     def _factor_share(self, receiver: str) -> FactorShare:
         step, keys, flat, pin = self._own_forms
@@ -956,7 +942,12 @@ class AssemblyAgent:
             pin = boot["pin"]
             if problems and (pin is not None and int(pin[0]) == first or first == 0):
                 value = (rot2(float(pin[4])), np.array(pin[1:4])) if pin is not None and int(pin[0]) == first else None
-                boot["joint"] = solve_joint(problems, (self.config.reference, first), value)
+                try:
+                    boot["joint"] = solve_joint(problems, (self.config.reference, first), value)
+                except np.linalg.LinAlgError:
+                    # a set whose variables are tied by keys but not by factors (a step with neither odometry
+                    # nor detections, forms missing): no joint solution; the ADMM goes on from its own state
+                    self.counters["joint_failures"] += 1
         return boot["joint"]
 
     def _edges(self, boot: dict) -> set[tuple[int, int]]:
@@ -1221,6 +1212,13 @@ class AssemblyAgent:
         """
         if len(self._configs) >= len(self.config.assemblies) - 1:
             return set()
+        alive = self._alive_members(self._step or 0)
+        if alive is not None:
+            # a peer not heard from for two windows (down, or never started) cannot name its nodes: once every
+            # live assembly's configuration is in, the nodes left are its own or stray tags, skipped alike
+            names = self.config.assemblies
+            if all(names[i] in self._configs for i in alive if names[i] != self.name):
+                return set()
         return set(self._unknown)
 
     def _near_seeds(self) -> bool:

@@ -397,7 +397,7 @@ def test_a_parent_that_cannot_rebuild_a_delta_gets_the_records_whole():
     agents, _ = _tree_agents(log)
     _drive(agents, 1, log, 12)
     for a in agents.values():
-        a._cache.clear()
+        a._forms.clear()
     sent = _drive(agents, 2, log, 20)
     assert any(isinstance(m, DeltaBundle) for m in sent)
     assert any(isinstance(m, FormBundle) and not m.down for m in sent)
