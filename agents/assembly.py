@@ -63,6 +63,15 @@ job for agents whose forms were missing). How the forms travel:
 When an agent holds every agent's forms, the joint solution also fills the gossip table's rows of
 the step (the table need not cross the graph before the convergence flag settles), and the ADMM is
 converged once the consensus stays within the tolerances of that fixed point.
+
+Byte budget (``docs/processes.md``): forms are shared one per pair and step (and per odometry link),
+each built from its step's data alone, so a window adds one new step of forms; in the tree they go up
+as ``admm.delta`` (only what the parent lacks, a digest per record:
+:mod:`protocols.form_cache`), and once the reference holds every live agent's forms it sends its
+joint solution down as ``admm.solution`` (float32 poses of the newest step) instead of the forms.
+A window that starts at the joint solution of every live agent's forms is exact and runs no ADMM
+round (:meth:`AssemblyAgent._exact`); an agent joins the ADMM only while a neighbour runs it. Peers
+not heard from for two windows are not waited for.
 """
 
 from __future__ import annotations
