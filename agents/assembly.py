@@ -91,6 +91,7 @@ from protocols.admm_messages import (ConfigAnnounce, ConfigRequest, FactorShare,
                                      pack_forms)
 from protocols.aggregation import TreeAggregation, choose_parent, tree_from_edges
 from protocols.messages import BROADCAST, AdmmDual, AdmmPrimal, Message
+from protocols.config_gossip import ConfigTable
 from protocols.delta_messages import DeltaBundle, JointPoses
 from protocols.form_cache import DeltaSender, FormCache
 
@@ -240,7 +241,7 @@ class AssemblyAgent:
         self._steps: list[int] = []
         self._own_config: dict[int, np.ndarray] = {}
         self._announced: tuple[int, dict] | None = None  # (step, config) last announced
-        self._configs: dict[str, list[tuple[int, dict]]] = {}  # others' announced configurations
+        self._configs = ConfigTable(config.name, config.assemblies)  # others' announced configurations
         self._seen: dict[int, list[tuple[int, np.ndarray, float]]] = {}  # step -> [(node, t, w)]
         self._odometry: dict[int, tuple] = {}
         self._pairs: dict[str, PairState] = {}
@@ -378,18 +379,8 @@ class AssemblyAgent:
                               centres=centres)
 
     def _relay(self, request: ConfigRequest) -> None:
-        """Answer a request for other assemblies' nodes with their configurations held here (the owner's own
-        answer and the request each cross one lossy link; every relay is another chance)."""
-        ids = {int(i) for i in request.ids}
-        for owner, hist in sorted(self._configs.items()):
-            if owner == request.sender or not hist:
-                continue
-            step, conf = hist[-1]
-            if ids & set(conf):
-                keys = np.array(sorted(conf), dtype=np.int64)
-                self._outbox.append(ConfigAnnounce(
-                    sender=self.name, receiver=request.sender, round=self._round, step=step, ids=keys,
-                    centres=np.array([conf[int(i)] for i in keys]).reshape(-1, 3), owner=owner))
+        """Answer a request for other assemblies' nodes with their configurations held here."""
+        self._outbox += self._configs.relays(request, self.name, self._round)
 
     def _measure(self, own: OwnStep) -> list[tuple[int, np.ndarray, float]]:
         """Own detections as (node, centre in own root frame (3,), weight), seed 000 eq. (1), (4)."""
@@ -414,15 +405,8 @@ class AssemblyAgent:
         if sender is not None and self._step is not None:
             self._alive[sender] = self._step
         if isinstance(message, ConfigAnnounce):
-            owner = message.owner or message.sender
-            if owner == self.name or owner not in self._index:
-                return
-            entry = (message.step, {int(i): np.array(c) for i, c in zip(message.ids, message.centres)})
-            hist = self._configs.get(owner, [])
-            if message.owner and any(h[0] == message.step for h in hist):
-                return  # a relayed copy never replaces what the owner said itself
-            self._configs[owner] = sorted([h for h in hist if h[0] != message.step] + [entry], key=lambda h: h[0])
-            self._dirty = True
+            if self._configs.learn(message):
+                self._dirty = True
         elif isinstance(message, FactorShare):
             self._on_factors(message)
         elif isinstance(message, FormBundle):
@@ -483,12 +467,7 @@ class AssemblyAgent:
 
     # ------------------------------------------------------------------ ADMM
     def _owner_of(self, node: int, step: int) -> tuple[str, np.ndarray] | None:
-        for name, hist in self._configs.items():
-            usable = [h for h in hist if h[0] <= step] or hist[:1]
-            conf = usable[-1][1]
-            if node in conf:
-                return name, conf[node]
-        return None
+        return self._configs.owner_of(node, step)
 
     def _rebuild(self) -> None:
         """Directed pair subproblems ``self -> target`` over the window from own detections."""
