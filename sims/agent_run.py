@@ -177,7 +177,7 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
     while k + 1 < n and pace.due(part, k + 1) <= now:
         k += 1  # a late start (a restart) begins with the step under way
     first = k
-    done_half = pace.half(now) - 1
+    done_half = max(pace.half(now), 0) - 1  # half rounds count from the start (0), or from now when late
     current: int | None = None
     records: list[dict] = []
     max_behind, lagged = 20, 0
