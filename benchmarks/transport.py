@@ -16,7 +16,7 @@ Three measurements per payload size (default 100 B, 1 kB and 30 kB of message fr
   same message; ratio = (seal + admit) / (encode + decode).
 
 Usage: ``python benchmarks/transport.py [--out DIR] [--sizes 100 1000 30000] [--pings N] [--frames N]``;
-writes ``DIR/transport.json`` (default ``out/benchmarks``) and prints a table.
+prints a line per size, and writes and prints ``DIR/transport.json`` (default ``out/benchmarks``).
 """
 
 from __future__ import annotations
@@ -26,26 +26,23 @@ import multiprocessing
 import sys
 import time
 from dataclasses import dataclass
-from pathlib import Path
 from typing import ClassVar
 
-from _common import machine  # noqa: I001  (pins threads before numpy)
+from _common import machine, median_seconds, parser, save  # noqa: I001  (pins threads before numpy)
 
 import numpy as np
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="benchmarks/transport.py", description=__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", type=Path, default=Path("out/benchmarks"), help="folder for transport.json")
-    parser.add_argument("--sizes", type=int, nargs="+", default=[100, 1000, 30000],
-                        help="message frame sizes in bytes (default 100 1000 30000)")
-    parser.add_argument("--pings", type=int, default=2000, help="round trips per size (default 2000)")
-    parser.add_argument("--warmup", type=int, default=200, help="round trips not timed (default 200)")
-    parser.add_argument("--frames", type=int, default=20000, help="frames per throughput run (default 20000; "
-                                                                   "a tenth for sizes over 10 kB)")
-    parser.add_argument("--reps", type=int, default=3000, help="repetitions of the signing timings (default 3000)")
-    return parser
+    ap = parser(__doc__)
+    ap.add_argument("--sizes", type=int, nargs="+", default=[100, 1000, 30000],
+                    help="message frame sizes in bytes (default 100 1000 30000)")
+    ap.add_argument("--pings", type=int, default=2000, help="round trips per size (default 2000)")
+    ap.add_argument("--warmup", type=int, default=200, help="round trips not timed (default 200)")
+    ap.add_argument("--frames", type=int, default=20000, help="frames per throughput run (default 20000; "
+                                                               "a tenth for sizes over 10 kB)")
+    ap.add_argument("--reps", type=int, default=3000, help="repetitions of the signing timings (default 3000)")
+    return ap
 
 
 # ---------------------------------------------------------------------------- the payload
@@ -77,8 +74,8 @@ def _kinds():
 
 
 # ---------------------------------------------------------------------------- echo processes
-def _raw_echo(addresses, ready, n_pings: int, n_frames: int) -> None:
-    """Raw pyzmq side: PULL bound here, PUSH to the parent; echo ``n_pings`` frames, then count ``n_frames``."""
+def _raw_pair():
+    """The raw side's sockets, as ZmqTransport sets them up: a bound PULL and a PUSH (unbounded queues here)."""
     import zmq
 
     ctx = zmq.Context()
@@ -88,6 +85,14 @@ def _raw_echo(addresses, ready, n_pings: int, n_frames: int) -> None:
         s.setsockopt(zmq.SNDHWM, 0)
         s.setsockopt(zmq.RCVHWM, 0)
     pull.bind("tcp://127.0.0.1:*")
+    return ctx, pull, push
+
+
+def _raw_echo(addresses, ready, n_pings: int, n_frames: int) -> None:
+    """Raw pyzmq side: PULL bound here, PUSH to the parent; echo ``n_pings`` frames, then count ``n_frames``."""
+    import zmq
+
+    ctx, pull, push = _raw_pair()
     push.connect(addresses["P"])
     ready.put(pull.getsockopt_string(zmq.LAST_ENDPOINT))
     for _ in range(n_pings):
@@ -132,13 +137,7 @@ def raw_run(size: int, pings: int, warmup: int, frames: int) -> dict:
 
     ctx = multiprocessing.get_context("spawn")
     frame = blob(size).to_bytes()
-    zctx = zmq.Context()
-    pull, push = zctx.socket(zmq.PULL), zctx.socket(zmq.PUSH)
-    for s in (pull, push):
-        s.setsockopt(zmq.LINGER, 0)
-        s.setsockopt(zmq.SNDHWM, 0)
-        s.setsockopt(zmq.RCVHWM, 0)
-    pull.bind("tcp://127.0.0.1:*")
+    zctx, pull, push = _raw_pair()
     ready = ctx.Queue()
     child = ctx.Process(target=_raw_echo, args=({"P": pull.getsockopt_string(zmq.LAST_ENDPOINT)}, ready,
                                                  pings + warmup, frames))
@@ -228,14 +227,7 @@ def _summary(size, message_bytes, rtt, frames, send_s, recv_s, dropped, wire_byt
 
 
 def median_us(fn, reps: int) -> float:
-    for _ in range(max(50, reps // 10)):
-        fn()
-    out = np.empty(reps)
-    for i in range(reps):
-        t0 = time.perf_counter()
-        fn()
-        out[i] = time.perf_counter() - t0
-    return 1e6 * float(np.median(out))
+    return 1e6 * median_seconds(fn, reps, max(50, reps // 10))
 
 
 def signing_overhead(size: int, reps: int) -> dict:
@@ -250,7 +242,7 @@ def signing_overhead(size: int, reps: int) -> dict:
     gate = Gate("E", {"P": public_key_bytes(key)}, window=len(frames) + 1)
     it = iter(frames)
     inner = msg.to_bytes()
-    public, signature = key.public_key(), key.sign(inner)
+    public, signature = key.verify_key, key.sign(inner).signature
     out = {
         "payload_bytes": size,
         "encode_us": median_us(msg.to_bytes, reps),
@@ -258,7 +250,7 @@ def signing_overhead(size: int, reps: int) -> dict:
         "seal_us": median_us(lambda: signer.seal(msg, 0.0), reps),
         "admit_us": median_us(lambda: gate.admit(next(it)), reps),
         "sign_only_us": median_us(lambda: key.sign(inner), reps),
-        "verify_only_us": median_us(lambda: public.verify(signature, inner), reps),
+        "verify_only_us": median_us(lambda: public.verify(inner, signature), reps),
     }
     out["ratio_signed_to_unsigned"] = (out["seal_us"] + out["admit_us"]) / (out["encode_us"] + out["decode_us"])
     out["overhead_us_per_frame"] = out["seal_us"] + out["admit_us"] - out["encode_us"] - out["decode_us"]
@@ -269,10 +261,8 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     from importlib import metadata
 
-    from sims.io.atomic import write_json_atomic
-
     info = machine()
-    info["versions"].update({p: metadata.version(p) for p in ("pyzmq", "cryptography")})
+    info["versions"].update({p: metadata.version(p) for p in ("pyzmq", "pynacl")})
     import zmq
 
     info["versions"]["libzmq"] = zmq.zmq_version()
@@ -290,12 +280,8 @@ def main(argv: list[str] | None = None) -> int:
               f"{ours['messages_per_s']:8.0f} ({rows[-1]['throughput_ratio']:.2f}x)   seal {sig['seal_us']:.1f} us"
               f" admit {sig['admit_us']:.1f} us vs encode+decode {sig['encode_us'] + sig['decode_us']:.1f} us"
               f" ({sig['ratio_signed_to_unsigned']:.1f}x)", flush=True)
-    payload = {"benchmark": "transport", "parameters": vars(args) | {"out": str(args.out)}, "machine": info,
-               "rows": rows}
-    args.out.mkdir(parents=True, exist_ok=True)
-    info["loadavg_end"] = list(__import__("os").getloadavg())
-    write_json_atomic(args.out / "transport.json", payload)
-    print(f"wrote {args.out / 'transport.json'}")
+    save("transport", {"benchmark": "transport", "parameters": {**vars(args), "out": str(args.out)}, "machine": info,
+                       "rows": rows}, args.out)
     return 0
 
 

@@ -35,12 +35,11 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-DEFAULT_OUT = Path("out/benchmarks")
-
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="wire_budget.py", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder (default out/benchmarks)")
+    from _common import parser as common_parser
+
+    parser = common_parser(__doc__)
     parser.add_argument("--sizes", type=int, nargs="*", default=[4, 5, 8, 16, 32, 64],
                         help="ring sizes on the simulated network")
     parser.add_argument("--steps", type=int, default=8, help="log steps per run (step 0 is the cold start)")

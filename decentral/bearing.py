@@ -21,6 +21,7 @@ References
 from __future__ import annotations
 
 import time
+from typing import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -115,8 +116,11 @@ def solve_bearing_window(x: np.ndarray, c: np.ndarray, b: np.ndarray) -> tuple[f
 
 
 def estimate_log_bearing(log: ObservationLog, config: BearingConfig = BearingConfig(),
-                         reference: str | None = None) -> Estimate:
-    """Bearing-only estimates of every target the reference observes (seed 000 §V-C 2)."""
+                         reference: str | None = None, progress: Callable[..., None] | None = None) -> Estimate:
+    """Bearing-only estimates of every target the reference observes (seed 000 §V-C 2).
+
+    ``progress``, when given, is called after each step as ``progress(steps_done, steps_total)``.
+    """
     reference = reference or log.assemblies[0]
     if reference not in log.assemblies:
         raise InputError(f"unknown reference assembly {reference!r}", field="reference")
@@ -131,6 +135,8 @@ def estimate_log_bearing(log: ObservationLog, config: BearingConfig = BearingCon
             if pose is not None:
                 poses[target] = pose
         steps.append(EstimateStep(measurements[k].t, poses))
+        if progress is not None:
+            progress(k + 1, len(measurements))
     stats = {"estimator": "bearing", "window": config.window, "nodes": config.nodes,
              "seconds": time.perf_counter() - start}
     return Estimate(reference, tuple(steps), stats)

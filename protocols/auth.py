@@ -2,8 +2,10 @@
 
 Every frame a real transport puts on the wire is an *envelope* around one message frame
 (:meth:`protocols.messages.Message.to_bytes`), signed by its sender with the sender's private
-Ed25519 key. A receiver checks it against the public key that its peers file lists for the claimed
-sender, so a member cannot forge another member's frames, and an outsider cannot forge any.
+Ed25519 key (libsodium through PyNaCl: verifying took 41 µs of CPU against 84 µs with the
+``cryptography`` package's OpenSSL, signing 16 against 26 µs, on this project's 2-core machine).
+A receiver checks it against the public key that its peers file lists for the claimed sender, so a
+member cannot forge another member's frames, and an outsider cannot forge any.
 
 Envelope, version 1 (all integers little-endian; ``L`` = sender name length, ``N`` = inner length)::
 
@@ -22,17 +24,17 @@ Envelope, version 1 (all integers little-endian; ``L`` = sender name length, ``N
 So the envelope adds ``98 + L`` bytes to a frame. A receiver accepts a frame only if, in this order
 (the first failing check names the reason it is refused with, see :data:`REJECT_REASONS`):
 
-1. it parses exactly: magic, a known version, a valid name, and a total length of exactly
-   ``98 + L + N`` -- else ``malformed`` (a truncated or padded frame is malformed);
+1. it parses exactly: magic, a known version, a valid name, a finite ``sent_at`` and a total length
+   of exactly ``98 + L + N`` -- else ``malformed`` (a truncated or padded frame is malformed);
 2. the sender is in the peers file -- else ``unknown_sender``;
 3. the signature verifies with that sender's public key -- else ``bad_signature``;
 4. the pair (epoch, seq) is fresh for that sender (:class:`ReplayWindow`) -- else ``replay``;
 5. the inner frame decodes -- else ``malformed``;
 6. the inner message names the envelope's sender as its sender -- else ``bad_signature`` (a member
    speaking for another member is a forgery, even when signed with its own key);
-7. the message is addressed to the receiving agent or to everyone, and the sender is not the
-   receiving agent itself -- else ``replay`` (a genuine frame that shows up at an agent it was not
-   meant for can only be a copy of someone else's traffic, or of the agent's own, reflected back).
+7. the message is addressed to the receiving agent, or to everyone but is not the receiving agent's
+   own broadcast -- else ``replay`` (a genuine frame that shows up at an agent it was not meant for
+   can only be a copy of someone else's traffic, or of the agent's own, reflected back).
 
 Step 4 only looks: the window remembers (epoch, seq) once the frame has passed every step, so a
 refused frame never moves a sender's window.
@@ -44,21 +46,23 @@ over that epoch's sequence numbers: a frame of a newer epoch resets the window (
 accepted), a frame of an older epoch is a replay (so captured frames of a dead process stay dead,
 and so do its own frames still in flight when it was killed). The scheme needs each sender's wall
 clock not to step back across its own restart by more than the restart took. A receiver that itself
-restarts has no memory: it accepts each genuine frame of a sender's current epoch at most once, and
-refuses everything more than one window older than the newest it has seen.
+restarts has no memory: it accepts each genuine frame of a sender's current epoch at most once more
+(any of them until the sender's next frame arrives, then only those within one window of the newest).
 """
 
 from __future__ import annotations
 
 import base64
 import binascii
+import math
 import struct
 import time
 from dataclasses import dataclass
 from typing import Mapping
 
-from cryptography.exceptions import InvalidSignature
-from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
+from nacl.bindings import crypto_core_ed25519_is_valid_point
+from nacl.exceptions import BadSignatureError
+from nacl.signing import SigningKey, VerifyKey
 
 from decentral.errors import ProtocolError
 from protocols.messages import BROADCAST, Message, decode
@@ -79,6 +83,7 @@ __all__ = [
     "private_key_bytes",
     "b64encode",
     "b64decode_key",
+    "check_public_key",
     "envelope_overhead",
     "seal",
     "parse",
@@ -105,35 +110,39 @@ class Rejected(ProtocolError):
 
 
 # ---------------------------------------------------------------------------- keys
-def new_private_key() -> Ed25519PrivateKey:
+def new_private_key() -> SigningKey:
     """A fresh Ed25519 signing key from the operating system's random source (never from a seed)."""
-    return Ed25519PrivateKey.generate()
+    return SigningKey.generate()
 
 
-def private_key_from_bytes(raw: bytes) -> Ed25519PrivateKey:
-    """The signing key whose 32 raw private bytes are ``raw`` (raises ``ValueError`` otherwise)."""
-    return Ed25519PrivateKey.from_private_bytes(bytes(raw))
+def private_key_from_bytes(raw: bytes) -> SigningKey:
+    """The signing key whose 32 raw private bytes (the Ed25519 seed) are ``raw``; ``ValueError`` otherwise."""
+    raw = bytes(raw)
+    if len(raw) != KEY_SIZE:
+        raise ValueError(f"a private key is {KEY_SIZE} bytes, got {len(raw)}")
+    return SigningKey(raw)
 
 
-def private_key_bytes(key: Ed25519PrivateKey) -> bytes:
-    """The 32 raw private bytes of a signing key."""
-    from cryptography.hazmat.primitives import serialization
-
-    return key.private_bytes(serialization.Encoding.Raw, serialization.PrivateFormat.Raw,
-                             serialization.NoEncryption())
+def private_key_bytes(key: SigningKey) -> bytes:
+    """The 32 raw private bytes (the Ed25519 seed) of a signing key."""
+    return bytes(key)
 
 
-def public_key_bytes(key: Ed25519PrivateKey | Ed25519PublicKey) -> bytes:
+def public_key_bytes(key: SigningKey | VerifyKey) -> bytes:
     """The 32 raw bytes of the public key (of a private key's public half)."""
-    from cryptography.hazmat.primitives import serialization
-
-    pub = key.public_key() if isinstance(key, Ed25519PrivateKey) else key
-    return pub.public_bytes(serialization.Encoding.Raw, serialization.PublicFormat.Raw)
+    return bytes(key.verify_key if isinstance(key, SigningKey) else key)
 
 
 def b64encode(raw: bytes) -> str:
     """Standard base64 text of ``raw`` (how key files and peers files store keys)."""
     return base64.b64encode(raw).decode("ascii")
+
+
+def check_public_key(raw: bytes) -> bytes:
+    """Return ``raw`` if it is a usable Ed25519 public key (a valid point of the main subgroup), else ``ValueError``."""
+    if len(raw) != KEY_SIZE or not crypto_core_ed25519_is_valid_point(bytes(raw)):
+        raise ValueError("is not a valid Ed25519 public key")
+    return raw
 
 
 def b64decode_key(text: object) -> bytes:
@@ -155,14 +164,14 @@ def envelope_overhead(sender: str) -> int:
     return _PREFIX.size + len(sender.encode("utf-8")) + _FIELDS.size + SIGNATURE_SIZE
 
 
-def seal(key: Ed25519PrivateKey, sender: str, epoch: int, seq: int, sent_at: float, inner: bytes) -> bytes:
+def seal(key: SigningKey, sender: str, epoch: int, seq: int, sent_at: float, inner: bytes) -> bytes:
     """Wrap the inner frame ``inner`` in a version-1 envelope signed with ``key`` (layout: module docstring)."""
     name = sender.encode("utf-8")
     if not 1 <= len(name) <= _MAX_NAME:
         raise ProtocolError("sender name must be 1 to 255 UTF-8 bytes")
     body = b"".join((_PREFIX.pack(ENVELOPE_MAGIC, ENVELOPE_VERSION, len(name)), name,
                      _FIELDS.pack(epoch, seq, float(sent_at), len(inner)), inner))
-    return body + key.sign(body)
+    return body + key.sign(body).signature
 
 
 @dataclass(frozen=True, slots=True)
@@ -221,6 +230,8 @@ def parse(frame: bytes) -> Opened:
     if len(frame) != head + n_inner + SIGNATURE_SIZE:
         expect = head + n_inner + SIGNATURE_SIZE
         raise Rejected("malformed", f"length {len(frame)} does not match the header's {expect}")
+    if not math.isfinite(sent_at):
+        raise Rejected("malformed", "sent_at is not a finite time")
     end = head + n_inner
     return Opened(sender, epoch, seq, sent_at, bytes(frame[head:end]), bytes(frame[:end]), bytes(frame[end:]))
 
@@ -232,13 +243,13 @@ class Signer:
     ----------
     name : str
         The agent's name (as in the peers file).
-    key : Ed25519PrivateKey
+    key : nacl.signing.SigningKey
         Its signing key.
     epoch : int, optional
         Defaults to ``time.time_ns()`` at construction (see the module docstring on restarts).
     """
 
-    def __init__(self, name: str, key: Ed25519PrivateKey, epoch: int | None = None):
+    def __init__(self, name: str, key: SigningKey, epoch: int | None = None):
         self.name = name
         self._key = key
         self.epoch = time.time_ns() if epoch is None else int(epoch)
@@ -318,7 +329,7 @@ class Gate:
 
     def __init__(self, name: str, public_keys: Mapping[str, bytes], window: int = 1024):
         self.name = name
-        self._keys = {who: Ed25519PublicKey.from_public_bytes(raw) for who, raw in public_keys.items()}
+        self._keys = {who: VerifyKey(bytes(raw)) for who, raw in public_keys.items()}
         self._window = int(window)
         self._windows: dict[str, ReplayWindow] = {}
 
@@ -335,8 +346,8 @@ class Gate:
         if key is None:
             raise Rejected("unknown_sender", f"{env.sender!r} is not in the peers file")
         try:
-            key.verify(env.signature, env.signed)
-        except InvalidSignature:
+            key.verify(env.signed, env.signature)
+        except BadSignatureError:
             raise Rejected("bad_signature", f"signature does not verify for {env.sender!r}") from None
         window = self._windows.get(env.sender)
         if window is None:
@@ -349,7 +360,7 @@ class Gate:
             raise Rejected("malformed", f"inner frame: {err}") from None
         if message.sender != env.sender:
             raise Rejected("bad_signature", f"{env.sender!r} signed a message from {message.sender!r}")
-        if env.sender == self.name or message.receiver not in (self.name, BROADCAST):
+        if message.receiver not in (self.name, BROADCAST) or (env.sender == self.name and message.is_broadcast):
             raise Rejected("replay", f"a frame from {env.sender!r} to {message.receiver!r} reached {self.name!r}")
         window.mark(env.epoch, env.seq)  # only a frame admitted whole moves the window
         return env, message

@@ -3,7 +3,7 @@
 Every message really goes over the wire: :meth:`SimulatedNetwork.send` encodes it
 (:meth:`Message.to_bytes`), the link may corrupt the frame, and the receiver decodes it on
 :meth:`~SimulatedNetwork.poll` (a corrupted frame fails its CRC and is counted as dropped, reason
-``"corrupt"``). Per directed link ``(a, b)`` a copy sent at time ``t``:
+``"corrupt"``, and refused: ``stats().rejected``). Per directed link ``(a, b)`` a copy sent at time ``t``:
 
 1. is refused if ``a`` is down at ``t`` (``"sender_down"``) or a partition active at ``t`` separates
    ``a`` from ``b`` (``"partition"``);
@@ -350,6 +350,7 @@ class SimulatedNetwork(Transport):
                 message = _decode_frame(item.frame)
             except ProtocolError:
                 self._ledger.drop(keys, size, "corrupt")
+                self._ledger.reject("corrupt")
                 continue
             self._ledger.bump(keys, ("delivered", 1), ("bytes_delivered", size))
             out.append(Delivery(message, agent, item.sent_at, item.arrival, size, item.duplicate))
@@ -516,6 +517,8 @@ class SimulatedNetwork(Transport):
             self._bump_many(s[mk], r[mk], kid, ("in_flight", -1))
             for mask, reason in ((mk & down, "receiver_down"), (mk & ~down & ~ok, "corrupt")):
                 self._drop_many(s[mask], r[mask], kid, size[mask], reason)
+            if (n_corrupt := int(np.count_nonzero(mk & ~down & ~ok))):
+                self._ledger.reject("corrupt", n_corrupt)
             good = mk & ~down & ok
             self._bump_many(s[good], r[good], kid, ("delivered", None), ("bytes_delivered", size[good]))
         good = ~down & ok

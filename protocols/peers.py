@@ -28,10 +28,17 @@ import re
 from dataclasses import dataclass
 from typing import Any, Mapping
 
-from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
+from nacl.signing import SigningKey
 
 from decentral.errors import InputError
-from protocols.auth import b64decode_key, b64encode, private_key_bytes, private_key_from_bytes, public_key_bytes
+from protocols.auth import (
+    b64decode_key,
+    b64encode,
+    check_public_key,
+    private_key_bytes,
+    private_key_from_bytes,
+    public_key_bytes,
+)
 from protocols.messages import BROADCAST
 
 __all__ = [
@@ -157,7 +164,7 @@ def load_peers(path: str | os.PathLike) -> dict[str, Peer]:
         if address in addresses:
             raise InputError(f"same address as {addresses[address]!r}", source=source, field=f"{where}.address")
         addresses[address] = name
-        key = _field(entry, "public_key", source, where, b64decode_key)
+        key = _field(entry, "public_key", source, where, lambda v: check_public_key(b64decode_key(v)))
         out[name] = Peer(name, address, key)
     return out
 
@@ -168,18 +175,18 @@ def peers_json(peers: Mapping[str, Peer]) -> dict:
             "peers": {p.name: {"address": p.address, "public_key": b64encode(p.public_key)} for p in peers.values()}}
 
 
-def private_key_json(name: str, key: Ed25519PrivateKey) -> dict:
+def private_key_json(name: str, key: SigningKey) -> dict:
     """The ``decentral.key/1`` JSON object of agent ``name``'s signing key (secret: write it with mode 0600)."""
     return {"format": KEY_FORMAT, "name": name, "private_key": b64encode(private_key_bytes(key)),
             "public_key": b64encode(public_key_bytes(key))}
 
 
-def public_key_json(name: str, key: Ed25519PrivateKey) -> dict:
+def public_key_json(name: str, key: SigningKey) -> dict:
     """The ``decentral.pubkey/1`` JSON object of agent ``name``'s public key."""
     return {"format": PUBKEY_FORMAT, "name": name, "public_key": b64encode(public_key_bytes(key))}
 
 
-def load_private_key(path: str | os.PathLike) -> tuple[str, Ed25519PrivateKey]:
+def load_private_key(path: str | os.PathLike) -> tuple[str, SigningKey]:
     """Read a ``decentral.key/1`` file: (agent name, signing key).
 
     Raises

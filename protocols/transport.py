@@ -15,8 +15,8 @@ keeps the same books split between them: the sending process counts ``sent`` and
 ``in_flight``, the receiving process counts the copy out of ``in_flight`` (so its own ``in_flight``
 goes negative) and into ``delivered``, ``dropped`` or ``duplicated``. Each process's books are half
 of each remote link; :func:`merge_stats` adds the books of every process into the balanced whole.
-Frames a receiver refuses before it can trust who sent them (forged, replayed, malformed, unknown
-sender) are in no link's books: they are counted by reason in ``rejected``.
+Every frame a receiver refuses is counted by reason in ``rejected``; those refused before the sender
+could be trusted (forged, replayed, malformed, unknown sender) are in no link's books.
 """
 
 from __future__ import annotations
@@ -104,8 +104,11 @@ class TransportStats:
         Dropped copies by cause (``"loss"``, ``"partition"``, ``"sender_down"``, ``"receiver_down"``,
         ``"unknown_receiver"``, ``"queue_full"``).
     rejected : Mapping[str, int]
-        Inbound frames refused by reason (``"bad_signature"``, ``"replay"``, ``"unknown_sender"``,
-        ``"malformed"``); counted in no other field. Always empty for the simulated network.
+        Inbound frames the receiving side refused, by reason (reasons that occurred only). The
+        simulated network refuses frames that fail to decode (``"corrupt"``); they are also dropped
+        copies of their link. The real transport refuses frames it cannot trust
+        (``"bad_signature"``, ``"replay"``, ``"unknown_sender"``, ``"malformed"``); those are in no
+        link's books, since their sender and kind are unknown.
     """
 
     total: Counts
@@ -226,9 +229,9 @@ class Ledger:
         """Count ``n`` more drops under ``reason`` (their counters are bumped by the caller)."""
         self._reasons[reason] = self._reasons.get(reason, 0) + n
 
-    def reject(self, reason: str) -> None:
-        """Count one refused inbound frame under ``reason``."""
-        self._rejected[reason] = self._rejected.get(reason, 0) + 1
+    def reject(self, reason: str, n: int = 1) -> None:
+        """Count ``n`` refused inbound frames under ``reason``."""
+        self._rejected[reason] = self._rejected.get(reason, 0) + n
 
     def snapshot(self, extra_rows: dict | None = None) -> TransportStats:
         """A frozen :class:`TransportStats` of the books (plus ``extra_rows``: row key -> counts, added)."""

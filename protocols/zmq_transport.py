@@ -12,9 +12,11 @@ Every frame is a signed envelope (:mod:`protocols.auth`); a receiver refuses for
 malformed and unknown-sender frames, counts them by reason in ``stats().rejected`` and goes on.
 Loss, duplication and delay can be injected *at the receiving side*, after a frame is admitted,
 with the behaviour of a :class:`protocols.network.LinkConfig` (``drop``, ``duplicate``,
-``latency``, ``jitter``) and each link's random stream derived as the simulated network derives it
-(:func:`protocols.network.link_stream`), so every process given the same ``rng`` seed draws the
-same fates for the same link: the ``k``-th frame admitted on a link always meets the same fate.
+``latency``, ``jitter``), each link's random stream derived and drawn as the simulated network
+derives and draws it (:func:`protocols.network.link_stream`, six draws per copy in its order): every
+process given the same ``rng`` seed draws the same fates for the same link, and the ``k``-th frame
+admitted on a link meets the fate the ``k``-th copy sent on that link meets in a
+:class:`~protocols.network.SimulatedNetwork` of the same seed.
 
 Counting follows :mod:`protocols.transport`: the sending process counts ``sent``/``bytes_sent``
 (the envelope's size: framing included) and one copy in flight per receiving link; the receiving
@@ -54,7 +56,7 @@ from typing import Mapping
 
 import numpy as np
 import zmq
-from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
+from nacl.signing import SigningKey
 
 from decentral.errors import InputError, ProtocolError
 from protocols.auth import Gate, Rejected, Signer, new_private_key, public_key_bytes
@@ -103,7 +105,7 @@ class ZmqTransport(Transport):
 
     Parameters
     ----------
-    keys : Mapping[str, Ed25519PrivateKey]
+    keys : Mapping[str, SigningKey]
         The local agents (usually one) and their signing keys; each must be in ``peers`` with the
         matching public key.
     peers : Mapping[str, Peer]
@@ -125,12 +127,13 @@ class ZmqTransport(Transport):
     max_frame_bytes : int
         Larger inbound frames are refused by the socket.
     max_batch : int
-        At most this many frames are read per :meth:`poll` (a flood cannot stall the caller).
+        At most this many frames are read per :meth:`poll` (a flood cannot stall the caller's loop;
+        about 50 ms of checks at most).
     """
 
     def __init__(
         self,
-        keys: Mapping[str, Ed25519PrivateKey],
+        keys: Mapping[str, SigningKey],
         peers: Mapping[str, Peer],
         *,
         rng: np.random.Generator | None = None,
@@ -140,7 +143,7 @@ class ZmqTransport(Transport):
         hwm: int = 2000,
         window: int = 1024,
         max_frame_bytes: int = DEFAULT_MAX_FRAME,
-        max_batch: int = 10_000,
+        max_batch: int = 1000,
     ):
         if not keys:
             raise InputError("needs at least one local agent", field="keys")
@@ -151,6 +154,9 @@ class ZmqTransport(Transport):
             if public_key_bytes(key) != self._peers[name].public_key:
                 raise InputError(f"the key of {name!r} does not match its public key in the peers file",
                                  field=f"peers.{name}.public_key")
+        stray = set(bind or {}) - set(keys)
+        if stray:
+            raise InputError(f"bind names agents that are not local: {sorted(stray)}", field="bind")
         self._links = dict(links or {})
         _check_faults(faults, "faults")
         for pair, cfg in self._links.items():
@@ -165,6 +171,7 @@ class ZmqTransport(Transport):
         self._order = 0
         self._closed = False
         self._context = zmq.Context()
+        self._sockets: list[zmq.Socket] = []  # every socket made, so close() closes even a half-built one
         self._out: dict[str, zmq.Socket] = {}
         self._local: dict[str, _Endpoint] = {}
         public = {name: p.public_key for name, p in self._peers.items()}
@@ -217,19 +224,20 @@ class ZmqTransport(Transport):
         frame = ep.signer.seal(message, float(now))
         a, kind, size = ep.name, message.KIND, len(frame)
         receivers = [b for b in self._peers if b != a] if message.is_broadcast else [message.receiver]
+        ledger = self._ledger
         for b in receivers:
-            self._ledger.count(a, b, kind, ("sent", 1), ("bytes_sent", size))
+            keys = ledger.keys(a, b, kind)
             socket = self._out.get(b)
             if socket is None:
                 reason = "unknown_receiver" if b not in self._peers else "no_address"
-                self._ledger.drop(self._ledger.keys(a, b, kind), size, reason)
+                ledger.drop(keys, size, reason, ("sent", 1), ("bytes_sent", size))
                 continue
             try:
                 socket.send(frame, zmq.NOBLOCK)
             except zmq.Again:
-                self._ledger.drop(self._ledger.keys(a, b, kind), size, "queue_full")
+                ledger.drop(keys, size, "queue_full", ("sent", 1), ("bytes_sent", size))
                 continue
-            self._ledger.count(a, b, kind, ("in_flight", 1))
+            ledger.bump(keys, ("sent", 1), ("bytes_sent", size), ("in_flight", 1))
 
     def poll(self, agent: str, now: float) -> list[Delivery]:
         """Read what has arrived for ``agent`` (never blocks), admit it, and return the copies due by ``now``."""
@@ -285,6 +293,7 @@ class ZmqTransport(Transport):
             old = self._out.pop(name, None)
             if old is not None:
                 old.close(linger=0)
+                self._sockets.remove(old)
             self._connect(name)
 
     def close(self, linger: float = 0.0) -> None:
@@ -297,10 +306,9 @@ class ZmqTransport(Transport):
             return
         self._closed = True
         deadline = time.monotonic() + max(0.0, linger)
-        for socket in self._out.values():
-            socket.close(linger=int(1000 * max(0.0, deadline - time.monotonic())))
-        for ep in self._local.values():
-            ep.socket.close(linger=0)
+        outbound = set(self._out.values())
+        for socket in self._sockets:
+            socket.close(linger=int(1000 * max(0.0, deadline - time.monotonic())) if socket in outbound else 0)
         self._context.term()
 
     def __enter__(self) -> "ZmqTransport":
@@ -312,7 +320,9 @@ class ZmqTransport(Transport):
     # ------------------------------------------------------------------ internals
     def _socket(self, kind: int) -> zmq.Socket:
         socket = self._context.socket(kind)
+        self._sockets.append(socket)
         socket.setsockopt(zmq.LINGER, 0)
+        socket.setsockopt(zmq.IPV6, 1)  # tcp://[::1]:PORT and IPv4 addresses alike
         return socket
 
     def _connect(self, name: str) -> None:
@@ -342,8 +352,12 @@ class ZmqTransport(Transport):
             return
         a, b, kind, size = env.sender, ep.name, message.KIND, len(frame)
         cfg = self._links.get((a, b), self._faults)
-        # a fixed number of draws per admitted copy keeps each link's pattern independent of the rest
-        u_drop, u_dup, u_jit, u_jit2 = self._link_rng(a, b).random(4) if self._random(cfg) else (1.0, 1.0, 0.0, 0.0)
+        # the simulated network's six draws per copy, in its order (drop, corrupt, duplicate, jitter, jitter of
+        # the duplicate, corrupt position): the k-th copy on a link meets the fate it meets in a simulation
+        if self._random(cfg):
+            u_drop, _, u_dup, u_jit, u_jit2, _ = self._link_rng(a, b).random(6)
+        else:
+            u_drop, u_dup, u_jit, u_jit2 = 1.0, 1.0, 0.0, 0.0
         if u_drop < cfg.drop:
             self._ledger.drop(self._ledger.keys(a, b, kind), size, "loss", ("in_flight", -1))
             return

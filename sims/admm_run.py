@@ -18,6 +18,7 @@ it comes back (it must catch up from its peers); a partition only cuts links.
 from __future__ import annotations
 
 import time
+from typing import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -155,7 +156,7 @@ def _agent_config(log: ObservationLog, name: str, reference: str, config: AdmmRu
 
 
 def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunConfig = AdmmRunConfig(),
-             seed: int = 0) -> AdmmRun:
+             seed: int = 0, progress: Callable[..., None] | None = None) -> AdmmRun:
     """Run the decentralized estimator over ``log`` and return the reference agent's estimate.
 
     Parameters
@@ -168,6 +169,9 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
         Network, ADMM and schedule parameters.
     seed : int
         Seed of the network's randomness (losses, duplicates, jitter); the run is deterministic in it.
+    progress : callable, optional
+        Called after each log step as ``progress(steps_done, steps_total, rounds=..., messages=...,
+        unconverged=...)`` (running totals: rounds, copies sent, steps that hit ``max_rounds``).
     """
     reference = reference or log.assemblies[0]
     if reference not in log.assemblies:
@@ -184,8 +188,12 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
     per_step: list[dict] = []  # per step: kind -> copies sent by each agent (names order)
     bytes_step: list[dict] = []  # the same in bytes
 
+    sent_total = 0
+
     def count(message):
+        nonlocal sent_total
         copies = len(names) - 1 if message.is_broadcast else 1
+        sent_total += copies
         row = per_step[-1].setdefault(message.KIND, [0] * len(names))
         row[position[message.sender]] += copies
         row = bytes_step[-1].setdefault(message.KIND, [0] * len(names))
@@ -240,6 +248,9 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
         per_agent.append({n: hosts[n].agent.window_estimate for n in live})
         ref_poses = hosts[reference].agent.window_estimate if reference in live else {}
         est_steps.append(EstimateStep(log.steps[k].t, ref_poses))
+        if progress is not None:
+            progress(k + 1, len(log.steps), rounds=int(sum(rounds)), messages=sent_total,
+                     unconverged=converged.count(False))
     agents = {n: h.agent.agent for n, h in hosts.items()}
     transport = net.stats().as_dict()
     seconds = time.perf_counter() - start

@@ -224,3 +224,41 @@ def raw_tcp_garbage(address: str, n_bytes: int, rng: np.random.Generator) -> Non
             conn.sendall(rng.bytes(int(n_bytes)))
         except OSError:  # the peer hung up on the garbage: what it should do
             pass
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m protocols.testing.attacker ADDRESS --peers PEERS.json [...]``: flood one agent, print the report."""
+    import argparse
+    import json
+
+    from protocols.auth import private_key_bytes
+    from protocols.peers import load_peers, load_private_key
+
+    parser = argparse.ArgumentParser(prog="python -m protocols.testing.attacker", description=__doc__.split("\n\n")[0])
+    parser.add_argument("address", help="the target agent's inbound address, tcp://HOST:PORT")
+    parser.add_argument("--peers", required=True, help="the target's peers file (forged frames claim its names)")
+    parser.add_argument("--frames", type=int, default=10_000, help="hostile frames to send (default 10000)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the attack mix and bytes (default 0)")
+    parser.add_argument("--insider", metavar="KEYFILE", help="a member's key file the attacker holds (impersonation)")
+    parser.add_argument("--tap", metavar="ADDRESS", help="listen here first (the insider's peers-file address) ...")
+    parser.add_argument("--capture", type=int, default=20, help="... for this many genuine frames (default 20)")
+    parser.add_argument("--capture-timeout", type=float, default=10.0, help="... or this many seconds (default 10)")
+    args = parser.parse_args(argv)
+    senders = list(load_peers(args.peers))
+    insider = None
+    if args.insider:
+        name, key = load_private_key(args.insider)
+        insider = (name, private_key_bytes(key))
+    captured: list[bytes] = []
+    if args.tap:
+        with Tap(args.tap) as tap:
+            captured = tap.frames(args.capture, args.capture_timeout)
+    report = flood(args.address, args.frames, np.random.default_rng(args.seed), senders=senders, captured=captured,
+                   insider=insider)
+    print(json.dumps({"sent": report.sent, "captured": len(captured), "attacks": report.attacks,
+                      "expected": report.expected}))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -9,6 +9,7 @@ import sys
 import time
 
 from decentral.errors import InputError
+from sims.cli import feedback
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -97,7 +98,10 @@ def run(args: argparse.Namespace) -> int:
     if args.output:
         write_estimate(args.output, result.estimate)
     if result.stats["missing"]:
-        print(f"decentral agent {args.name}: never heard from {', '.join(result.stats['missing'])}", file=sys.stderr)
+        feedback.warn(f"{args.name} never heard from {', '.join(result.stats['missing'])}")
+    stats = result.stats
+    feedback.summary(f"{args.name}: {len(result.steps)} steps, {sum(stats['converged_per_step'])} converged, "
+                     f"{stats['messages']['total']} frames sent, {sum(stats['rejected'].values())} refused")
     return 0
 
 

@@ -21,8 +21,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from sims.cli import feedback
     from sims.io.keyfiles import write_keys
 
     keys = write_keys(args.out, args.names, host=args.host, base_port=args.base_port, force=args.force)
-    print(f"wrote {len(keys.private)} key pairs and {keys.peers}")
+    feedback.summary(f"{len(keys.private)} key pairs and {keys.peers} written (private keys mode 0600)")
     return 0

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import sys
 
 from decentral.errors import InputError
+from sims.cli import feedback
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -54,7 +54,16 @@ def run(args: argparse.Namespace) -> int:
                           absent=tuple(args.absent))
     result = launch(log, config, workdir=args.workdir)
     write_estimate(args.output, result.estimate)
+    stats = result.estimate.stats
+    if stats["missing"]:
+        feedback.warn(f"the reference never heard from {', '.join(stats['missing'])}")
+    for agent, line in stats.get("agent_errors", {}).items():
+        feedback.warn(f"agent process {agent} failed: {line}")
     if result.timed_out:
-        print(f"decentral launch: timed out after {args.timeout} s; wrote the steps gathered", file=sys.stderr)
+        feedback.warn(f"timed out after {args.timeout} s; wrote the steps gathered")
         return 1
+    placed = sum(1 for step in result.estimate.steps if step.poses)
+    feedback.summary(f"{len(result.estimate.steps)} steps ({placed} placing someone), {stats['processes']} processes, "
+                     f"{stats['messages']['total']} frames, {stats['bytes']['total']} bytes, "
+                     f"{sum(stats['rejected'].values())} refused -> {args.output}")
     return 0

@@ -1,4 +1,10 @@
-"""``decentral localize``: a ``decentral.log/1`` in, a ``decentral.estimate/1`` out (CONTRACT §4)."""
+"""``decentral localize``: a ``decentral.log/1`` in, a ``decentral.estimate/1`` out (CONTRACT §4).
+
+A progress bar counts log steps (with ADMM rounds and messages in ``--mode admm``); one summary
+line closes the run. ``--mode admm`` warns on stderr when steps hit ``--max-rounds`` without
+converging, and exits with :data:`~sims.cli.main.EXIT_NO_RESULT` (3) when it placed no assembly at
+all (the estimate is still written: its ``stats`` say what the network did).
+"""
 
 from __future__ import annotations
 
@@ -6,6 +12,7 @@ import argparse
 
 from decentral.errors import InputError
 from decentral.factors import NoiseModel
+from sims.cli import feedback
 from sims.io.log_json import read_log, write_estimate
 
 __all__ = ["HELP", "add_arguments", "run", "ESTIMATORS"]
@@ -70,24 +77,57 @@ def run(args: argparse.Namespace) -> int:
     if reference not in log.assemblies:
         raise InputError(f"no assembly {reference!r} in {args.log}", field="--reference")
     noise = _noise(args)
-    if args.mode == "admm":
-        estimate = _run_admm(log, args, noise, reference)
-    elif args.estimator == "bearing":
-        from decentral.bearing import BearingConfig, estimate_log_bearing
+    with feedback.progress("localize", total=len(log.steps)) as bar:
+        if args.mode == "admm":
+            estimate = _run_admm(log, args, noise, reference, bar)
+        elif args.estimator == "bearing":
+            from decentral.bearing import BearingConfig, estimate_log_bearing
 
-        estimate = estimate_log_bearing(log, BearingConfig(window=args.window, noise=noise), reference)
-    else:
-        from decentral.estimator import EstimatorConfig, estimate_log
+            estimate = estimate_log_bearing(log, BearingConfig(window=args.window, noise=noise), reference, bar)
+        else:
+            from decentral.estimator import EstimatorConfig, estimate_log
 
-        config = EstimatorConfig(window=args.window, solver=args.solver, noise=noise)
-        estimate = estimate_log(log, config, reference)
+            config = EstimatorConfig(window=args.window, solver=args.solver, noise=noise)
+            estimate = estimate_log(log, config, reference, bar)
     write_estimate(args.output, estimate)
-    return 0
+    return _report(estimate, args, n_assemblies=len(log.assemblies))
 
 
-def _run_admm(log, args, noise, reference):
+def _run_admm(log, args, noise, reference, progress):
     from sims.admm_run import AdmmRunConfig, run_admm
 
     config = AdmmRunConfig(window=args.window, noise=noise, loss=args.loss, share_forms=args.share_forms,
                            aggregation=args.aggregation, max_rounds=args.max_rounds)
-    return run_admm(log, reference, config, seed=args.seed).estimate
+    return run_admm(log, reference, config, seed=args.seed, progress=progress).estimate
+
+
+def _report(estimate, args: argparse.Namespace, n_assemblies: int) -> int:
+    """Print the summary line and the warnings of a finished run; return the exit status."""
+    from sims.cli.main import EXIT_NO_RESULT
+
+    steps = len(estimate.steps)
+    placed = sum(len(step.poses) for step in estimate.steps)
+    possible = steps * (n_assemblies - 1)
+    coverage = f"coverage {100 * placed / possible:.0f}% ({placed}/{possible} assembly-steps)" if possible else "coverage -"
+    stats = estimate.stats
+    if args.mode != "admm":
+        certified = (f", {stats['certified_windows']}/{stats['windows_solved']} windows certified"
+                     if "windows_solved" in stats else "")
+        feedback.summary(f"{steps} steps{certified}, {coverage} -> {args.output}")
+        if possible and not placed:
+            feedback.warn("placed no assembly: no step had observations linking another assembly to the reference")
+        return 0
+    total = stats["messages"]["total"]
+    n_converged = sum(stats["converged_per_step"])
+    feedback.summary(f"{steps} steps, {stats['rounds_total']} rounds, {total['sent']} messages "
+                     f"({total['bytes_sent'] / 1e6:.2f} MB), converged {n_converged}/{steps} steps, "
+                     f"{coverage} -> {args.output}")
+    if n_converged < steps:
+        feedback.warn(f"consensus did not converge at {steps - n_converged} of {steps} steps within "
+                      f"--max-rounds {args.max_rounds}; their estimates are the last iterates")
+    if possible and not placed:
+        feedback.warn(f"placed no assembly: {total['dropped']} of {total['sent']} messages were dropped "
+                      f"(--loss {args.loss:g}) and no estimate reached the reference "
+                      f"(exit status {EXIT_NO_RESULT})")
+        return EXIT_NO_RESULT
+    return 0

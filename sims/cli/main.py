@@ -4,6 +4,9 @@ Each subcommand lives in its own module under :mod:`sims.cli` and exposes ``HELP
 ``add_arguments(parser)`` and ``run(args) -> int``. The registry below is explicit (a test checks it
 against the files on disk). Known errors (:class:`decentral.DecentralError`) become one line on
 stderr and exit status 2; nothing else is printed, and no traceback.
+
+``decentral --version`` prints the installed version; ``-q``/``--quiet`` (before or after the
+subcommand) silences progress bars and the closing summary line (:mod:`sims.cli.feedback`).
 """
 
 from __future__ import annotations
@@ -12,8 +15,10 @@ import argparse
 import importlib
 import os
 import sys
+from importlib.metadata import PackageNotFoundError, version
 
 from decentral.errors import DecentralError
+from sims.cli import feedback
 
 __all__ = ["COMMANDS", "build_parser", "main"]
 
@@ -34,6 +39,18 @@ COMMANDS: dict[str, str] = {
 
 EXIT_BAD_INPUT = 2
 EXIT_INTERNAL = 1
+#: a decentralized run finished but placed nothing (e.g. every message lost); its output is still written
+EXIT_NO_RESULT = 3
+
+QUIET_HELP = "no progress bars and no summary line (warnings and errors still go to stderr)"
+
+
+def package_version() -> str:
+    """The installed ``decentral`` version (``unknown`` when run from a source tree that is not installed)."""
+    try:
+        return version("decentral")
+    except PackageNotFoundError:
+        return "unknown"
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -42,11 +59,15 @@ def build_parser() -> argparse.ArgumentParser:
         prog="decentral",
         description="Decentralized multi-observer relative localization for modular robots.",
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
+    parser.add_argument("-q", "--quiet", action="store_true", help=QUIET_HELP)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, module_name in COMMANDS.items():
         module = importlib.import_module(module_name)
         cmd = sub.add_parser(name, help=module.HELP, description=module.HELP)
         module.add_arguments(cmd)
+        # SUPPRESS: absent after the subcommand, the top-level value stands
+        cmd.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS, help=QUIET_HELP)
         cmd.set_defaults(_run=module.run)
     return parser
 
@@ -62,6 +83,7 @@ def main(argv: list[str] | None = None) -> int:
         os.environ.setdefault(var, "1")
     parser = build_parser()
     args = parser.parse_args(argv)
+    feedback.configure(quiet=args.quiet, command=args.command)
     try:
         status = args._run(args)
     except DecentralError as err:

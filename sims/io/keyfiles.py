@@ -6,20 +6,18 @@ Formats (``decentral.key/1``, ``decentral.pubkey/1``, ``decentral.peers/1``) are
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping, Sequence
+from urllib.parse import quote
 
 from decentral.errors import InputError
 from protocols.auth import new_private_key, public_key_bytes
-from protocols.peers import Peer, check_address, peers_json, private_key_json, public_key_json
+from protocols.peers import Peer, check_address, check_name, peers_json, private_key_json, public_key_json
 from sims.io.atomic import write_json_atomic
 
 __all__ = ["KeySet", "write_keys", "key_paths"]
 
-#: names become file names: letters, digits, ``_``, ``-``, ``.``, not starting with a dot
-_SAFE_NAME = re.compile(r"^[A-Za-z0-9_-][A-Za-z0-9_.-]{0,127}$")
 
 
 @dataclass(frozen=True)
@@ -40,9 +38,17 @@ class KeySet:
 
 
 def key_paths(folder: str | Path, name: str) -> tuple[Path, Path]:
-    """The private and public key file of agent ``name`` in ``folder``: ``NAME.key.json``, ``NAME.pub.json``."""
+    """The private and public key file of agent ``name`` in ``folder``: ``NAME.key.json``, ``NAME.pub.json``.
+
+    ``NAME`` is the name percent-encoded where it is not a letter, digit, ``_``, ``-`` or a ``.`` after
+    the first character (``robot 1`` -> ``robot%201``, ``a/b`` -> ``a%2Fb``), so every agent name
+    gives one plain file name in ``folder``; the files hold the name itself.
+    """
+    stem = quote(name, safe="")
+    if stem.startswith("."):
+        stem = "%2E" + stem[1:]
     folder = Path(folder)
-    return folder / f"{name}.key.json", folder / f"{name}.pub.json"
+    return folder / f"{stem}.key.json", folder / f"{stem}.pub.json"
 
 
 def write_keys(
@@ -61,7 +67,7 @@ def write_keys(
     folder : path
         Created if missing.
     names : sequence of str
-        Agent names (unique; used in file names, so letters, digits, ``_``, ``-`` and ``.``).
+        Agent names (unique; 1-255 UTF-8 bytes, not ``*``; file names per :func:`key_paths`).
     addresses : Mapping[str, str], optional
         Each agent's address in the peers file; defaults to ``tcp://HOST:BASE_PORT+i`` for the
         ``i``-th name (a skeleton to edit when agents run on several machines).
@@ -78,9 +84,10 @@ def write_keys(
     if not names:
         raise InputError("give at least one agent name", field="NAME")
     for name in names:
-        if not isinstance(name, str) or not _SAFE_NAME.match(name):
-            raise InputError(f"{name!r} is not a usable agent name (letters, digits, _ - . ; not starting with .)",
-                             field="NAME")
+        try:
+            check_name(name)
+        except ValueError as err:
+            raise InputError(str(err), field="NAME") from None
     if len(set(names)) != len(names):
         raise InputError("names must be unique", field="NAME")
     if addresses is None:

@@ -38,7 +38,8 @@ def refusal(gate: Gate, frame: bytes) -> str:
 
 
 def test_envelope_layout_matches_the_documented_offsets():
-    """Magic, version, name, epoch, seq, sent_at and inner length sit at the documented offsets; the size is inner + 98 + L."""
+    """Magic, version, name, epoch, seq, sent_at and inner length sit at the documented offsets; the size
+    is inner + 98 + L."""
     inner = hb("A0").to_bytes()
     frame = seal(KEYS["A0"], "A0", 7, 42, 3.25, inner)
     assert frame[:4] == b"DCSE" and frame[4] == ENVELOPE_VERSION and frame[5] == 2 and frame[6:8] == b"A0"
@@ -80,6 +81,12 @@ def test_padded_bad_magic_and_other_versions_are_malformed():
     assert gate.admit(frame)[1] == hb("A0")  # none of that touched the window
 
 
+def test_non_finite_send_time_is_malformed():
+    """A member's validly signed envelope whose sent_at is NaN or infinite is refused as malformed."""
+    for t in (float("nan"), float("inf")):
+        assert refusal(Gate("A1", PUBLIC), seal(KEYS["A0"], "A0", 1, 0, t, hb("A0").to_bytes())) == "malformed"
+
+
 def test_unknown_sender_is_refused():
     """A well-signed frame from a name not in the peers file is refused as unknown_sender."""
     frame = Signer("X", new_private_key()).seal(hb("X"), 0.0)
@@ -102,7 +109,8 @@ def test_a_member_cannot_speak_for_another():
 
 
 def test_replays_misdirected_and_reflected_frames_are_replays():
-    """The same frame twice, a frame addressed to someone else, and an agent's own frame are refused as replay."""
+    """The same frame twice, a frame addressed to someone else, and an agent's own broadcast are refused as
+    replay (a message an agent sends to itself is not)."""
     signer = Signer("A0", KEYS["A0"])
     gate = Gate("A1", PUBLIC)
     frame = signer.seal(hb("A0"), 0.0)
@@ -110,6 +118,7 @@ def test_replays_misdirected_and_reflected_frames_are_replays():
     assert refusal(gate, frame) == "replay"
     assert refusal(gate, signer.seal(hb("A0", "A2"), 0.0)) == "replay"
     assert refusal(gate, Signer("A1", KEYS["A1"]).seal(hb("A1"), 0.0)) == "replay"
+    assert gate.admit(Signer("A1", KEYS["A1"], epoch=1).seal(hb("A1", "A1"), 0.0))[1] == hb("A1", "A1")  # to itself
 
 
 def test_malformed_inner_frame_of_a_member_is_malformed():
@@ -166,3 +175,27 @@ def test_window_survives_reordering_of_a_lossy_burst():
     seqs = rng.permutation(np.flatnonzero(rng.random(2000) < 0.7))
     w = ReplayWindow(4096)
     assert all(w.accept(9, int(s)) for s in seqs)
+
+
+GENUINE = Signer("A0", KEYS["A0"], epoch=3).seal(hb("A0", "A1", 9), 1.0)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=400))
+def test_any_byte_string_is_refused_never_raised(data):
+    """Arbitrary bytes are refused with one of the four reasons; no other exception ever escapes the gate."""
+    with pytest.raises(Rejected) as err:
+        Gate("A1", PUBLIC).admit(data)
+    assert err.value.reason in ("malformed", "unknown_sender", "bad_signature")
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, len(GENUINE) - 1), st.integers(1, 255), st.integers(0, len(GENUINE)))
+def test_every_flipped_byte_and_every_cut_of_a_genuine_frame_is_refused(pos, xor, cut):
+    """Changing any byte of a genuine frame, or cutting it anywhere, gets it refused (and the original still passes)."""
+    gate = Gate("A1", PUBLIC)
+    for bad in (GENUINE[:pos] + bytes([GENUINE[pos] ^ xor]) + GENUINE[pos + 1:], GENUINE[:cut] if cut < len(GENUINE)
+                else GENUINE + b"\x00"):
+        with pytest.raises(Rejected):
+            gate.admit(bad)
+    assert gate.admit(GENUINE)[1] == hb("A0", "A1", 9)

@@ -193,6 +193,7 @@ def test_corrupted_copies_never_reach_the_agent():
     assert 0 < len(got) < 200
     assert all(d.message == sent[d.message.round] for d in got)
     assert network.stats().drop_reasons["corrupt"] == 200 - len(got)
+    assert network.stats().rejected == {"corrupt": 200 - len(got)}  # refused by the receiver, by reason
 
 
 def test_broadcast_reaches_every_other_agent():

@@ -21,7 +21,8 @@ KEY = new_private_key()
 
 
 def good_peers() -> dict:
-    peers = {n: Peer(n, f"tcp://127.0.0.1:{47000 + i}", public_key_bytes(new_private_key())) for i, n in enumerate("AB")}
+    peers = {n: Peer(n, f"tcp://127.0.0.1:{47000 + i}", public_key_bytes(new_private_key()))
+             for i, n in enumerate("AB")}
     return peers_json(peers)
 
 
@@ -57,6 +58,7 @@ def test_key_file_round_trips(tmp_path):
     (lambda d: d["peers"]["A"].update(public_key="AAAA"), "peers.A.public_key"),
     (lambda d: d["peers"]["A"].update(public_key="not base64!"), "peers.A.public_key"),
     (lambda d: d["peers"]["A"].update(public_key=7), "peers.A.public_key"),
+    (lambda d: d["peers"]["A"].update(public_key="A" * 43 + "="), "peers.A.public_key"),  # 32 zero bytes: no key
     (lambda d: d["peers"].update(A="x"), "peers.A"),
 ])
 def test_bad_peers_files_name_file_and_field(tmp_path, mutate, field):

@@ -105,6 +105,7 @@ def test_agent_refuses_a_key_of_another_agent_in_one_line(tmp_path, capsys):
     """Bad input to `decentral agent` ends with one line naming the file, exit status 2."""
     sim = _sim(2, 2)
     main(["keys", "A0", "A1", "-o", str(tmp_path / "keys")])
+    capsys.readouterr()
     from sims.parts import split_log, write_part
 
     write_part(tmp_path / "A0.json", split_log(sim.log)["A0"], "A0")
