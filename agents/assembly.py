@@ -63,6 +63,15 @@ job for agents whose forms were missing). How the forms travel:
 When an agent holds every agent's forms, the joint solution also fills the gossip table's rows of
 the step (the table need not cross the graph before the convergence flag settles), and the ADMM is
 converged once the consensus stays within the tolerances of that fixed point.
+
+Byte budget (``docs/processes.md``): forms are shared one per pair and step (and per odometry link),
+each built from its step's data alone, so a window adds one new step of forms; in the tree they go up
+as ``admm.delta`` (only what the parent lacks, a digest per record:
+:mod:`protocols.form_cache`), and once the reference holds every live agent's forms it sends its
+joint solution down as ``admm.solution`` (float32 poses of the newest step) instead of the forms.
+A window that starts at the joint solution of every live agent's forms is exact and runs no ADMM
+round (:meth:`AssemblyAgent._exact`); an agent joins the ADMM only while a neighbour runs it. Peers
+not heard from for two windows are not waited for.
 """
 
 from __future__ import annotations
@@ -83,6 +92,9 @@ from protocols.admm_messages import (ConfigAnnounce, ConfigRequest, FactorShare,
                                      pack_forms)
 from protocols.aggregation import TreeAggregation, choose_parent, tree_from_edges
 from protocols.messages import BROADCAST, AdmmDual, AdmmPrimal, Message
+from protocols.config_gossip import ConfigTable
+from protocols.delta_messages import DeltaBundle, JointPoses
+from protocols.form_cache import DeltaSender, FormCache
 
 __all__ = ["AgentConfig", "OwnStep", "AssemblyAgent"]
 
@@ -230,7 +242,7 @@ class AssemblyAgent:
         self._steps: list[int] = []
         self._own_config: dict[int, np.ndarray] = {}
         self._announced: tuple[int, dict] | None = None  # (step, config) last announced
-        self._configs: dict[str, list[tuple[int, dict]]] = {}  # others' announced configurations
+        self._configs = ConfigTable(config.name, config.assemblies)  # others' announced configurations
         self._seen: dict[int, list[tuple[int, np.ndarray, float]]] = {}  # step -> [(node, t, w)]
         self._odometry: dict[int, tuple] = {}
         self._pairs: dict[str, PairState] = {}
@@ -246,7 +258,7 @@ class AssemblyAgent:
         self._converged = False
         self._last_ages: dict[str, int] = {}
         self.counters = {"ignored": 0, "timeouts": 0, "retransmits": 0, "uncertified": 0, "unknown_nodes": 0,
-                         "tree_windows": 0, "broadcast_windows": 0, "late_seeds": 0}
+                         "tree_windows": 0, "broadcast_windows": 0, "late_seeds": 0, "joint_failures": 0}
         self._iter = 0  # consensus iterations done
         self._iter_before = 0
         self._step_rounds = 0
@@ -266,7 +278,7 @@ class AssemblyAgent:
         self._own_forms: tuple | None = None  # (step, keys, forms, pin) last shared (answers late askers)
         self._table_changed = 0  # last round the gossip table changed by more than the tolerances
         self._hold = 0  # the ADMM of this window starts at this round (after the forms are shared)
-        self._tree: dict[str, tuple[int, int, int]] = {}  # neighbour -> (hop, parent index, round heard)
+        self._tree: dict[str, tuple[int, int, int, int]] = {}  # neighbour -> (hop, parent index, round heard, step)
         self._hop: int | None = 0 if config.name == config.reference else None
         self._parent: int | None = None
         self._tree_depth = 1  # depth of the aggregation tree in the last down bundle
@@ -278,14 +290,30 @@ class AssemblyAgent:
         self._table_version = 0  # bumped on every material change of the gossip table
         self._expected: set[str] = set()  # observers whose first values a seeded start waits for
         self._table_sent: dict[str, tuple[int, int]] = {}  # neighbour -> (version, round) last sent
+        #: set by the runtime's local rule (:class:`agents.runtime.LocalAgent`) once this agent's window is done:
+        #: its ADMM values then carry a ``done`` block, so that quiet neighbours do not answer them
+        self.window_done = False
+        self._busy_seen = -(10**9)  # last round with ADMM values of this window from a neighbour still at work
+        self._watchers: set[str] = set()  # observers named by the last complete set of forms
+        self._shared: dict[str, list[LocalProblem]] = {}  # target -> its pair's forms, one per step
+        self._forms = FormCache()  # every agent's forms seen here for the window (rebuilds deltas from below)
+        self._edges_sent: set = set()  # the view graph in the last solution sent down (the reference)
+        self._delta_sender = DeltaSender()  # per parent, the forms already sent up to it
+        self._alive: dict[int, int] = {}  # agent index -> last step at which it (or its records) was heard
 
     # ------------------------------------------------------------------ sensing
     @property
     def name(self) -> str:
         return self.config.name
 
-    def on_step(self, own: OwnStep) -> None:
-        """Take the assembly's own observations of a new step and slide the window."""
+    def advance(self, round_index: int) -> None:
+        """The runtime's clock: the round under way, also while the agent runs no half rounds (quiet)."""
+        self._round = max(self._round, int(round_index))
+
+    def on_step(self, own: OwnStep, round_index: int | None = None) -> None:
+        """Take the assembly's own observations of a new step (at round ``round_index``) and slide the window."""
+        if round_index is not None:
+            self.advance(round_index)
         cfg = self.config
         first = self._step is None and own.step == 0
         self._seeds = {}
@@ -296,11 +324,12 @@ class AssemblyAgent:
         self._form_sig = None
         if cfg.share_forms == "every" or (cfg.share_forms == "first" and first):
             self._parent, self._hop = self._tree_position()
-            me, fresh = self._index[self.name], self._tree_fresh()
+            me = self._index[self.name]
             agg = TreeAggregation(me, len(cfg.assemblies), root=self.name == cfg.reference, parent=self._parent,
-                                  children={self._index[a] for a, (_, p, r) in self._tree.items()
-                                            if p == me and self._round - r <= fresh},
-                                  start=self._round + 1, wait=cfg.patience, hop=self._hop or 0)
+                                  children={self._index[a] for a, entry in self._tree.items()
+                                            if entry[1] == me and self._fresh(entry)},
+                                  start=self._round + 1, wait=cfg.patience, hop=self._hop or 0,
+                                  expected=self._alive_members(own.step))
             self._boot = {"records": agg.records, "agg": agg, "mode": None, "start": None, "sent": -(10**9),
                           "waited": 0, "step": own.step, "pin": None, "start_at": 0}
             self._own_forms = None
@@ -317,11 +346,14 @@ class AssemblyAgent:
             self._reannounced = own.step
         elif own.step - self._reannounced >= cfg.announce_every:
             # repairs a lost announcement: to the current observers only (others ask with a request)
-            for observer in sorted(self._observers):
+            for observer in self.observers:
                 self._outbox.append(self._announcement(observer))
             self._reannounced = own.step
         first = max(0, own.step - cfg.window + 1)
         self._steps = list(range(first, own.step + 1))
+        # forms of steps that left the window are no longer part of any record
+        self._forms.slide(first)
+        self._delta_sender.slide(first)
         for store in (self._seen, self._odometry):
             for k in [k for k in store if k < first]:
                 del store[k]
@@ -350,18 +382,8 @@ class AssemblyAgent:
                               centres=centres)
 
     def _relay(self, request: ConfigRequest) -> None:
-        """Answer a request for other assemblies' nodes with their configurations held here (the owner's own
-        answer and the request each cross one lossy link; every relay is another chance)."""
-        ids = {int(i) for i in request.ids}
-        for owner, hist in sorted(self._configs.items()):
-            if owner == request.sender or not hist:
-                continue
-            step, conf = hist[-1]
-            if ids & set(conf):
-                keys = np.array(sorted(conf), dtype=np.int64)
-                self._outbox.append(ConfigAnnounce(
-                    sender=self.name, receiver=request.sender, round=self._round, step=step, ids=keys,
-                    centres=np.array([conf[int(i)] for i in keys]).reshape(-1, 3), owner=owner))
+        """Answer a request for other assemblies' nodes with their configurations held here."""
+        self._outbox += self._configs.relays(request, self.name, self._round)
 
     def _measure(self, own: OwnStep) -> list[tuple[int, np.ndarray, float]]:
         """Own detections as (node, centre in own root frame (3,), weight), seed 000 eq. (1), (4)."""
@@ -382,24 +404,26 @@ class AssemblyAgent:
     # ------------------------------------------------------------------ messages
     def handle(self, message: Message) -> None:
         """Route one received message by its type (anything else is counted and ignored)."""
+        sender = self._index.get(message.sender)
+        if sender is not None and self._step is not None:
+            self._alive[sender] = self._step
         if isinstance(message, ConfigAnnounce):
-            owner = message.owner or message.sender
-            if owner == self.name or owner not in self._index:
-                return
-            entry = (message.step, {int(i): np.array(c) for i, c in zip(message.ids, message.centres)})
-            hist = self._configs.get(owner, [])
-            if message.owner and any(h[0] == message.step for h in hist):
-                return  # a relayed copy never replaces what the owner said itself
-            self._configs[owner] = sorted([h for h in hist if h[0] != message.step] + [entry], key=lambda h: h[0])
-            self._dirty = True
+            if self._configs.learn(message):
+                self._dirty = True
         elif isinstance(message, FactorShare):
             self._on_factors(message)
         elif isinstance(message, FormBundle):
             self._on_bundle(message)
+        elif isinstance(message, JointPoses):
+            self._on_solution(message)
+        elif isinstance(message, DeltaBundle):
+            self._on_delta(message)
         elif isinstance(message, FormAck):
-            boot = self._boot
+            boot, down = self._boot, self._down
             if boot is not None and boot["step"] == message.step and self._index.get(message.sender) == boot["agg"].parent:
                 boot["agg"].acknowledge(message.have.tolist(), self._round)
+            elif down is not None and down["step"] == message.step:
+                down["pending"].pop(self._index.get(message.sender), None)  # a child has the down bundle
         elif isinstance(message, ConfigRequest):
             # every agent answers with its own configuration, owner or not: a requester that holds every
             # assembly's configuration knows that the ids none of them lists are stray tags
@@ -407,11 +431,13 @@ class AssemblyAgent:
                 self._outbox.append(self._announcement(message.sender))
             self._relay(message)
         elif isinstance(message, (AdmmPrimal, AdmmDual)):
+            if "done" not in message.blocks and message.window == self._step:
+                self._busy_seen = self._round  # it runs the ADMM (late names, partial forms): take part
             self._merge_table(message.blocks.get("table"))
             b = message.blocks
             tree = b.get("tree")
             if tree is not None and tree.shape == (2,):
-                self._tree[message.sender] = (int(tree[0]), int(tree[1]), self._round)
+                self._tree[message.sender] = (int(tree[0]), int(tree[1]), self._round, self._step)
             self._ask(message.sender, int(message.window))
             x, meta = b.get("x"), b.get("meta")
             if x is None or meta is None or x.ndim != 2 or x.shape[1] != 8 or meta.shape != (4,):
@@ -444,12 +470,7 @@ class AssemblyAgent:
 
     # ------------------------------------------------------------------ ADMM
     def _owner_of(self, node: int, step: int) -> tuple[str, np.ndarray] | None:
-        for name, hist in self._configs.items():
-            usable = [h for h in hist if h[0] <= step] or hist[:1]
-            conf = usable[-1][1]
-            if node in conf:
-                return name, conf[node]
-        return None
+        return self._configs.owner_of(node, step)
 
     def _rebuild(self) -> None:
         """Directed pair subproblems ``self -> target`` over the window from own detections."""
@@ -467,7 +488,7 @@ class AssemblyAgent:
         self._pair_steps = {k for r in rows.values() for k, *_ in r}
         self._pair_sig = {target: len(facts) for target, facts in rows.items()}
         for target in [t for t in self._pairs if t not in rows]:
-            for store in (self._pairs, self._pair_out, self._last_dual, self._pair_iter):
+            for store in (self._pairs, self._pair_out, self._last_dual, self._pair_iter, self._shared):
                 store.pop(target, None)
         for target, facts in rows.items():
             keys, io, ia, q, t, w = [], [], [], [], [], []
@@ -480,6 +501,16 @@ class AssemblyAgent:
                 ia.append(slot[k] + 1)
                 q.append(qk), t.append(tk), w.append(wk)
             problem = quadratic_form(keys, visual=(np.array(io), np.array(ia), np.array(q), np.array(t), np.array(w)))
+            # the same factors step by step, for sharing: each window adds its newest step's form, and a step's
+            # form is built from that step's detections alone, so it is bit-identical from window to window
+            per_step = {}
+            for k, qk, tk, wk in facts:
+                per_step.setdefault(k, []).append((qk, tk, wk))
+            self._shared[target] = [
+                quadratic_form([(self.name, k), (target, k)], visual=(
+                    np.zeros(len(f), int), np.ones(len(f), int), np.array([x[0] for x in f]),
+                    np.array([x[1] for x in f]), np.array([x[2] for x in f])))
+                for k, f in sorted(per_step.items())]
             pair = self._pairs.get(target) or PairState(self.name, target, self.config.admm)
             pair.set_problem(problem)
             if pair.iterations == 0 and not pair.y and self._seeds:
@@ -487,8 +518,14 @@ class AssemblyAgent:
             self._pairs[target] = pair
         self._dirty = False
 
-    def tick(self, round_index: int) -> None:
-        """Run the next phase of ADMM round ``round_index`` (phase 0: pairs; phase 1: consensus)."""
+    def tick(self, round_index: int, phase: int | None = None) -> None:
+        """Run the next phase of ADMM round ``round_index`` (phase 0: pairs; phase 1: consensus).
+
+        ``phase`` names the half round explicitly (a runtime that skips the ticks of a quiet agent,
+        :mod:`agents.runtime`); without it the phases alternate from call to call.
+        """
+        if phase is not None:
+            self._phase = phase
         if self._step is None:
             return
         self._round = round_index
@@ -501,11 +538,22 @@ class AssemblyAgent:
                 self._bootstrap_phase()  # when it finishes, the ADMM starts at round `_hold` (at least the next)
             self._phase = 1 - self._phase
             return
-        if self._phase == 0:
+        if self._dirty:
+            self._rebuild()  # (a configuration that arrived may add a pair the joint solution lacks)
+        if self._exact() and self._round - self._busy_seen > 2:
+            # every live agent's forms and this agent's pairs as they described them: the joint solution is the
+            # ADMM's fixed point, and every agent holding the set has it too; no round would change it
+            self._converged = True
+        elif self._phase == 0:
             self._pair_phase()
         else:
             self._consensus_phase()
         self._phase = 1 - self._phase
+
+    def _exact(self) -> bool:
+        """The window started at the joint solution of every live agent's forms, its own pairs among them
+        as they are now, and no node is left to name: the estimate is final without ADMM rounds."""
+        return self._seeds_complete and self._form_sig == self._pair_sig and not self._unresolved()
 
     def _age(self, inbound: _Inbound | None) -> int:
         return 10**9 if inbound is None else max(0, self._round - inbound.round)
@@ -517,6 +565,21 @@ class AssemblyAgent:
                                               ids=np.array(sorted(self._unknown), dtype=np.int64)))
             self._requested = self._round
 
+    def _fresh(self, entry: tuple[int, int, int, int]) -> bool:
+        """Whether a neighbour's tree entry is recent: heard within :meth:`_tree_fresh` rounds, or in this
+        window or the one before (rounds between windows depend on the pace of the sensor steps, which
+        a process does not choose)."""
+        return self._round - entry[2] <= self._tree_fresh() or entry[3] is not None and entry[3] >= (self._step or 0) - 1
+
+    def _alive_members(self, step: int) -> set[int] | None:
+        """Agents heard from (directly or through their records) in this window or the one before: a set of
+        forms is complete once it holds theirs. ``None`` (every agent) without such a history (the first
+        two steps): an agent down for two windows, or one that never started, is then no longer waited
+        for, and the others' windows complete without it."""
+        if not self._alive or step < 2:
+            return None
+        return {i for i, seen in self._alive.items() if seen >= step - 1}
+
     def _tree_fresh(self) -> int:
         """Rounds for which a neighbour's place in the tree is trusted (a window's sharing and ADMM fit in)."""
         return 2 * self.config.share_timeout
@@ -525,8 +588,7 @@ class AssemblyAgent:
         """(parent index, hop count to the reference) from the neighbours' recent hops (distance vector)."""
         if self.name == self.config.reference:
             return None, 0
-        fresh = self._tree_fresh()
-        hops = {self._index[a]: h for a, (h, _, r) in self._tree.items() if self._round - r <= fresh}
+        hops = {self._index[a]: entry[0] for a, entry in self._tree.items() if self._fresh(entry)}
         return choose_parent(hops, len(self.config.assemblies))
 
     def _bootstrap_phase(self) -> None:
@@ -540,11 +602,10 @@ class AssemblyAgent:
         self._request_unknown()
         me = self._index[self.name]
         if self._own_forms is None and (not self._unresolved() or boot["waited"] >= cfg.patience):
-            forms = [tuple((self._index[a], k) for a, k in pair.problem.keys) + (pair.problem,)
-                     for _, pair in sorted(self._pairs.items()) if pair.problem is not None and pair.problem.n]
-            odo = self._consensus.odometry_problem()
-            if odo is not None:
-                forms.append(tuple((me, k[1]) for k in odo.keys) + (odo,))
+            # one form per pair and step, and per odometry link: a window adds only its newest step's forms
+            problems = [part for _, parts in sorted(self._shared.items()) for part in parts] \
+                + self._consensus.odometry_links()
+            forms = [tuple((self._index[a], k) for a, k in prob.keys) + (prob,) for prob in problems]
             keys, flat = pack_forms([(f[:-1], f[-1].M, f[-1].b_z, f[-1].c_z) for f in forms])
             pin = np.zeros(0)
             cons = self._consensus
@@ -594,7 +655,7 @@ class AssemblyAgent:
             # (a parent that stays silent is dropped at the window's timeout; switching to the broadcast after
             # a few unanswered resends instead cost 180-300 rounds per window at 50 % loss: it fired on loss alone)
             self.counters["retransmits"] += 1
-            self._send_up(agg.take_resend(self._round))
+            self._send_up(agg.take_resend(self._round), whole=True)
 
     def _bundle(self, receiver: str, indices, down: bool, start: int = 0, boot: dict | None = None) -> FormBundle:
         boot = boot or self._boot
@@ -607,9 +668,12 @@ class AssemblyAgent:
                           hop=agg.hop, parent=-1 if agg.parent is None else agg.parent, depth=agg.depth,
                           start=start, members=members, owners=owners, keys=keys, forms=flat, pin=pin)
 
-    def _send_up(self, indices: list[int]) -> None:
+    def _send_up(self, indices: list[int], whole: bool = False) -> None:
+        """Records ``indices`` to the parent: as a delta (what it lacks), or ``whole`` (a resend: it could not
+        rebuild them, or the bundle was lost)."""
         agg = self._boot["agg"]
-        self._outbox.append(self._bundle(self.config.assemblies[agg.parent], indices, down=False))
+        delta = None if whole else self._delta(agg.parent, indices)
+        self._outbox.append(delta or self._bundle(self.config.assemblies[agg.parent], indices, down=False))
 
     def _send_down(self, exclude=(), start: int | None = None) -> None:
         """The final set of this window to the children (the root: when complete or on timeout)."""
@@ -629,12 +693,42 @@ class AssemblyAgent:
         for child in targets:
             self._outbox.append(self._down_bundle(self.config.assemblies[child]))
 
-    def _down_bundle(self, receiver: str) -> FormBundle:
+    def _down_bundle(self, receiver: str) -> FormBundle | JointPoses:
+        """What goes down to ``receiver``: the reference's joint solution when the set was complete there
+        (:class:`protocols.delta_messages.JointPoses`, a few bytes per assembly), else the forms."""
         down = self._down
+        boot = down["boot"]
+        solution = boot.get("solution")
+        if solution is None and self.name == self.config.reference and boot["agg"].complete:
+            joint = self._joint(boot)
+            if joint is not None:
+                solution = boot["solution_out"] = boot.get("solution_out") or self._solution_message(boot, joint)
+        if solution is not None:
+            agg = boot["agg"]
+            return JointPoses(sender=self.name, receiver=receiver, round=self._round, step=solution.step,
+                              hop=agg.hop, parent=-1 if agg.parent is None else agg.parent, depth=solution.depth,
+                              start=down["start"], n=solution.n, members=solution.members, index=solution.index,
+                              poses=solution.poses, placeable=solution.placeable, edges=solution.edges)
         if down["bundle"] is None:
             down["bundle"] = self._bundle(BROADCAST, sorted(down["boot"]["records"]), down=True, start=down["start"],
                                           boot=down["boot"])
         return self._readdressed(down["bundle"], receiver)
+
+    def _solution_message(self, boot: dict, joint) -> JointPoses:
+        """The reference's joint solution of the window as it goes down: newest step, float32, bit masks."""
+        n, step = len(self.config.assemblies), boot["step"]
+        edges = self._edges(boot)  # sent when the view graph changed (an empty mask: as in the last solution)
+        message_edges, self._edges_sent = self._edges_sent, edges
+        rows = sorted((self._index[a], p, _yaw2(R)) for (a, k), (R, p) in joint.poses.items()
+                      if k == step and a in self._index)
+        placeable = {self._index[a] for a, k in self._placeable_of(boot, joint) if k == step}
+        return JointPoses(sender=self.name, receiver=BROADCAST, round=self._round, step=step, hop=0, parent=-1,
+                          depth=boot["agg"].depth, start=0, n=n, members=JointPoses.mask(boot["records"], n),
+                          index=JointPoses.mask([r[0] for r in rows], n),
+                          poses=np.array([[*r[1], r[2]] for r in rows], float).reshape(-1, 4),
+                          placeable=JointPoses.mask(placeable, n),
+                          edges=JointPoses.mask([a * n + b for a, b in edges], n * n) if edges != message_edges
+                          else np.zeros(0, np.uint8))
 
     def _ask(self, neighbour: str, step: int) -> None:
         """A neighbour sends ADMM values of this window, so it has finished the sharing: ask it for the set
@@ -669,6 +763,8 @@ class AssemblyAgent:
         2 rounds after that gets the bundle again, every 3 rounds, at most 4 times (it may no longer be a
         neighbour; it also asks by itself)."""
         down = self._down
+        if down is not None and (down["boot"].get("solution") or down["boot"].get("solution_out")):
+            return  # an exact window sends no ADMM values to tell it by: the children ask themselves
         if down is None or down["step"] != self._step or not down["pending"]:
             return
         for child, (last, tries) in sorted(down["pending"].items()):
@@ -687,45 +783,54 @@ class AssemblyAgent:
                           members=bundle.members, owners=bundle.owners, keys=bundle.keys, forms=bundle.forms,
                           pin=bundle.pin)
 
-    def _on_bundle(self, message: FormBundle) -> None:
-        """A bundle from a child (records up) or from the parent (the final set, down)."""
+    def _on_bundle(self, message: FormBundle | DeltaBundle, rebuilt: dict | None = None) -> None:
+        """A bundle from a child (records up) or from the parent (the final set, down); ``rebuilt``: the
+        records a delta bundle describes, rebuilt from this agent's cache (:meth:`_on_delta`)."""
         n = len(self.config.assemblies)
+        down = bool(getattr(message, "down", False))
         sender = self._index.get(message.sender)
-        if (sender is None or (len(message.keys) and message.keys[:, 1].max() >= n)
-                or (len(message.members) and message.members.max() >= n)):
+        if rebuilt is None and (sender is None or (len(message.keys) and message.keys[:, 1].max() >= n)
+                                or (len(message.members) and message.members.max() >= n)):
             self.counters["ignored"] += 1
-            return
-        self._tree[message.sender] = (message.hop, message.parent, self._round)
+            return  # (a delta's indices were checked by _on_delta)
+        self._tree[message.sender] = (message.hop, message.parent, self._round, self._step)
+        for member in message.members.tolist():
+            self._alive[int(member)] = self._step if self._step is not None else 0
         boot, late = self._boot, self._late
         names = self.config.assemblies
-        records = {i: [(keys, LocalProblem(tuple((names[a], s) for a, s in keys), M, b_z, c_z))
-                       for keys, M, b_z, c_z in forms] for i, forms in message.records().items()}
+        if rebuilt is None:
+            records = {i: [(keys, LocalProblem(tuple((names[a], s) for a, s in keys), M, b_z, c_z))
+                           for keys, M, b_z, c_z in forms] for i, forms in message.records().items()}
+            for i, forms in records.items():
+                self._remember(i, forms)
+        else:
+            records = rebuilt
         if boot is None and late is not None and late["step"] == message.step == self._step:
             # this window finished here without every agent's forms: what arrives late may complete it
             agg = late["agg"]
             if len(message.pin):
                 late["pin"] = np.array(message.pin)
-            new = agg.add(records, child=None if message.down else sender)
-            if not message.down and new and agg.parent is not None:  # the root missed them too: pass them on
+            new = agg.add(records, child=None if down else sender)
+            if not down and new and agg.parent is not None:  # the root missed them too: pass them on
                 self._outbox.append(self._bundle(names[agg.parent], sorted(new), down=False, boot=late))
             if agg.complete:  # start again from the joint solution, and tell the children
                 self._late, self._boot = None, late
                 agg.final = False
-                self._send_down(exclude=(sender,) if message.down else (), start=0)
+                self._send_down(exclude=(sender,) if down else (), start=0)
                 self.counters["late_seeds"] += 1
                 self._finish_bootstrap()
-            elif not message.down and self._down is not None and self._down["step"] == message.step:
+            elif not down and self._down is not None and self._down["step"] == message.step:
                 self._outbox.append(self._down_bundle(message.sender))
             return
         if boot is None or message.step != boot["step"]:
             # finished with this window: a bundle from below means the down bundle was lost: send it again
-            if not message.down and self._down is not None and self._down["step"] == message.step:
+            if not down and self._down is not None and self._down["step"] == message.step:
                 self._outbox.append(self._down_bundle(message.sender))
             return
         agg = boot["agg"]
         if len(message.pin):
             boot["pin"] = np.array(message.pin)
-        if message.down:
+        if down:
             if agg.final:
                 return
             agg.add(records, depth=message.depth)
@@ -734,6 +839,9 @@ class AssemblyAgent:
             if lost and agg.parent is not None:  # the root timed out without records from here: send them again
                 self._outbox.append(self._bundle(names[agg.parent], lost, down=False))
             self._send_down(exclude=(sender,), start=message.start)  # forwarded at once: one hop per phase
+            # acknowledged: in an exact window no ADMM values come back to tell the parent it arrived
+            self._outbox.append(FormAck(sender=self.name, receiver=message.sender, round=self._round,
+                                        step=boot["step"], have=np.array(sorted(agg.records), dtype=np.int64)))
         else:
             agg.add(records, child=sender, depth=message.depth)
             if agg.final:  # already finished the window's sharing: the child missed the down bundle
@@ -743,6 +851,44 @@ class AssemblyAgent:
             self._outbox.append(FormAck(sender=self.name, receiver=message.sender, round=self._round,
                                         step=boot["step"], have=np.array(sorted(agg.records), dtype=np.int64)))
             self._tree_progress()
+
+    def _remember(self, owner: int, forms) -> None:
+        """Keep ``owner``'s forms ``[(keys, LocalProblem)]`` of the window (a parent rebuilds delta records from them)."""
+        self._forms.remember(owner, forms)
+
+    def _on_delta(self, message: DeltaBundle) -> None:
+        """A delta bundle from a child: rebuild each member's record of the window from the forms carried and
+        those held here (:class:`protocols.form_cache.FormCache`); a member that cannot be rebuilt exactly is
+        left out (not acknowledged: the child sends it whole)."""
+        n, names = len(self.config.assemblies), self.config.assemblies
+        if (self._index.get(message.sender) is None or (len(message.pairs) and message.pairs.max() >= n)
+                or (len(message.members) and message.members.max() >= n)):
+            self.counters["ignored"] += 1
+            return
+        for owner, keys, M, b_z, c_z in message.carried():
+            self._remember(owner, [(keys, LocalProblem(tuple((names[a], k) for a, k in keys), M, b_z, c_z))])
+        first = message.step - self.config.window + 1
+        rebuilt = {}
+        for member, digest in zip(message.members.tolist(), message.digest.tolist()):
+            record = self._forms.rebuild(member, tuple(digest), first, message.step)
+            if record is not None:
+                rebuilt[member] = record
+        self._on_bundle(message, rebuilt)
+
+    def _delta(self, parent: int, indices: list[int]) -> DeltaBundle | None:
+        """Records ``indices`` for ``parent`` as a delta (:class:`protocols.form_cache.DeltaSender`): the forms
+        not yet sent to it, and each record's digest (``None``: the records go whole)."""
+        boot, agg = self._boot, self._boot["agg"]
+        packed = self._delta_sender.delta(parent, {i: agg.records[i] for i in indices}, boot["step"])
+        if packed is None:
+            return None
+        carried, digests = packed
+        ref = self._index[self.config.reference]
+        pin = boot["pin"] if boot["pin"] is not None and ref in indices else np.zeros(0)
+        return DeltaBundle(sender=self.name, receiver=self.config.assemblies[parent], round=self._round,
+                           step=boot["step"], hop=agg.hop, parent=parent, depth=agg.depth,
+                           members=np.array(sorted(indices), dtype=np.int16), pin=pin,
+                           digest=np.array(digests, dtype=np.int64).reshape(-1, 2), **DeltaBundle.pack(boot["step"], carried))
 
     def _factor_share(self, receiver: str) -> FactorShare:
         step, keys, flat, pin = self._own_forms
@@ -762,9 +908,10 @@ class AssemblyAgent:
         if boot is not None and message.step == boot["step"]:
             names, agg = self.config.assemblies, boot["agg"]
             if sender not in boot["records"]:
-                agg.add({sender: [(keys, LocalProblem(tuple((names[a], s) for a, s in keys), M, b_z, c_z))
-                                  for keys, M, b_z, c_z in message.unpack()]},
-                        forward=message.sender == self.name)
+                forms = [(keys, LocalProblem(tuple((names[a], s) for a, s in keys), M, b_z, c_z))
+                         for keys, M, b_z, c_z in message.unpack()]
+                self._remember(sender, forms)
+                agg.add({sender: forms}, forward=message.sender == self.name)
                 if len(message.pin):
                     boot["pin"] = np.array(message.pin)
             if (boot["mode"] == "tree" and message.receiver == BROADCAST and agg.parent == sender
@@ -776,72 +923,160 @@ class AssemblyAgent:
                 and message.sender != self.name and self._index[self.name] not in set(message.have.tolist())):
             self._outbox.append(self._factor_share(message.sender))
 
+    def _joint(self, boot: dict):
+        """The joint solution of a window's shared forms (:func:`decentral.admm.solve_joint`, computed once per
+        window), or ``None`` (no forms, or the gauge's value at this window unknown here)."""
+        if "joint" not in boot:
+            boot["joint"] = None
+            problems = [prob for idx in sorted(boot["records"]) for _, prob in boot["records"][idx]]
+            first = self._steps[0]
+            pin = boot["pin"]
+            if problems and (pin is not None and int(pin[0]) == first or first == 0):
+                value = (rot2(float(pin[4])), np.array(pin[1:4])) if pin is not None and int(pin[0]) == first else None
+                try:
+                    boot["joint"] = solve_joint(problems, (self.config.reference, first), value)
+                except np.linalg.LinAlgError:
+                    # a set whose variables are tied by keys but not by factors (a step with neither odometry
+                    # nor detections, forms missing): no joint solution; the ADMM goes on from its own state
+                    self.counters["joint_failures"] += 1
+        return boot["joint"]
+
+    def _edges(self, boot: dict) -> set[tuple[int, int]]:
+        """The view graph's observing pairs ``(observer, target)`` the window's forms name (each pair form names
+        its observer first and its target last)."""
+        return {(keys[0][0], keys[-1][0]) for idx in boot["records"] for keys, _ in boot["records"][idx]
+                if keys[0][0] != keys[-1][0]}
+
+    def _placeable_of(self, boot: dict, joint) -> frozenset:
+        if "placeable" not in boot:
+            limit = self.config.max_yaw_std if self.config.noise.weighting == "information" else np.inf
+            boot["placeable"], boot["yaw_std"] = joint.placement((self.name, self._step), limit)
+        return boot["placeable"]
+
+    def _unplaced_reasons(self, boot: dict, joint) -> dict[str, str]:
+        """Why the joint placement test leaves an assembly out at this step (assembly -> reason code of
+        :func:`decentral.placement.unplaced_reasons`); call after :meth:`_placeable_of`."""
+        problems = [prob for idx in sorted(boot["records"]) for _, prob in boot["records"][idx]]
+        return unplaced_reasons(
+            self.config.assemblies, self.name, {name for name, _ in self._placeable_of(boot, joint)},
+            with_data={name for prob in problems if len({k[0] for k in prob.keys}) > 1 for name, _ in prob.keys},
+            connected={name for name, step in joint.index if step == self._step}, solved=True,
+            yaw_std=boot["yaw_std"])
+
+    def _learn_graph(self, edges: set[tuple[int, int]]) -> None:
+        """A complete window reveals the whole view graph: the neighbours' places in the tree (ready for the
+        next window without waiting for the distance vector to cross the graph) and this agent's observers."""
+        me = self._index[self.name]
+        hops, parents = tree_from_edges(edges, len(self.config.assemblies), self._index[self.config.reference])
+        # assemblies no longer adjacent leave the table (with no ADMM values to refresh it, a stale entry would
+        # make a former neighbour wait for a child that never reports)
+        self._tree = {}
+        self._watchers = {self.config.assemblies[a] for a, b in edges if b == me and a != me}
+        for a, b in edges:
+            other = b if a == me else a if b == me else None
+            if other is not None and other != me and other in hops:
+                self._tree[self.config.assemblies[other]] = (hops[other], parents.get(other, -1), self._round,
+                                                             self._step)
+
+    def _fill_table(self, poses: dict) -> None:
+        """The joint solution's poses of the current step into the gossip table (its own row too: in an exact
+        window no ADMM round comes to write it)."""
+        for (name, step), (R, p) in poses.items():
+            i = self._index.get(name)
+            if step == self._step and i is not None:
+                self._table[i] = np.array([i, step, self._round, *p, np.arctan2(R[1, 0], R[0, 0])])
+        self._table_version += 1
+        self._table_changed = self._round
+
+    def _fresh_admm(self) -> None:
+        """A fresh ADMM start at the new window's fixed point: earlier values belong to the old window."""
+        self._targets_z = {a: v for a, v in self._targets_z.items() if v.window >= self._step}
+        self._observers = {a: v for a, v in self._observers.items() if v.window >= self._step}
+        self._iter = 0
+        self._pair_iter, self._waiting, self._pair_out, self._last_dual = {}, {}, {}, {}
+        self._last_primal = None
+        for pair in self._pairs.values():
+            pair.y, pair.y_hat = {}, {}
+
     def _finish_bootstrap(self) -> None:
-        """Solve the joint problem of the shared forms (:func:`decentral.admm.solve_joint`) and seed the ADMM."""
+        """Solve the joint problem of the shared forms (:func:`decentral.admm.solve_joint`) and seed the ADMM,
+        or adopt the joint solution the reference sent down (:class:`protocols.delta_messages.JointPoses`)."""
         boot = self._boot
         self._boot = None
         self._hold = max(boot["start_at"], self._round + 1)  # the ADMM starts with a later round's pair phase
         agg = boot["agg"]
         self._late = None
+        if boot.get("solution") is not None:
+            self._adopt(boot["solution"])
+            return
         if boot["mode"] == "tree" and not agg.complete:
             self._late = dict(boot, asked=0, last=self._round)
             # values from a partial solution would pull the neighbours that have the whole set off the exact
             # fixed point (100-250 rounds per window at 50 % loss): stay silent while the rest may still come
             self._hold = self._round + self.config.share_timeout
-        problems = [prob for idx in sorted(boot["records"]) for _, prob in boot["records"][idx]]
-        if not problems:
-            return
-        first = self._steps[0]
-        ref = self.config.reference
-        value = None
-        pin = boot["pin"]
-        if pin is not None and int(pin[0]) == first:
-            value = (rot2(float(pin[4])), np.array(pin[1:4]))
-        elif first != 0:
-            return  # the gauge's value at this window is unknown here: the ADMM goes on from its own state
-        joint = solve_joint(problems, (ref, first), value)
+        joint = self._joint(boot)
+        if joint is None:
+            return  # no forms, or the gauge's value at this window is unknown here: the ADMM goes on
         seeds = joint.poses
         # every agent's forms: the seeds are the joint estimate of this step (a fixed point of the ADMM),
         # and the centralized estimator's placement test can be run on them
-        self._seeds_complete = len(boot["records"]) == len(self.config.assemblies)
+        self._seeds_complete = agg.complete  # every (live) agent's forms
         if self._seeds_complete:
-            limit = self.config.max_yaw_std if self.config.noise.weighting == "information" else np.inf
-            self._placeable, stds = joint.placement((self.name, self._step), limit)
-            self._why = unplaced_reasons(
-                self.config.assemblies, self.name, {name for name, _ in self._placeable},
-                with_data={name for prob in problems if len({k[0] for k in prob.keys}) > 1 for name, _ in prob.keys},
-                connected={name for name, step in joint.index if step == self._step}, solved=True, yaw_std=stds)
+            self._placeable = self._placeable_of(boot, joint)
+            self._why = self._unplaced_reasons(boot, joint)
             # the joint solution already gives every assembly's pose of this step: the gossip table need
             # not cross the view graph before the convergence flag can settle (rounds flat in the diameter)
-            me = self._index[self.name]
-            for (name, step), (R, p) in seeds.items():
-                i = self._index.get(name)
-                if step == self._step and i is not None and i != me:
-                    self._table[i] = np.array([i, step, self._round, *p, np.arctan2(R[1, 0], R[0, 0])])
-            self._table_version += 1
-            self._table_changed = self._round
-            # they also reveal the whole view graph: the neighbours' places in the tree, without waiting for
-            # the distance vector to cross the graph (the next window's tree is ready at once)
-            edges = {(keys[0][0], keys[-1][0]) for idx in boot["records"] for keys, _ in boot["records"][idx]}
-            hops, parents = tree_from_edges(edges, len(self.config.assemblies), self._index[self.config.reference])
-            for a, b in edges:
-                other = b if a == me else a if b == me else None
-                if other is not None and other != me and other in hops:
-                    self._tree[self.config.assemblies[other]] = (hops[other], parents.get(other, -1), self._round)
+            self._fill_table(seeds)
+            self._learn_graph(self._edges(boot))
         # the seeded duals balance only with every observer's contribution: wait for their first values
         names, me = self.config.assemblies, self._index[self.name]
         self._expected = {names[keys[0][0]] for idx in boot["records"] for keys, _ in boot["records"][idx]
                           if len(keys) >= 2 and keys[1][0] == me and keys[0][0] != me}
         if self.config.share_forms == "every":
-            # a fresh ADMM start at the new window's fixed point: earlier values belong to the old window
-            self._targets_z = {a: v for a, v in self._targets_z.items() if v.window >= self._step}
-            self._observers = {a: v for a, v in self._observers.items() if v.window >= self._step}
-            self._iter = 0
-            self._pair_iter, self._waiting, self._pair_out, self._last_dual = {}, {}, {}, {}
-            self._last_primal = None
-            for pair in self._pairs.values():
-                pair.y, pair.y_hat = {}, {}
+            self._fresh_admm()
         self.seed(seeds)
+
+    def _adopt(self, solution: JointPoses) -> None:
+        """Start the window from the reference's joint solution: the newest step's poses (older window steps
+        keep this agent's values: an exact window runs no ADMM round that would use them)."""
+        names, me, step = self.config.assemblies, self._index[self.name], solution.step
+        newest = {(names[i], step): (rot2(theta), p) for i, (p, theta) in solution.pose_of().items()
+                  if i < len(names)}
+        self._seeds_complete = True
+        ref = self._index[self.config.reference]
+        placeable = set(solution.indices("placeable")) | {ref}
+        # placed relative to the reference; relative to this agent when it is placed itself
+        self._placeable = frozenset((names[i], step) for i in placeable | {me} if i < len(names)) \
+            if me in placeable else frozenset()
+        self._fill_table(newest)
+        if len(solution.edges):
+            self._learn_graph({(a, b) for a, b in solution.edge_set() if a != b})
+        self._expected = set()
+        if self.config.share_forms == "every":
+            self._fresh_admm()
+        self.seed(newest)
+
+    def _on_solution(self, message: JointPoses) -> None:
+        """The reference's joint solution coming down: adopt it and forward it to the children."""
+        if message.n != len(self.config.assemblies):
+            self.counters["ignored"] += 1
+            return
+        boot, late = self._boot, self._late
+        if boot is None and late is not None and late["step"] == message.step == self._step:
+            self._late, self._boot = None, late  # a window that timed out here: complete after all
+            late["agg"].final = False
+            boot = late
+            self.counters["late_seeds"] += 1
+        if boot is None or boot["step"] != message.step or boot["agg"].final:
+            return
+        self._tree[message.sender] = (message.hop, message.parent, self._round, self._step)
+        boot["solution"] = message
+        boot["agg"].depth = max(boot["agg"].depth, message.depth)
+        self._tree_depth = max(1, message.depth)
+        # (not acknowledged: a child still without it after its bundle up was acknowledged sends the bundle again,
+        # and whoever has finished the window answers with the solution)
+        self._send_down(exclude=(self._index.get(message.sender),), start=message.start)
+        self._finish_bootstrap()
 
     def _pair_phase(self) -> None:
         """Phase 0: each owned pair iterates once the target's consensus of its iteration has arrived."""
@@ -979,6 +1214,13 @@ class AssemblyAgent:
         """
         if len(self._configs) >= len(self.config.assemblies) - 1:
             return set()
+        alive = self._alive_members(self._step or 0)
+        if alive is not None:
+            # a peer not heard from for two windows (down, or never started) cannot name its nodes: once every
+            # live assembly's configuration is in, the nodes left are its own or stray tags, skipped alike
+            names = self.config.assemblies
+            if all(names[i] in self._configs for i in alive if names[i] != self.name):
+                return set()
         return set(self._unknown)
 
     def _near_seeds(self) -> bool:
@@ -1017,6 +1259,8 @@ class AssemblyAgent:
     def _with_table(self, blocks: dict, receiver: str) -> dict:
         """``blocks`` plus the sender's place in the aggregation tree (``tree``: hop to the reference, parent;
         -1 for none) and the gossip table if it changed since it last went to ``receiver`` (or is due)."""
+        if self.window_done:
+            blocks = dict(blocks, done=_DONE)
         if self.config.aggregation == "tree":
             blocks = dict(blocks, tree=np.array([-1 if self._hop is None else self._hop,
                                                  -1 if self._parent is None else self._parent], float))
@@ -1058,9 +1302,15 @@ class AssemblyAgent:
         return self._consensus.ready
 
     @property
+    def observers(self) -> tuple[str, ...]:
+        """Assemblies that observe this one: from their ADMM values, or from the last complete set of forms
+        (its pairs name observer and target; an exact window sends no ADMM values)."""
+        return tuple(sorted(set(self._observers) | self._watchers))
+
+    @property
     def neighbours(self) -> tuple[str, ...]:
         """Assemblies it observes or is observed by in the current window."""
-        return tuple(sorted(set(self._pairs) | set(self._observers)))
+        return tuple(sorted(set(self._pairs) | set(self.observers)))
 
     @property
     def ages(self) -> dict[str, int]:
@@ -1108,6 +1358,13 @@ class AssemblyAgent:
             p = np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1], d[2]])  # seed 000 eq. (19)
             out[self.config.assemblies[i]] = PlanarPose(p, float(wrap_angle(row[6] - me[6])))
         return out
+
+
+_DONE = np.ones(1)
+
+
+def _yaw2(R: np.ndarray) -> float:
+    return float(np.arctan2(R[1, 0], R[0, 0]))
 
 
 def _packed(metric: tuple[np.ndarray, float]) -> list[float]:

@@ -862,6 +862,25 @@ class ConsensusState:
         return quadratic_form([(self.name, k) for k in steps], odometry=(
             np.array(iv), np.array(iu), np.array(dp), np.array(dth), np.array(wp), np.array(wR)))
 
+    def odometry_links(self) -> list[LocalProblem]:
+        """The odometry chain as one form per link ``(step - 1, step)`` of the window; they sum to
+        :meth:`odometry_problem` and, like it, tie every window step (a link without odometry is a zero
+        form), so that the joint problem's variables are the same (empty without odometry)."""
+        if not any(k in self.odometry and (k - 1) in self.steps for k in self.steps):
+            return []
+        out = []
+        for k in self.steps:
+            if (k - 1) not in self.steps:
+                continue
+            keys = [(self.name, k - 1), (self.name, k)]
+            if k in self.odometry:
+                dp, dth, wp, wR = self.odometry[k]
+                out.append(quadratic_form(keys, odometry=(np.array([0]), np.array([1]), np.array([dp]),
+                                                          np.array([dth]), np.array([wp]), np.array([wR]))))
+            else:
+                out.append(quadratic_form(keys))
+        return out
+
     def update(self, contributions: list[tuple[dict, dict]]) -> bool:
         r"""Consensus update from pair contributions ``(step -> (y + u), step -> (P, w_z))``.
 

@@ -126,6 +126,10 @@ class TreeAggregation:
         Rounds to wait for expected children before sending up what it has.
     hop : int
         Own hop count to the root (0 at the root).
+    expected : iterable of int, optional
+        The agents whose records make the set complete (default: all ``total``); an agent leaves out
+        the ones it has not heard from lately (a peer that is down or never started), so that the
+        others' windows still complete.
 
     Attributes
     ----------
@@ -138,8 +142,9 @@ class TreeAggregation:
     """
 
     def __init__(self, me: int, total: int, *, root: bool, parent: int | None, children: Iterable[int] = (),
-                 start: int = 0, wait: int = 6, hop: int = 0):
+                 start: int = 0, wait: int = 6, hop: int = 0, expected: Iterable[int] | None = None):
         self.me, self.total, self.root, self.parent = me, total, root, parent
+        self.expected = None if expected is None else frozenset(expected) | {me}
         self.children = set(children)
         self.start, self.wait, self.hop = start, wait, hop
         self.records: dict[int, Any] = {}
@@ -154,8 +159,10 @@ class TreeAggregation:
 
     @property
     def complete(self) -> bool:
-        """Whether it holds a record of every agent."""
-        return len(self.records) == self.total
+        """Whether it holds a record of every expected agent (default: of every agent)."""
+        if self.expected is None:
+            return len(self.records) == self.total
+        return self.expected.issubset(self.records)
 
     @property
     def sent_up(self) -> bool:

@@ -3,10 +3,13 @@
 The runner is the simulator, not a participant: it hands each agent its own sensors' data step by
 step (:func:`own_step`, never another assembly's data nor ground truth), moves messages through a
 seeded :class:`protocols.SimulatedNetwork`, and runs ADMM rounds (two phases each, half a round
-period apart) until every live agent reports convergence for ``settle`` consecutive rounds or
-``max_rounds`` is reached; then the next log step comes. The estimate it returns is the reference
-agent's own (:meth:`AssemblyAgent.estimates`), in ``decentral.estimate/1`` form, with message, byte
-and round counts per kind and per agent in ``stats``.
+period apart) through the same :class:`agents.runtime.AgentHost` a process uses. Each agent decides
+alone when its window is done (:class:`agents.runtime.WindowRule`: its own convergence flag held for
+``settle`` rounds, or the round budget ``max_rounds``) and freezes its estimate of the step then; the
+next log step comes once every live agent has gone quiet and nothing is in flight (nothing would
+happen before the next sensor step) or after ``max_rounds``. The estimate it returns is the reference
+agent's own frozen estimates, in ``decentral.estimate/1`` form, with message, byte and round counts
+per kind and per agent in ``stats``.
 
 A crashed agent (:class:`protocols.Crash`) is skipped while down and restarts with empty state when
 it comes back (it must catch up from its peers); a partition only cuts links.
@@ -21,6 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from agents.assembly import AgentConfig, AssemblyAgent, OwnStep
+from agents.runtime import AgentHost, LocalAgent, WindowRule
 from decentral.admm import AdmmConfig
 from decentral.errors import InputError
 from decentral.factors import NoiseModel
@@ -50,8 +54,9 @@ class AdmmRunConfig:
     round_period : float
         Simulated seconds per ADMM round.
     max_rounds, min_rounds, settle : int
-        Rounds per log step: at most ``max_rounds``; stop after ``min_rounds`` once every live agent
-        has reported convergence ``settle`` rounds in a row.
+        Each agent's local window rule (:class:`agents.runtime.WindowRule`): its window is done once its
+        own convergence flag held ``settle`` rounds in a row (after ``min_rounds``), or after the round
+        budget ``max_rounds`` between sensor steps.
     crashes, partitions : tuple
         Fault schedule in simulated network time (``round * round_period``).
     announce_every : int
@@ -62,6 +67,10 @@ class AdmmRunConfig:
     aggregation : {"tree", "broadcast"}
         How the forms travel once agents know their route to the reference: up and down a spanning
         tree of the view graph (default) or broadcast by every agent (the cold start's way).
+    fast_forward : bool
+        Start the next step as soon as every live agent is quiet and nothing is in flight (default:
+        nothing would happen before it); ``False`` runs every step's whole round budget, as processes at
+        a fixed pace do (the estimates and message counts are the same).
     """
 
     window: int = 5
@@ -80,6 +89,7 @@ class AdmmRunConfig:
     announce_every: int = 5
     share_forms: str = "every"
     aggregation: str = "tree"
+    fast_forward: bool = True
 
     def __post_init__(self) -> None:
         if not (isinstance(self.window, int) and self.window >= 1):
@@ -110,6 +120,9 @@ class AdmmRun:
         Per log step, message kind -> messages sent by each agent (list in the order of
         ``log.assemblies``; a broadcast counts once per receiver, as in the network's counts). Kept out
         of ``stats`` so that the estimate file stays small on long logs.
+    bytes_per_step : tuple of dict
+        The same in bytes (wire frames as the simulated network sizes them, without a real
+        transport's envelope).
     """
 
     estimate: Estimate
@@ -118,6 +131,7 @@ class AdmmRun:
     agent_estimates: tuple[dict, ...]
     stats: dict
     messages_per_step: tuple[dict, ...] = ()
+    bytes_per_step: tuple[dict, ...] = ()
 
 
 def own_step(log: ObservationLog, name: str, k: int) -> OwnStep:
@@ -171,7 +185,26 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
         link=LinkConfig(drop=config.loss, latency=config.latency, jitter=config.jitter, duplicate=config.duplicate),
         partitions=config.partitions, crashes=config.crashes, round_period=config.round_period,
     ), np.random.default_rng(seed))
-    agents = {n: AssemblyAgent(_agent_config(log, n, reference, config)) for n in names}
+    rule = WindowRule(min_rounds=config.min_rounds, settle=config.settle, budget=config.max_rounds)
+    position = {n: i for i, n in enumerate(names)}
+    per_step: list[dict] = []  # per step: kind -> copies sent by each agent (names order)
+    bytes_step: list[dict] = []  # the same in bytes
+
+    sent_total = 0
+
+    def count(message):
+        nonlocal sent_total
+        copies = len(names) - 1 if message.is_broadcast else 1
+        sent_total += copies
+        row = per_step[-1].setdefault(message.KIND, [0] * len(names))
+        row[position[message.sender]] += copies
+        row = bytes_step[-1].setdefault(message.KIND, [0] * len(names))
+        row[position[message.sender]] += copies * message.size_bytes
+
+    def host(n: str) -> AgentHost:
+        return AgentHost(LocalAgent(AssemblyAgent(_agent_config(log, n, reference, config)), rule), net, count)
+
+    hosts = {n: host(n) for n in names}
     was_down = {n: False for n in names}
     half = 0
     rounds_global = 0
@@ -179,67 +212,50 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
     rounds, converged, per_agent, est_steps = [], [], [], []
     restarts = {n: 0 for n in names}
     tick_seconds = 0.0
-    position = {n: i for i, n in enumerate(names)}
-    per_step: list[dict] = []  # per step: kind -> copies sent by each agent (names order)
-    sent_total = 0
-
-    def send(message, when, counts):
-        nonlocal sent_total
-        net.send(message, when)
-        row = counts.setdefault(message.KIND, [0] * len(names))
-        copies = len(names) - 1 if message.is_broadcast else 1
-        row[position[message.sender]] += copies
-        sent_total += copies
     for k in range(len(log.steps)):
         t = now()
-        counts: dict[str, list[int]] = {}
-        per_step.append(counts)
+        per_step.append({})
+        bytes_step.append({})
         for n in names:
             down = net.is_down(n, t)
             if was_down[n] and not down:
-                agents[n] = AssemblyAgent(_agent_config(log, n, reference, config))  # restarts empty
+                hosts[n] = host(n)  # restarts empty
                 restarts[n] += 1
             was_down[n] = down
             if not down:
-                agents[n].on_step(own_step(log, n, k))
-                for m in agents[n].outbox():
-                    send(m, t, counts)
-        streak = r = 0
+                hosts[n].on_step(own_step(log, n, k), t, rounds_global)
+        # the next step comes when every live agent has ended its window by its own rule and nothing is in
+        # flight (what processes do while they wait for the next sensor step), or after the round budget
+        r = 0
         while r < config.max_rounds:
-            for _phase in (0, 1):
+            for phase in (0, 1):
                 half += 1
                 t = now()
                 t0 = time.perf_counter()
                 for n in names:
-                    if net.is_down(n, t):
-                        continue
-                    agent = agents[n]
-                    for delivery in net.poll(n, t):
-                        agent.handle(delivery.message)
-                    agent.tick(rounds_global)
-                    for m in agent.outbox():
-                        send(m, t, counts)
+                    if not net.is_down(n, t):
+                        hosts[n].half_round(t, rounds_global, phase)
                 tick_seconds += time.perf_counter() - t0
             r += 1
             rounds_global += 1
             live = [n for n in names if not net.is_down(n, now())]
-            if r >= config.min_rounds and live and all(agents[n].converged for n in live):
-                streak += 1
-                if streak >= config.settle:
-                    break
-            else:
-                streak = 0
+            if (config.fast_forward and all(hosts[n].agent.quiet for n in live)
+                    and not any(net.pending(n) for n in live)):
+                break
         live = [n for n in names if not net.is_down(n, now())]
+        for n in live:
+            hosts[n].agent.end_window()
         rounds.append(r)
-        converged.append(bool(live) and all(agents[n].converged for n in live))
-        per_agent.append({n: agents[n].estimates() for n in live})
-        ref_poses = agents[reference].estimates() if reference in live else {}
-        why = (agents[reference].unplaced(ref_poses) if reference in live
+        converged.append(bool(live) and all(hosts[n].agent.converged for n in live))
+        per_agent.append({n: hosts[n].agent.window_estimate for n in live})
+        ref_poses = hosts[reference].agent.window_estimate if reference in live else {}
+        why = (hosts[reference].agent.window_unplaced if reference in live
                else {n: "no_consensus" for n in names if n != reference})
         est_steps.append(EstimateStep(log.steps[k].t, ref_poses, why))
         if progress is not None:
             progress(k + 1, len(log.steps), rounds=int(sum(rounds)), messages=sent_total,
                      unconverged=converged.count(False))
+    agents = {n: h.agent.agent for n, h in hosts.items()}
     transport = net.stats().as_dict()
     seconds = time.perf_counter() - start
     total_rounds = int(sum(rounds))
@@ -277,4 +293,5 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
     }
     estimate = Estimate(reference, tuple(est_steps), stats)
     return AdmmRun(estimate, tuple(rounds), tuple(converged), tuple(per_agent), stats,
-                   tuple({kind: row for kind, row in sorted(c.items())} for c in per_step))
+                   tuple({kind: row for kind, row in sorted(c.items())} for c in per_step),
+                   tuple({kind: row for kind, row in sorted(c.items())} for c in bytes_step))

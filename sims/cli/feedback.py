@@ -97,6 +97,7 @@ class Progress:
         self._bar = bar
         self._info: dict[str, object] = {}
         self.failed = 0
+        self._fields_shown = False
 
     def __call__(self, done: int, total: int | None = None, **info: object) -> None:
         """Set the absolute count ``done`` (of ``total`` when given) and the postfix fields ``info``
@@ -121,7 +122,9 @@ class Progress:
             self._info = dict(info)
         if info or self.failed:
             shown = {**self._info, "failed": self.failed} if self.failed else self._info
-            self._bar.set_postfix(shown, refresh=False)
+            # the first fields are shown at once (a run shorter than the refresh interval would never show them)
+            self._bar.set_postfix(shown, refresh=not self._fields_shown)
+            self._fields_shown = True
 
 
 @contextlib.contextmanager

@@ -35,6 +35,8 @@ COMMANDS: dict[str, str] = {
     "export": "sims.cli.export",
     "build-log": "sims.cli.build_log",
     "keys": "sims.cli.keys",
+    "agent": "sims.cli.agent",
+    "launch": "sims.cli.launch",
 }
 
 EXIT_BAD_INPUT = 2

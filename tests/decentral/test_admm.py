@@ -114,3 +114,35 @@ def test_admm_config_rejects_bad_parameters():
         AdmmConfig(rho0=0.0)
     with pytest.raises(InputError):
         AdmmConfig(eps_pos=-1.0)
+
+
+def test_per_step_forms_give_the_window_forms_joint_solution():
+    """The forms agents share (one per pair and step, one per odometry link) have the same joint solution
+    as one form per pair over the window and the odometry chain (a window adds only its newest step)."""
+    from agents.assembly import AssemblyAgent
+    from decentral.admm import solve_joint
+    from sims.admm_run import AdmmRunConfig, _agent_config, own_step
+
+    log = simulate(get_scenario("multi", n_assemblies=4, steps=4), seed=1).log
+    whole, split = [], []
+    for name in log.assemblies:
+        agent = AssemblyAgent(_agent_config(log, name, "A0", AdmmRunConfig()))
+        for k in range(4):
+            agent.on_step(own_step(log, name, k))
+        agent._configs.history = {m: [(0, dict(log.steps[0].config[m]))] for m in log.assemblies if m != name}
+        agent._rebuild()
+        chain = agent._consensus.odometry_problem()
+        for target, pair in agent._pairs.items():
+            parts = agent._shared[target]
+            assert all(p.n == 2 for p in parts) and len(parts) == len({k for _, k in pair.problem.keys})
+            whole.append(pair.problem)
+            split += parts
+        links = agent._consensus.odometry_links()
+        assert sum(link.c_z for link in links) == pytest.approx(chain.c_z)
+        whole.append(chain)
+        split += links
+    a, b = solve_joint(whole, ("A0", 0)), solve_joint(split, ("A0", 0))
+    assert a.poses.keys() == b.poses.keys()
+    for key in a.poses:
+        assert np.allclose(a.poses[key][0], b.poses[key][0], atol=1e-9)
+        assert np.allclose(a.poses[key][1], b.poses[key][1], atol=1e-9)

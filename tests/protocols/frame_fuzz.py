@@ -19,6 +19,8 @@ import numpy as np
 import protocols.admm_messages  # noqa: F401  (registers its kinds)
 import protocols.ensemble.messages  # noqa: F401
 from protocols.admm_messages import ConfigAnnounce, ConfigRequest, FactorShare, FormAck, FormBundle
+from protocols.delta_messages import DeltaBundle, JointPoses
+from protocols.flood import RawStep
 from protocols.ensemble.messages import Ack, ClusterClaim, Command, Hello, Join, PoseShare, Report, TreeFlood
 from protocols.messages import (
     HEADER_SIZE,
@@ -69,6 +71,15 @@ def sample_messages() -> list:
         Command(**common, level=0, group=1, phase="cut", payload={"side": np.array([0, 1], dtype=np.int8)}),
         PoseShare(**common, level=0, group=1, phase="refine", iteration=2, pose=np.arange(6.0).tobytes()),
         Ack(**common, seq=4, phase="refine"),
+        DeltaBundle(**common, step=3, hop=2, parent=1, depth=4, members=np.array([0, 2]), pin=np.zeros(0),
+                    digest=np.array([[4, 12345], [0, 0]]),
+                    **DeltaBundle.pack(3, {0: [(((0, 3), (2, 3)), np.eye(6), np.array([1.0, 2.0]), 0.5)]})),
+        JointPoses(**common, step=2, hop=0, parent=-1, depth=2, start=5, n=5, members=JointPoses.mask(range(5), 5),
+                   index=JointPoses.mask([0, 1, 3], 5),
+                   poses=np.array([[0, 0, 0, 0], [1.5, -0.25, 0.01, 0.3], [2.0, 1.0, 0.0, -3.1]]),
+                   placeable=JointPoses.mask([1, 3], 5), edges=JointPoses.mask([1, 8], 25)),
+        RawStep(**common, t=0.2, ids=[5, 7], uvr=[[611.2, 402.9, 23.1], [650.4, 398.2, 22.0]],
+                odometry=[0.01, 0.0, 0.0, 0.002]),
     ]
 
 

@@ -1,0 +1,194 @@
+"""One agent, two runtimes: the local window rule and the host that drives an agent over a transport.
+
+The agent logic (:class:`agents.assembly.AssemblyAgent`) does not know whether it runs inside a
+simulation or as an operating-system process: a *runtime* owns the clock, the inbox and the timers
+and calls the same three things in both cases, once per half round:
+
+1. hand it what arrived (:meth:`LocalAgent.receive`),
+2. let it run the half round if it has work (:meth:`LocalAgent.half_round`), and
+3. send what it queued.
+
+:class:`AgentHost` does exactly this on any :class:`protocols.transport.Transport`; the simulated
+runner (:func:`sims.admm_run.run_admm`) calls it for every agent in simulated time over the
+:class:`protocols.network.SimulatedNetwork`, and ``decentral agent`` (:mod:`sims.cli.agent`) calls it
+for one agent in wall-clock time over the socket transport.
+
+**The local rule** (:class:`WindowRule`): there is no global "all converged" flag. Each agent
+decides alone that its window is done: once its own convergence test has held for ``settle``
+consecutive rounds (after at least ``min_rounds``), or when the round budget between two sensor
+steps is spent. It then goes *quiet*: it still handles every message (answers to configuration
+requests, lost bundles and acknowledgements come out of the handlers), but runs ADMM half rounds
+only to answer a neighbour whose window is not done yet (ADMM values without the ``done`` block in
+two rounds running), so a late neighbour is never left waiting for values, and two quiet agents
+exchange nothing. An answer that moves it off its own convergence test makes it busy again.
+
+A simulation therefore predicts what processes do: the simulated runner starts the next step when
+every live agent is quiet and nothing is in flight, which is what processes do while they wait for
+the next sensor step (tested: running the whole budget changes no estimate and no message count).
+The estimate of a step (:attr:`LocalAgent.window_estimate`) is what the agent holds when its window
+is done (again, if an answer made it busy), or when the next step comes before that.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from agents.assembly import AssemblyAgent, OwnStep
+from decentral.errors import InputError
+from decentral.observations import PlanarPose
+from protocols.messages import AdmmDual, AdmmPrimal, Message
+from protocols.transport import Transport
+
+__all__ = ["WindowRule", "LocalAgent", "AgentHost"]
+
+
+@dataclass(frozen=True)
+class WindowRule:
+    """When one agent considers its window done, by itself.
+
+    Attributes
+    ----------
+    min_rounds : int
+        Rounds of the window before the convergence test may end it.
+    settle : int
+        Consecutive rounds the agent's own convergence flag must hold.
+    budget : int
+        Rounds between two sensor steps: at this count the window ends whatever the test says (a
+        process at the log's pace has ``step period / round period`` of them).
+    """
+
+    min_rounds: int = 2
+    settle: int = 2
+    budget: int = 300
+
+    def __post_init__(self) -> None:
+        if not (self.budget >= 1 and self.settle >= 1 and self.min_rounds >= 0):
+            raise InputError("need budget >= 1, settle >= 1, min_rounds >= 0", field="budget")
+
+
+class LocalAgent:
+    """An :class:`AssemblyAgent` plus the local window rule (what a runtime drives).
+
+    Parameters
+    ----------
+    agent : AssemblyAgent
+        The protocol logic.
+    rule : WindowRule
+        When its window is done.
+    """
+
+    def __init__(self, agent: AssemblyAgent, rule: WindowRule = WindowRule()):
+        self.agent = agent
+        self.rule = rule
+        self.step: int | None = None
+        self.rounds = 0  # rounds run (or waited through) in the current window
+        self.streak = 0
+        self.done = False
+        self.converged = False  # the window ended by the convergence test, not by the budget
+        self.window_estimate: dict[str, PlanarPose] = {}
+        self.window_unplaced: dict[str, str] = {}  # assembly -> why it is not in window_estimate
+        self._ticked = False
+        self._heard: set[int] = set()  # rounds (of this window, after it was done) with values from a busy neighbour
+
+    @property
+    def name(self) -> str:
+        return self.agent.name
+
+    @property
+    def quiet(self) -> bool:
+        """Done with its window and nobody to answer: it sends nothing of its own accord.
+
+        A neighbour's values without the ``done`` block in one round after this agent was done may be its
+        last ones (it finished in the same round); in the two rounds before this one, it is still at work
+        and waiting for this agent's values, so the agent runs this whole round (both phases) to answer.
+        """
+        r = self.rounds  # index of the round under way (rounds completed in this window)
+        return self.done and not (r - 1 in self._heard and r - 2 in self._heard)
+
+    def on_step(self, own: OwnStep, round_index: int | None = None) -> None:
+        """A new sensor step at round ``round_index``: the previous window ends here."""
+        self.end_window()
+        self.agent.on_step(own, round_index)
+        self.step = own.step
+        self.rounds = self.streak = 0
+        self.done = self.converged = False
+        self._heard = set()
+        self.agent.window_done = False
+        self.window_estimate = {}
+        self.window_unplaced = {}
+
+    def receive(self, messages, round_index: int | None = None) -> None:
+        """Handle messages arrived by round ``round_index``; ADMM values of a neighbour still at work wake a
+        quiet agent."""
+        if round_index is not None:
+            self.agent.advance(round_index)
+        for message in messages:
+            if (self.done and isinstance(message, (AdmmPrimal, AdmmDual)) and "done" not in message.blocks
+                    and message.window == self.step):
+                self._heard.add(self.rounds)
+            self.agent.handle(message)
+
+    def half_round(self, round_index: int, phase: int) -> list[Message]:
+        """Run phase ``phase`` of round ``round_index`` if there is work; return the messages to send."""
+        if self.step is not None and not self.quiet:
+            self._ticked = True
+            self.agent.tick(round_index, phase)
+        if phase == 1 and self.step is not None:
+            self._end_of_round()
+        return self.agent.outbox()
+
+    def _end_of_round(self) -> None:
+        self.rounds += 1
+        ticked, self._ticked = self._ticked, False
+        if self.done:
+            if ticked and not self.agent.converged and self.rounds < self.rule.budget:
+                # answering moved it off its own convergence test: at work again (its values wake its neighbours)
+                self.done = self.converged = False
+                self.agent.window_done = False
+                self.streak = 0
+            return
+        if self.rounds >= self.rule.min_rounds and self.agent.converged:
+            self.streak += 1
+        else:
+            self.streak = 0
+        if self.streak >= self.rule.settle:
+            self._finish(converged=True)
+        elif self.rounds >= self.rule.budget:
+            self._finish(converged=False)
+
+    def end_window(self) -> None:
+        """The next sensor step is due: a window its rule has not ended yet ends here, unconverged."""
+        if self.step is not None and not self.done:
+            self._finish(converged=False)
+
+    def _finish(self, converged: bool) -> None:
+        self.done = True
+        self.converged = converged
+        self.agent.window_done = True
+        self.window_estimate = self.agent.estimates()
+        self.window_unplaced = self.agent.unplaced(self.window_estimate)
+
+
+class AgentHost:
+    """Drives one :class:`LocalAgent` on a :class:`Transport`: the same calls in simulated and wall time."""
+
+    def __init__(self, agent: LocalAgent, transport: Transport, on_send=None):
+        self.agent = agent
+        self.transport = transport
+        self.on_send = on_send  # optional callback(message) for per-step counts
+
+    def on_step(self, own: OwnStep, now: float, round_index: int) -> None:
+        """Hand the agent a sensor step at round ``round_index`` and send what it announces."""
+        self.agent.on_step(own, round_index)
+        self._send(self.agent.agent.outbox(), now)
+
+    def half_round(self, now: float, round_index: int, phase: int) -> None:
+        """Deliver the agent's inbox at ``now``, run the half round, send its messages."""
+        self.agent.receive((d.message for d in self.transport.poll(self.agent.name, now)), round_index)
+        self._send(self.agent.half_round(round_index, phase), now)
+
+    def _send(self, messages, now: float) -> None:
+        for message in messages:
+            self.transport.send(message, now)
+            if self.on_send is not None:
+                self.on_send(message)

@@ -1,0 +1,257 @@
+"""One agent as an operating-system process: its part of the log, a real transport, the wall clock.
+
+This is the process runtime of :mod:`agents.runtime`: the same :class:`agents.runtime.AgentHost`
+the simulated runner drives, here for one agent, on wall-clock timers:
+
+- **steps**: step ``k`` of the part is handed to the agent at ``start + (t_k - t_0) / rate`` (the
+  log's pace, or ``rate`` times faster); a process that starts late (a restart) begins with the
+  step under way and never sees the ones it missed;
+- **rounds**: half round ``h`` runs at ``start + h * round_period / 2`` (phase ``h % 2`` of round
+  ``h // 2``); every process of a run counts rounds from the same ``start``, so their round numbers
+  agree (the aggregation tree names start rounds); a half round missed under load is skipped;
+- **the window** ends by the agent's own rule (:class:`agents.runtime.WindowRule`, budget = the
+  rounds between two steps) or when the next step comes; its estimate is what the agent holds then;
+- **after the last step** the agent keeps answering for ``linger`` seconds, then stops.
+
+Each finished step is appended at once as one JSON line to ``stream`` (if given): ``{"step", "t",
+"poses", "converged", "rounds", "counts"}`` with the transport's cumulative counts, so that a
+process killed with SIGKILL has still reported every step it finished.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from agents.assembly import AgentConfig, AssemblyAgent
+from agents.runtime import AgentHost, LocalAgent, WindowRule
+from decentral.errors import InputError
+from decentral.observations import Estimate, EstimateStep, ObservationLog, PlanarPose
+from decentral.placement import count_reasons
+from protocols.transport import Transport
+from sims.admm_run import own_step
+
+__all__ = ["Pace", "AgentRun", "run_agent", "step_period", "rounds_per_step", "process_agent_config", "poses_of"]
+
+
+@dataclass(frozen=True)
+class Pace:
+    """When a process runs its steps and rounds (wall-clock seconds).
+
+    Attributes
+    ----------
+    start : float
+        Wall time (``time.time()``) of the log's first step; every process of a run gets the same.
+    rate : float
+        Log seconds per wall second (1: the log's timestamps; 4: four times faster).
+    round_period : float
+        Wall seconds per ADMM round.
+    linger : float
+        Wall seconds the agent keeps answering after its last step.
+    """
+
+    start: float
+    rate: float = 1.0
+    round_period: float = 0.01
+    linger: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.rate) and self.rate > 0):
+            raise InputError(f"must be > 0, got {self.rate!r}", field="--rate")
+        if not (np.isfinite(self.round_period) and self.round_period > 0):
+            raise InputError(f"must be > 0, got {self.round_period!r}", field="--round-period")
+
+    def due(self, log: ObservationLog, k: int) -> float:
+        """Wall time at which step ``k`` of ``log`` comes."""
+        return self.start + (log.steps[k].t - log.steps[0].t) / self.rate
+
+    def half(self, now: float) -> int:
+        """Index of the half round under way at wall time ``now`` (negative before the start)."""
+        return int(np.floor((now - self.start) / (self.round_period / 2) + 1e-6))  # (a step due on a boundary)
+
+
+@dataclass
+class AgentRun:
+    """What one agent process produced.
+
+    Attributes
+    ----------
+    estimate : Estimate
+        Its own estimates (relative to itself) of the steps it ran.
+    steps : list of dict
+        The stream records, one per finished step.
+    heard : set of str
+        Assemblies from which a frame arrived.
+    stats : dict
+        Transport counts, rejections, rounds and what it missed.
+    """
+
+    estimate: Estimate
+    steps: list = field(default_factory=list)
+    heard: set = field(default_factory=set)
+    stats: dict = field(default_factory=dict)
+
+
+def step_period(log: ObservationLog) -> float:
+    """Median log seconds between two steps (1 s for a one-step log)."""
+    t = np.array([s.t for s in log.steps])
+    return float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+
+
+def rounds_per_step(log: ObservationLog, rate: float, round_period: float) -> int:
+    """Rounds between two sensor steps at this pace: the window's round budget."""
+    return max(2, int(step_period(log) / rate / round_period))
+
+
+def process_agent_config(part: ObservationLog, name: str, reference: str, window: int, rate: float,
+                         round_period: float) -> AgentConfig:
+    """The configuration of agent ``name`` running its ``part`` at this pace.
+
+    Its waits are bounded by the rounds between two steps: the forms' ``share_timeout`` is half the
+    budget (at most the simulated default, 24), so that a window without a peer that is down still
+    ends with the forms of the others before the next step comes.
+    """
+    budget = rounds_per_step(part, rate, round_period)
+    return AgentConfig(name=name, assemblies=tuple(part.assemblies), reference=reference,
+                       cameras=tuple(part.cameras.values()), node_radius=part.node_radius, window=window,
+                       share_timeout=max(4, min(AgentConfig.share_timeout, budget // 2)))
+
+
+def _counts(transport: Transport, name: str) -> dict:
+    stats = transport.stats()
+    mine = stats.per_sender.get(name)
+    return {
+        "messages": int(mine.sent) if mine is not None else 0,
+        "bytes": int(mine.bytes_sent) if mine is not None else 0,
+        "rejected": dict(getattr(stats, "rejected", {}) or {}),
+        "dropped": dict(stats.drop_reasons),
+    }
+
+
+def run_agent(part: ObservationLog, name: str, transport: Transport, config: AgentConfig, pace: Pace,
+              stream=None, clock: Callable[[], float] = time.time,
+              wait: Callable[[float], None] | None = None) -> AgentRun:
+    """Run agent ``name`` over its ``part`` of a log on ``transport`` at ``pace``; return what it estimated.
+
+    Parameters
+    ----------
+    part : ObservationLog
+        The agent's part (:mod:`sims.parts`): its own sensors only.
+    name : str
+        Its assembly.
+    transport : Transport
+        A transport this agent is attached to (sends and polls as ``name``).
+    config : AgentConfig
+        The agent's configuration (``config.name == name``).
+    pace : Pace
+        Start time, rate, round period, linger.
+    stream : file-like, optional
+        Where each finished step is appended as a JSON line (flushed at once).
+    clock : callable
+        Wall clock (``time.time``).
+    wait : callable, optional
+        ``wait(seconds)``: block until then or until a frame arrives (default: ``time.sleep``).
+    """
+    wait = wait or time.sleep
+    per_step = step_period(part) / pace.rate
+    budget = rounds_per_step(part, pace.rate, pace.round_period)
+    local = LocalAgent(AssemblyAgent(config), WindowRule(budget=budget))
+    heard: set[str] = set()
+
+    class _Listening:  # records who was heard, then hands the frames on
+        def poll(self, agent, now):
+            arrivals = transport.poll(agent, now)
+            heard.update(d.message.sender for d in arrivals)
+            return arrivals
+
+        def send(self, message, now):
+            transport.send(message, now)
+
+    host = AgentHost(local, _Listening())
+    n = len(part.steps)
+    now = clock()
+    k = 0
+    while k + 1 < n and pace.due(part, k + 1) <= now:
+        k += 1  # a late start (a restart) begins with the step under way
+    first = k
+    done_half = max(pace.half(now), 0) - 1  # half rounds count from the start (0), or from now when late
+    current: int | None = None
+    records: list[dict] = []
+    max_behind, lagged = 20, 0
+    began, took = now, None
+    end = pace.due(part, n - 1) + max(pace.linger, per_step)
+
+    def close(step: int) -> None:
+        local.end_window()
+        poses = {a: {"p": [float(x) for x in pose.p], "theta": float(pose.theta)}
+                 for a, pose in sorted(local.window_estimate.items())}
+        record = {"step": step, "t": part.steps[step].t, "poses": poses, "unplaced": dict(local.window_unplaced),
+                  "converged": local.converged,
+                  "rounds": local.rounds, "window_seconds": took, "counts": _counts(transport, name), "heard": sorted(heard)}
+        records.append(record)
+        if stream is not None:
+            stream.write(json.dumps(record) + "\n")
+            stream.flush()
+
+    while True:
+        now = clock()
+        if k < n and now >= pace.due(part, k):
+            if current is not None:
+                close(current)
+            host.on_step(own_step(part, name, k), now, max(0, pace.half(now)) // 2)
+            current, k = k, k + 1
+            began, took = now, None
+        h = pace.half(now)
+        if h > done_half and h >= 0 and current is not None:
+            # every half round in order, late ones back to back (skipping a phase would break the protocol's
+            # alternation); a process more than `max_behind` halves late jumps to the next round's phase 0
+            if h - (done_half + 1) > max_behind:
+                done_half = h - 1 if h % 2 == 0 else h  # resume at a phase 0: now, or at the next half round
+                lagged += 1
+            nxt = done_half + 1
+            if nxt <= h:
+                host.half_round(now, nxt // 2, nxt % 2)
+                done_half = nxt
+                if took is None and local.done:
+                    took = clock() - began  # wall time of the window, by the agent's own rule
+                if done_half < h:
+                    continue  # still behind: no waiting
+        if k >= n and now >= end:
+            break
+        next_half = pace.start + (done_half + 1) * pace.round_period / 2
+        next_step = pace.due(part, k) if k < n else end
+        wait(max(0.0, min(next_half, next_step) - clock()))
+    if current is not None:
+        close(current)
+    names = part.assemblies
+    steps = tuple(EstimateStep(r["t"], poses_of(r["poses"]), r["unplaced"]) for r in records)
+    final = _counts(transport, name)
+    stats = {
+        "unplaced": count_reasons(step.unplaced for step in steps),
+        "estimator": "consensus-admm",
+        "mode": "process",
+        "agent": name,
+        "first_step": first,
+        "processes": 1,
+        "messages": {"total": final["messages"], "per_agent": {name: final["messages"]}},
+        "bytes": {"total": final["bytes"], "per_agent": {name: final["bytes"]}},
+        "rejected": final["rejected"],
+        "dropped": final["dropped"],
+        "rounds_per_step": [r["rounds"] for r in records],
+        "converged_per_step": [r["converged"] for r in records],
+        "missing": sorted(a for a in names if a != name and a not in heard),
+        "round_period": pace.round_period,
+        "lagged": lagged,  # times the process fell more than 20 half rounds behind and jumped
+        "rate": pace.rate,
+    }
+    est = Estimate(name, steps, stats)
+    return AgentRun(est, records, heard, stats)
+
+
+def poses_of(raw: dict) -> dict[str, PlanarPose]:
+    """A stream record's ``poses`` as :class:`PlanarPose` objects."""
+    return {a: PlanarPose(np.array(v["p"], float), float(v["theta"])) for a, v in raw.items()}

@@ -1,0 +1,115 @@
+"""``decentral agent``: one assembly's agent as its own process over the real transport (CONTRACT §5)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import sys
+import time
+
+from decentral.errors import InputError
+from sims.cli import feedback
+
+__all__ = ["HELP", "add_arguments", "run"]
+
+HELP = "run one assembly's agent on its part of a log, talking to its peers over authenticated sockets"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("name", metavar="NAME", help="this agent's assembly")
+    parser.add_argument("--log", required=True, metavar="PART.json",
+                        help="this assembly's part of the log (decentral.log/1 with its own data only)")
+    parser.add_argument("--peers", required=True, metavar="PEERS.json",
+                        help="every assembly's address and public key (decentral.peers/1)")
+    parser.add_argument("--key", required=True, metavar="KEYFILE", help="this agent's private key (decentral.key/1)")
+    parser.add_argument("-o", "--output", metavar="EST.json",
+                        help="write this agent's estimate (poses relative to itself) when it ends")
+    parser.add_argument("--reference", default=None,
+                        help="assembly that pins the gauge (default: the first listed); the same for every agent")
+    parser.add_argument("--window", type=int, default=5, help="steps per sliding window K (default 5)")
+    parser.add_argument("--start", default=None, metavar="UNIX_TIME",
+                        help="wall time (seconds since the Unix epoch) of the log's first step, the same for every "
+                             "agent (default: now); '-' prints 'ready' once listening and reads it from stdin")
+    parser.add_argument("--rate", type=float, default=1.0,
+                        help="log seconds per wall second (default 1: the log's timestamps; 4: four times faster)")
+    parser.add_argument("--round-period", type=float, default=0.01,
+                        help="wall seconds per consensus round (default 0.01); the same for every agent")
+    parser.add_argument("--linger", type=float, default=1.0,
+                        help="seconds to keep answering peers after the last step (default 1)")
+    parser.add_argument("--loss", type=float, default=0.0,
+                        help="drop each arriving frame with this probability (testing; default 0)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the receive-side losses (default 0)")
+    parser.add_argument("--stream", metavar="FILE",
+                        help="append each finished step to FILE as one JSON line at once (survives a kill)")
+
+
+def _sigterm(signum, frame):
+    raise SystemExit(128 + signum)
+
+
+def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from protocols.network import LinkConfig
+    from protocols.peers import load_peers, load_private_key
+    from protocols.zmq_transport import ZmqTransport
+    from sims.agent_run import Pace, process_agent_config, run_agent
+    from sims.io.log_json import write_estimate
+    from sims.parts import read_part
+
+    if args.window < 1:
+        raise InputError(f"must be >= 1, got {args.window}", field="--window")
+    if not 0.0 <= args.loss < 1.0:
+        raise InputError(f"must be in [0, 1), got {args.loss}", field="--loss")
+    part = read_part(args.log, args.name)
+    peers = load_peers(args.peers)
+    key_name, key = load_private_key(args.key)
+    if key_name != args.name:
+        raise InputError(f"is {key_name!r}'s key, not {args.name!r}'s", source=args.key, field="name")
+    missing = [a for a in part.assemblies if a not in peers]
+    if missing:
+        raise InputError(f"no address for {missing[0]!r}", source=args.peers, field="peers")
+    reference = args.reference or part.assemblies[0]
+    if reference not in part.assemblies:
+        raise InputError(f"no assembly {reference!r} in {args.log}", field="--reference")
+    config = process_agent_config(part, args.name, reference, args.window, args.rate, args.round_period)
+    signal.signal(signal.SIGTERM, _sigterm)
+    faults = LinkConfig(drop=args.loss)
+    transport = ZmqTransport({args.name: key}, {n: peers[n] for n in part.assemblies},
+                             rng=np.random.default_rng(args.seed), faults=faults)
+    stream = open(args.stream, "a", encoding="utf-8") if args.stream else None
+    try:
+        if args.start == "-":
+            print("ready", flush=True)
+            line = sys.stdin.readline()
+            start = _start_time(line.strip(), "stdin")
+        elif args.start is not None:
+            start = _start_time(args.start, "--start")
+        else:
+            start = time.time()
+        pace = Pace(start=start, rate=args.rate, round_period=args.round_period, linger=args.linger)
+        result = run_agent(part, args.name, transport, config, pace, stream=stream,
+                           wait=lambda seconds: transport.wait(seconds))
+    finally:
+        transport.close()
+        if stream is not None:
+            stream.close()
+    if args.output:
+        write_estimate(args.output, result.estimate)
+    if result.stats["missing"]:
+        feedback.warn(f"{args.name} never heard from {', '.join(result.stats['missing'])}")
+    stats = result.stats
+    feedback.summary(f"{args.name}: {len(result.steps)} steps, {sum(stats['converged_per_step'])} converged, "
+                     f"{stats['messages']['total']} frames sent, {sum(stats['rejected'].values())} refused")
+    return 0
+
+
+def _start_time(text: str, where: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise InputError(f"not a time: {text!r}", field=where) from None
+    if not math.isfinite(value):
+        raise InputError(f"not a time: {text!r}", field=where)
+    return value

@@ -1,0 +1,127 @@
+"""The local window rule and the quiet/answer behaviour of :class:`agents.runtime.LocalAgent`."""
+
+import numpy as np
+import pytest
+
+from agents.assembly import OwnStep
+from agents.runtime import LocalAgent, WindowRule
+from decentral.errors import InputError
+from protocols.messages import AdmmPrimal
+from sims.admm_run import AdmmRunConfig, run_admm
+from sims.scenarios import get_scenario, simulate
+
+
+class _Stub:
+    """The agent surface a runtime uses, with a convergence flag the test sets."""
+
+    def __init__(self, name="A0"):
+        self.name = name
+        self.converged = False
+        self.window_done = False
+        self.ticks = []
+        self.handled = []
+
+    def on_step(self, own, round_index=None):
+        pass
+
+    def advance(self, round_index):
+        pass
+
+    def handle(self, message):
+        self.handled.append(message)
+
+    def tick(self, round_index, phase=None):
+        self.ticks.append((round_index, phase))
+
+    def outbox(self):
+        return []
+
+    def estimates(self):
+        return {"A1": "pose"}
+
+    def unplaced(self, placed):
+        return {}
+
+
+def _busy(round_index, done=False):
+    blocks = {"x": np.zeros((1, 8)), "meta": np.zeros(4)}
+    if done:
+        blocks["done"] = np.ones(1)
+    return AdmmPrimal(sender="A1", receiver="A0", round=round_index, window=0, blocks=blocks)
+
+
+def _run_rounds(local, rounds, start=0, inbox=lambda r: ()):
+    for r in range(start, start + rounds):
+        for phase in (0, 1):
+            local.receive(inbox(r) if phase == 0 else ())
+            local.half_round(r, phase)
+
+
+def test_a_window_that_never_converges_ends_at_the_round_budget_unconverged():
+    """The budget between sensor steps ends a window whatever the convergence test says."""
+    local = LocalAgent(_Stub(), WindowRule(budget=7))
+    local.on_step(OwnStep(step=0, t=0.0, config={}))
+    _run_rounds(local, 6)
+    assert not local.done
+    _run_rounds(local, 1, start=6)
+    assert local.done and not local.converged and local.quiet
+
+
+def test_the_convergence_flag_must_hold_for_settle_rounds():
+    """Done only after the agent's own flag held `settle` rounds in a row (after `min_rounds`)."""
+    stub = _Stub()
+    local = LocalAgent(stub, WindowRule(min_rounds=2, settle=3, budget=100))
+    local.on_step(OwnStep(step=0, t=0.0, config={}))
+    stub.converged = True
+    _run_rounds(local, 3)  # the flag counts from the 2nd round on: rounds 2 and 3
+    assert not local.done
+    _run_rounds(local, 1, start=3)
+    assert local.done and local.converged and stub.window_done
+
+
+def test_a_done_agent_answers_a_busy_neighbour_but_not_one_that_finished_with_it():
+    """Values without `done` in two rounds running wake a quiet agent for whole rounds; one round does not."""
+    stub = _Stub()
+    local = LocalAgent(stub, WindowRule(min_rounds=0, settle=1, budget=100))
+    local.on_step(OwnStep(step=0, t=0.0, config={}))
+    stub.converged = True
+    _run_rounds(local, 1)
+    assert local.quiet
+    n = len(stub.ticks)
+    _run_rounds(local, 3, start=1, inbox=lambda r: [_busy(r)] if r == 1 else ())  # a last value, then silence
+    assert len(stub.ticks) == n and local.quiet
+    _run_rounds(local, 2, start=4, inbox=lambda r: [_busy(r)])  # still at work: answered from the 3rd round
+    assert len(stub.ticks) == n
+    _run_rounds(local, 1, start=6, inbox=lambda r: [_busy(r)])
+    assert stub.ticks[-2:] == [(6, 0), (6, 1)]
+    _run_rounds(local, 3, start=7, inbox=lambda r: [_busy(r, done=True)])  # values marked done: no answers
+    assert local.quiet and stub.ticks[-1] == (7, 1)
+
+
+def test_the_next_step_ends_the_window_and_takes_the_estimate_held_then():
+    """A step's estimate is what the agent holds when the next step comes."""
+    local = LocalAgent(_Stub(), WindowRule(budget=50))
+    local.on_step(OwnStep(step=0, t=0.0, config={}))
+    _run_rounds(local, 3)
+    local.end_window()
+    assert local.window_estimate == {"A1": "pose"} and local.done and not local.converged
+
+
+def test_the_rule_refuses_a_zero_budget():
+    """A window needs at least one round."""
+    with pytest.raises(InputError):
+        WindowRule(budget=0)
+
+
+def test_quiet_agents_send_nothing_until_the_next_step():
+    """Running each step's whole round budget changes neither the estimates nor a single message count."""
+    sim = simulate(get_scenario("multi", n_assemblies=4, steps=3), seed=1)
+    fast = run_admm(sim.log, config=AdmmRunConfig(max_rounds=40), seed=0)
+    full = run_admm(sim.log, config=AdmmRunConfig(max_rounds=40, fast_forward=False), seed=0)
+    assert all(fast.converged) and max(fast.rounds) < 20 and full.rounds == (40, 40, 40)
+    assert full.stats["messages"]["total"] == fast.stats["messages"]["total"]
+    assert full.messages_per_step == fast.messages_per_step
+    for a, b in zip(fast.estimate.steps, full.estimate.steps):
+        assert a.poses.keys() == b.poses.keys()
+        for name in a.poses:
+            assert np.allclose(a.poses[name].p, b.poses[name].p, atol=1e-12)

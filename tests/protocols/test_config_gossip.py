@@ -1,0 +1,46 @@
+"""The configuration table: owners named from announcements; a relay never overrides the owner; relays answer."""
+
+import numpy as np
+
+from protocols.admm_messages import ConfigAnnounce, ConfigRequest
+from protocols.config_gossip import ConfigTable
+
+
+def _ann(sender, step, ids, owner="", shift=0.0):
+    ids = np.array(ids, dtype=np.int64)
+    return ConfigAnnounce(sender=sender, receiver="A0", round=0, step=step, ids=ids,
+                          centres=np.column_stack([ids + shift, np.zeros(len(ids)), np.zeros(len(ids))]), owner=owner)
+
+
+def test_the_latest_configuration_not_after_a_step_names_the_owner():
+    """A node moves between assemblies at step 5: step 3 names the old owner, step 6 the new one."""
+    table = ConfigTable("A0", ["A0", "A1", "A2"])
+    assert table.learn(_ann("A1", 0, [5, 6])) and table.learn(_ann("A2", 5, [6]))
+    table.learn(_ann("A1", 5, [5]))
+    assert table.owner_of(6, 3)[0] == "A1" and table.owner_of(6, 6)[0] == "A2"
+    assert table.owner_of(9, 6) is None
+
+
+def test_a_relay_never_replaces_the_owners_own_announcement():
+    """A relayed copy of a step the owner announced itself changes nothing; for a new step it is taken."""
+    table = ConfigTable("A0", ["A0", "A1", "A2"])
+    table.learn(_ann("A1", 0, [5]))
+    assert not table.learn(_ann("A2", 0, [5], owner="A1", shift=1.0))
+    assert table.owner_of(5, 0)[1][0] == 5.0
+    assert table.learn(_ann("A2", 2, [5], owner="A1", shift=1.0)) and table.owner_of(5, 2)[1][0] == 6.0
+
+
+def test_own_and_unknown_assemblies_are_not_kept():
+    """Announcements of the holder itself or of an assembly outside the log are ignored."""
+    table = ConfigTable("A0", ["A0", "A1"])
+    assert not table.learn(_ann("A0", 0, [1])) and not table.learn(_ann("A9", 0, [2]))
+    assert len(table) == 0
+
+
+def test_a_request_is_answered_with_the_held_configurations_that_list_its_nodes():
+    """A request for node 6 gets A2's configuration relayed (owner named), not A1's, nor the requester's own."""
+    table = ConfigTable("A0", ["A0", "A1", "A2", "A3"])
+    table.learn(_ann("A1", 0, [5])), table.learn(_ann("A2", 0, [6, 7])), table.learn(_ann("A3", 0, [6]))
+    answers = table.relays(ConfigRequest(sender="A3", receiver="*", round=1, ids=np.array([6])), "A0", 4)
+    assert [(m.owner, m.receiver, m.sender) for m in answers] == [("A2", "A3", "A0")]
+    assert answers[0].ids.tolist() == [6, 7]
