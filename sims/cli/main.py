@@ -32,6 +32,8 @@ COMMANDS: dict[str, str] = {
     "experiment": "sims.cli.experiment",
     "make-ensemble": "sims.cli.make_ensemble",
     "ensemble": "sims.cli.ensemble",
+    "study": "sims.cli.study",
+    "report": "sims.cli.report",
 }
 
 EXIT_BAD_INPUT = 2
