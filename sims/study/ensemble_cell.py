@@ -15,18 +15,18 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from decentral.ensemble import EnsembleProblem, HierarchyConfig, evaluate
+from decentral.ensemble.hierarchical import normcut_localize
 from decentral.errors import InputError
+from sims.cli.ensemble import localize
+from sims.ensembles.distributed import DistributedConfig, run_distributed
+from sims.ensembles.generator import SHAPES, EnsembleSpec, generate
+from sims.ensembles.sensors import SensorModel
 from sims.study.options import Option, check_value, require
 
 __all__ = ["OPTIONS", "METRICS", "normalize", "run", "hierarchy_for_tol"]
 
 _METHODS = ("ncut", "incremental", "mds", "sdp", "bottom-up")
-
-
-def _shapes() -> tuple[str, ...]:
-    from sims.ensembles.generator import SHAPES
-
-    return tuple(SHAPES)
 
 
 OPTIONS: dict[str, Option] = {
@@ -66,8 +66,8 @@ def normalize(params: Mapping[str, Any]) -> dict[str, Any]:
             raise InputError("unknown key: neither make-ensemble nor the ensemble command knows it", field=key)
         out[key] = check_value(key, value, OPTIONS[key])
     shape = out.get("shape", OPTIONS["shape"].default)
-    if shape not in _shapes():
-        raise InputError(f"unknown shape {shape!r}; known: {', '.join(_shapes())}", field="shape")
+    if shape not in tuple(SHAPES):
+        raise InputError(f"unknown shape {shape!r}; known: {', '.join(tuple(SHAPES))}", field="shape")
     distributed = out.get("distributed", False)
     if "loss" in out and out["loss"] != 0.0 and not distributed:
         raise InputError("only applies with distributed = true", field="loss")
@@ -88,8 +88,6 @@ def hierarchy_for_tol(tol: float | None):
     ``None`` keeps the defaults (levels 1e-3, top 1e-6). Seed 003 §VI-B stops each level "at a
     fixed level of accuracy, as measured by the norm of the gradient".
     """
-    from decentral.ensemble import HierarchyConfig
-
     config = HierarchyConfig()
     if tol is None:
         return config
@@ -98,10 +96,6 @@ def hierarchy_for_tol(tol: float | None):
 
 
 def _make(params: Mapping[str, Any]):
-    from decentral.ensemble import EnsembleProblem
-    from sims.ensembles.generator import EnsembleSpec, generate
-    from sims.ensembles.sensors import SensorModel
-
     spec = EnsembleSpec(_option(params, "shape"), _option(params, "n"), _option(params, "radius"),
                         _option(params, "lattice"), _option(params, "jitter"),
                         SensorModel(threshold=_option(params, "threshold")))
@@ -111,14 +105,10 @@ def _make(params: Mapping[str, Any]):
 
 def run(params: Mapping[str, Any]) -> dict[str, Any]:
     """Make, localize and score one cell; returns the :data:`METRICS` values."""
-    from decentral.ensemble import evaluate
-
     ens, problem = _make(params)
     seed, tol = _option(params, "seed"), _option(params, "tol")
     metrics: dict[str, Any] = {"messages_per_module": None, "messages": None, "levels": None}
     if _option(params, "distributed"):
-        from sims.ensembles.distributed import DistributedConfig, run_distributed
-
         config = DistributedConfig(loss=_option(params, "loss"))
         if tol is not None:
             config = replace(config, hierarchy=hierarchy_for_tol(tol), top_gtol=tol)
@@ -126,9 +116,6 @@ def run(params: Mapping[str, Any]) -> dict[str, Any]:
         total = int(np.sum(res.messages))
         metrics.update(messages_per_module=total / problem.n, messages=total, levels=int(res.levels))
     else:
-        from decentral.ensemble.hierarchical import normcut_localize
-        from sims.cli.ensemble import localize
-
         method = _option(params, "method")
         if method == "ncut":
             res = normcut_localize(problem, np.random.default_rng(seed), hierarchy_for_tol(tol))

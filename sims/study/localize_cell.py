@@ -9,12 +9,19 @@ seeds the simulation alone (several network seeds on one log).
 
 from __future__ import annotations
 
+import importlib
 from dataclasses import fields
 from typing import Any, Mapping
 
+from decentral.bearing import BearingConfig, estimate_log_bearing
 from decentral.errors import InputError
+from decentral.estimator import EstimatorConfig, estimate_log
 from decentral.factors import NoiseModel
+from decentral.metrics import score_estimate
+from sims.admm_run import AdmmRunConfig, run_admm
+from sims.scenarios import SCENARIOS, get_scenario, simulate
 from sims.study.options import Option, check_value, require
+from sims.world.sensors import SensorNoise
 
 __all__ = ["OPTIONS", "METRICS", "normalize", "run"]
 
@@ -56,18 +63,8 @@ METRICS: dict[str, str] = {
 }
 
 
-def _scenario_class(name: str):
-    import importlib
-
-    from sims.scenarios import SCENARIOS
-
-    return importlib.import_module(SCENARIOS[name]).SCENARIO
-
-
 def _scenario_defaults(name: str) -> dict[str, Any]:
-    from sims.world.sensors import SensorNoise
-
-    cls = _scenario_class(name)
+    cls = importlib.import_module(SCENARIOS[name]).SCENARIO
     noise = {f.name: f.default for f in fields(SensorNoise)}
     own = {f.name: f.default for f in fields(cls.Config) if f.name != "sensors"}
     return {**noise, **own}
@@ -78,8 +75,6 @@ def normalize(params: Mapping[str, Any]) -> dict[str, Any]:
 
     Scenario keys are checked by building the scenario (cheap: no simulation runs).
     """
-    from sims.scenarios import SCENARIOS, get_scenario
-
     scenario = check_value("scenario", params.get("scenario", OPTIONS["scenario"].default), OPTIONS["scenario"])
     if scenario not in SCENARIOS:
         raise InputError(f"unknown scenario {scenario!r}; known: {', '.join(SCENARIOS)}", field="scenario")
@@ -116,9 +111,6 @@ def _option(params: Mapping[str, Any], key: str) -> Any:
 
 def run(params: Mapping[str, Any]) -> dict[str, Any]:
     """Simulate, localize and score one cell; returns the :data:`METRICS` values."""
-    from decentral.metrics import score_estimate
-    from sims.scenarios import get_scenario, simulate
-
     scenario = get_scenario(_option(params, "scenario"), **_scenario_params(params))
     seed = _option(params, "seed")
     sim_seed = params.get("scenario_seed", seed)
@@ -153,16 +145,10 @@ def _localize(log, params: Mapping[str, Any], reference: str, seed: int):
                        _option(params, "weighting"))
     window = _option(params, "window")
     if _option(params, "mode") == "admm":
-        from sims.admm_run import AdmmRunConfig, run_admm
-
         config = AdmmRunConfig(window=window, noise=noise, loss=_option(params, "loss"),
                                share_forms=_option(params, "share_forms"),
                                aggregation=_option(params, "aggregation"), max_rounds=_option(params, "max_rounds"))
         return run_admm(log, reference, config, seed=seed).estimate
     if _option(params, "estimator") == "bearing":
-        from decentral.bearing import BearingConfig, estimate_log_bearing
-
         return estimate_log_bearing(log, BearingConfig(window=window, noise=noise), reference)
-    from decentral.estimator import EstimatorConfig, estimate_log
-
     return estimate_log(log, EstimatorConfig(window=window, solver=_option(params, "solver"), noise=noise), reference)
