@@ -111,8 +111,17 @@ def _columns(facts: dict, runs: list[dict]) -> tuple[list[str], list[str]]:
     return params, metrics
 
 
-def _order(values: Sequence[Any]) -> list[Any]:
-    return sorted(set(values), key=lambda v: (not _is_number(v), v if _is_number(v) else str(v)))
+def _sort_key(v: Any) -> tuple:
+    """Numbers first, in numeric order, then everything else by its text."""
+    return (0, v, "") if _is_number(v) else (1, 0, str(v))
+
+
+def _order(values) -> list[Any]:
+    """The distinct ``values`` (scalars or tuples of them) in a reader's order."""
+    values = set(values)
+    if all(isinstance(v, tuple) for v in values):
+        return sorted(values, key=lambda t: [_sort_key(v) for v in t])
+    return sorted(values, key=_sort_key)
 
 
 def _group_label(group: tuple, names: Sequence[str]) -> str:
@@ -220,7 +229,7 @@ def _summary_rows(params: list[str], metrics: list[str], ok: list[dict]) -> tupl
     keys = [p for p in params if p not in SEEDS]
     shown = [m for m in metrics if any(_is_number(r.get(m)) for r in ok)]
     out = []
-    for combo, rs in itertools.groupby(sorted(ok, key=lambda r: json.dumps([r[k] for k in keys])),
+    for combo, rs in itertools.groupby(sorted(ok, key=lambda r: [_sort_key(r[k]) for k in keys]),
                                        key=lambda r: tuple(r[k] for k in keys)):
         rs = list(rs)
         meds = []
@@ -258,7 +267,7 @@ def write_report(directory: str | Path) -> ReportResult:
     fits = [(fig, label, f) for fig in figures for label, f in fig.fits]
     if fits:
         parts.append("<h2>Fits</h2>")
-        parts.append(_table(["quantity", "runs", "fit", "R²", "samples"],
+        parts.append(_table(["quantity", "series", "fit", "R²", "samples"],
                             [[_label(fig.path.stem.split("_vs_")[0]), label, f.formula(), f.r2, f.points]
                              for fig, label, f in fits]))
     if ok:

@@ -240,7 +240,7 @@ def read_runs(path: str | Path) -> tuple[dict[str, str], list[dict[str, Any]], l
             if "runs" not in tables:
                 raise InputError("has no 'runs' table", source=str(path))
             facts = _study_facts(con) if "study" in tables else {}
-            runs = [dict(r) for r in con.execute("SELECT * FROM runs ORDER BY id")]
+            runs = [dict(r) for r in con.execute("SELECT * FROM runs ORDER BY rowid")]
             sessions = [dict(r) for r in con.execute("SELECT * FROM sessions ORDER BY id")] if "sessions" in tables else []
     except sqlite3.DatabaseError as err:
         raise InputError(f"not a readable study store: {err}", source=str(path)) from None
