@@ -16,7 +16,8 @@ ring), so the refinement work per level follows the seams, not the level's size.
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import Callable
 
 import numpy as np
 from scipy.sparse.csgraph import connected_components
@@ -101,6 +102,14 @@ class HierarchyConfig:
                                               method="lbfgs", history=30, coarse_size=500)
     seam_hops: int = 2
     seam_fraction: float = 0.25
+
+    def with_tolerance(self, gtol: float) -> "HierarchyConfig":
+        """This configuration with every refinement (each level's and the top's) stopping at a largest
+        gradient entry of ``gtol`` module radii (seed 003 §VI-B: "a fixed level of accuracy")."""
+        if not (np.isfinite(gtol) and gtol > 0):
+            raise ValueError(f"gtol must be a positive number, got {gtol!r}")
+        return replace(self, level_refine=replace(self.level_refine, gtol=gtol),
+                       final_refine=replace(self.final_refine, gtol=gtol))
 
 
 @dataclass(frozen=True)
@@ -254,8 +263,9 @@ def _reverse(sub: EnsembleProblem) -> np.ndarray:
 
 
 class _Run:
-    def __init__(self, problem, config, rng):
-        self.problem, self.config, self.rng = problem, config, rng
+    def __init__(self, problem, config, rng, progress=None):
+        self.problem, self.config, self.rng, self.progress = problem, config, rng, progress
+        self.placed = 0  # modules placed by a leaf so far (the progress count)
         self.root_n = problem.n  # modules of the component being solved (set by its top call)
         self.iters = np.zeros(problem.n)
         self.tree: list[HierarchyNode] = []
@@ -280,6 +290,9 @@ class _Run:
             self.tree.append(HierarchyNode(nodes, level, (), float("nan"), res.iterations, res.status))
             if res.status == "stalled":
                 self.bad.append(f"leaf of {sub.n} modules: {res.status}")
+            self.placed += sub.n
+            if self.progress is not None:
+                self.progress(self.placed, self.problem.n, stage="leaves", depth=level)
             return res.position, res.rotation, len(self.tree) - 1, np.arange(sub.n)
         in_a, value = split(sub, cfg, self.rng)
         # lines 5-6: each connected piece of A and of B is localized on its own
@@ -305,6 +318,8 @@ class _Run:
         pos, rot = merge_parts(sub, part, poses)
         order = hierarchy_order(sub.i, sub.j, part, orders)
         # line 11: refine the union starting from the aligned parts
+        if top and self.progress is not None:
+            self.progress(self.placed, self.problem.n, stage="top refinement", depth=self.max_level)
         band = None
         if (not top and cfg.seam_hops > 0 and rcfg.method in SEAM_METHODS
                 and sub.n <= cfg.seam_fraction * self.root_n):
@@ -363,7 +378,8 @@ def localize_components(problem: EnsembleProblem, solve_component) -> tuple[Ense
 
 
 def normcut_localize(problem: EnsembleProblem, rng: np.random.Generator,
-                     config: HierarchyConfig = HierarchyConfig()) -> LocalizationResult:
+                     config: HierarchyConfig = HierarchyConfig(),
+                     progress: Callable[..., None] | None = None) -> LocalizationResult:
     """Localize every module by seed 003's Algorithm 1 (NormCutLocalize).
 
     Parameters
@@ -372,6 +388,9 @@ def normcut_localize(problem: EnsembleProblem, rng: np.random.Generator,
     rng : numpy.random.Generator
         Draws the leaders of each graph abstraction (unused with ``config.cut == "exact"``).
     config : HierarchyConfig
+    progress : callable, optional
+        Called as ``progress(modules_placed, n, stage=..., depth=...)`` after each leaf (line 2) and
+        when a component's top refinement starts; the library never prints.
 
     Returns
     -------
@@ -379,7 +398,7 @@ def normcut_localize(problem: EnsembleProblem, rng: np.random.Generator,
         Positions (n, d) and orientations in one arbitrary global frame; each connected component
         of the contact graph is solved on its own and the components are laid side by side.
     """
-    run = _Run(problem, config, rng)
+    run = _Run(problem, config, rng, progress)
     limit = sys.getrecursionlimit()
     sys.setrecursionlimit(max(limit, 10_000))
     try:

@@ -11,6 +11,8 @@ import argparse
 import time
 from pathlib import Path
 
+from sims.cli import feedback
+
 __all__ = ["HELP", "add_arguments", "run"]
 
 HELP = "simulate the default scenario, localize it, and print seed 000's Table I metrics"
@@ -42,13 +44,15 @@ def run(args: argparse.Namespace) -> int:
         "bearing baseline K=20": lambda: estimate_log_bearing(sim.log, BearingConfig(window=20)),
     }
     rows, ours = {}, None
-    for name, method in methods.items():
-        start = time.perf_counter()
-        estimate = method()
-        seconds = time.perf_counter() - start
-        rows[name] = score_estimate(sim.truth.poses, estimate).overall.to_dict()
-        rows[name]["fps"] = len(sim.log.steps) / seconds
-        ours = ours or estimate
+    with feedback.progress("demo", total=len(methods), unit="method") as bar:
+        for name, method in methods.items():
+            start = time.perf_counter()
+            estimate = method()
+            seconds = time.perf_counter() - start
+            rows[name] = score_estimate(sim.truth.poses, estimate).overall.to_dict()
+            rows[name]["fps"] = len(sim.log.steps) / seconds
+            ours = ours or estimate
+            bar.advance(method=name)
     path = Path(args.output) / "estimate.json"
     write_estimate(path, ours)
     stats = ours.stats
@@ -57,4 +61,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {saved.log}, {saved.truth}, {path}")
     print(f"windows certified globally optimal: {stats['certified_windows']}/{stats['windows_solved']}")
     print(format_table(rows))
+    best = rows[next(iter(rows))]
+    headline = "nothing placed" if best["position_m"] is None else (
+        f"ours {best['position_m']:.4f} m, {best['yaw_deg']:.2f} deg, coverage {100 * best['coverage']:.0f}%")
+    feedback.summary(f"{args.scenario} seed {args.seed}: {headline} -> {path}")
     return 0

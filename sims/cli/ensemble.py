@@ -6,16 +6,29 @@ module over the simulated network (``--loss``: probability that a message is dro
 lives in :mod:`sims.ensembles.distributed` (``run_distributed``) and this command only calls it, so
 if it is not installed the command says so and exits 2. The estimate then also holds ``messages``,
 ``phase_names`` and ``phase_messages``.
+
+``--tol`` sets the refinement tolerance: the largest gradient entry, in module radii, at which each
+level's refinement and the top's stop (seed 003 §VI-B). It is what ``benchmarks/ensemble_messages.py``
+varies (``--gtol``, with ``--check-every 5``), so a point of its message figure is
+``decentral ensemble OBS.npz -o EST.npz --distributed --tol 0.01 --check-every 5``. Without it each
+method keeps its defaults (centralized: levels 1e-3, top 1e-6; distributed: levels 1e-3, top 1e-4).
+
+A progress bar follows the hierarchy (modules placed by leaves, then the top refinement; with
+``--distributed``, each stage and the messages so far); one summary line closes the run, and a
+warning says when a refinement stopped at its iteration cap instead of at the tolerance.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import time
+from dataclasses import replace
 
 import numpy as np
 
 from decentral.errors import InputError
+from sims.cli import feedback
 
 __all__ = ["HELP", "METHODS", "add_arguments", "run", "localize"]
 
@@ -42,49 +55,84 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --distributed: probability that a message is dropped (default 0)")
     parser.add_argument("--seed", type=int, default=0,
                         help="seed of the random leaders (and of the simulated network with --distributed)")
+    parser.add_argument("--tol", type=float, default=None, metavar="GTOL",
+                        help="refinement tolerance: largest gradient entry, in module radii, at which every "
+                             "level's refinement and the top's stop (default: the method's own, 1e-3 for "
+                             "levels and 1e-6 (centralized) or 1e-4 (distributed) for the top)")
+    parser.add_argument("--check-every", type=int, default=None, metavar="K",
+                        help="with --distributed: refinement iterations between convergence checks (default 10)")
 
 
-def localize(problem, method: str, seed: int):
-    """Run a centralized ``method`` on ``problem``; returns a LocalizationResult (no I/O)."""
+def localize(problem, method: str, seed: int, tol: float | None = None, progress=None):
+    """Run a centralized ``method`` on ``problem``; returns a LocalizationResult (no I/O).
+
+    ``tol`` (module radii) replaces the gradient tolerance of every refinement; ``progress`` is
+    passed to the hierarchical method (the baselines report none).
+    """
     rng = np.random.default_rng(seed)
     if method == "ncut":
-        from decentral.ensemble.hierarchical import normcut_localize
+        from decentral.ensemble.hierarchical import HierarchyConfig, normcut_localize
 
-        return normcut_localize(problem, rng)
+        config = HierarchyConfig() if tol is None else HierarchyConfig().with_tolerance(tol)
+        return normcut_localize(problem, rng, config, progress=progress)
     from decentral.ensemble import baselines
+    from decentral.ensemble.baselines.common import FINAL_REFINE
 
+    final = FINAL_REFINE if tol is None else replace(FINAL_REFINE, gtol=tol)
     if method == "incremental":
-        return baselines.incremental_localize(problem)
+        return baselines.incremental_localize(problem, final)
     if method == "mds":
-        return baselines.classical_mds(problem)
+        return baselines.classical_mds(problem, final)
     if method == "sdp":
-        return baselines.sdp_localize(problem)
+        return baselines.sdp_localize(problem, final)
     if method == "bottom-up":
-        return baselines.bottom_up_localize(problem, rng)
+        return baselines.bottom_up_localize(problem, rng, refine_config=final)
     raise InputError(f"unknown method {method!r}", field="--method")
 
 
-def _distributed(problem, args) -> tuple:
+def distributed_config(loss: float = 0.0, tol: float | None = None, check_every: int | None = None):
+    """The :class:`~sims.ensembles.distributed.DistributedConfig` of ``--loss``, ``--tol``, ``--check-every``."""
+    from sims.ensembles.distributed import DistributedConfig
+
+    config = DistributedConfig(loss=loss)
+    if tol is not None:
+        config = replace(config, hierarchy=config.hierarchy.with_tolerance(tol), top_gtol=tol)
+    if check_every is not None:
+        config = replace(config, check_every=check_every)
+    return config
+
+
+def _distributed(problem, args, progress=None) -> tuple:
     try:
-        from sims.ensembles.distributed import DistributedConfig, run_distributed
+        from sims.ensembles.distributed import run_distributed
     except ImportError:
         raise InputError("the distributed runner (sims.ensembles.distributed) is not available in this "
                          "installation", field="--distributed") from None
-    res = run_distributed(problem, np.random.default_rng(args.seed), DistributedConfig(loss=args.loss or 0.0))
+    config = distributed_config(args.loss or 0.0, args.tol, args.check_every)
+    res = run_distributed(problem, np.random.default_rng(args.seed), config, progress=progress)
     extra = {
         "messages": np.asarray(res.messages, dtype=np.int64),
         "phase_names": np.asarray(list(res.phase_names), dtype=str),
         "phase_messages": np.asarray(res.phase_messages, dtype=np.int64),
         "cost": np.float64(res.cost),
     }
-    return res.estimate, extra
+    return res, extra
+
+
+def _validate(args: argparse.Namespace) -> None:
+    for flag, value in (("--loss", args.loss), ("--check-every", args.check_every)):
+        if value is not None and not args.distributed:
+            raise InputError("only applies with --distributed", field=flag)
+    if args.loss is not None and not 0.0 <= args.loss < 1.0:
+        raise InputError(f"must be in [0, 1), got {args.loss}", field="--loss")
+    if args.tol is not None and not (math.isfinite(args.tol) and args.tol > 0):
+        raise InputError(f"must be a positive number (module radii), got {args.tol}", field="--tol")
+    if args.check_every is not None and args.check_every < 1:
+        raise InputError(f"must be >= 1, got {args.check_every}", field="--check-every")
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.loss is not None and not args.distributed:
-        raise InputError("only applies with --distributed", field="--loss")
-    if args.loss is not None and not 0.0 <= args.loss < 1.0:
-        raise InputError(f"must be in [0, 1), got {args.loss}", field="--loss")
+    _validate(args)
     if args.distributed and args.method != "ncut":
         raise InputError(f"--distributed runs the ncut method only, not {args.method!r}", field="--method")
     from sims.io.ensemble_npz import read_ensemble, write_ensemble_estimate
@@ -92,12 +140,44 @@ def run(args: argparse.Namespace) -> int:
     problem = read_ensemble(args.observations)
     t0 = time.perf_counter()
     if args.distributed:
-        estimate, extra = _distributed(problem, args)
+        with feedback.progress("ensemble", unit="stage") as bar:
+            res, extra = _distributed(problem, args, progress=bar)
     else:
-        res = localize(problem, args.method, args.seed)
-        estimate = res.estimate
+        hierarchical = args.method == "ncut"
+        with feedback.progress("ensemble", total=problem.n if hierarchical else None, unit="module") as bar:
+            res = localize(problem, args.method, args.seed, args.tol, progress=bar if hierarchical else None)
         extra = {"cost": np.float64(res.cost), "iterations_per_module": res.iterations_per_module}
-    extra["seconds"] = np.float64(time.perf_counter() - t0)
+    seconds = time.perf_counter() - t0
+    extra["seconds"] = np.float64(seconds)
     extra["method"] = np.asarray(args.method + ("/distributed" if args.distributed else ""))
-    write_ensemble_estimate(args.output, estimate, **extra)
+    write_ensemble_estimate(args.output, res.estimate, **extra)
+    _report(problem, res, args, seconds)
     return 0
+
+
+def _report(problem, res, args: argparse.Namespace, seconds: float) -> None:
+    """The summary line and warnings of a finished run."""
+    head = f"{problem.n} modules ({problem.dim}D), {_method_label(args)}: cost {res.cost:.4g}"
+    if args.distributed:
+        sent = res.messages
+        feedback.summary(f"{head}, messages per module {sent.mean():.1f} (max {int(sent.max())}), "
+                         f"{res.rounds} rounds, {res.network['total']['bytes_sent'] / 1e6:.2f} MB, "
+                         f"{res.levels} levels, {seconds:.1f} s -> {args.output}")
+        capped = res.info.get("capped_levels", [])
+        if capped:
+            feedback.warn(f"distributed refinement did not converge: level(s) {', '.join(map(str, capped))} "
+                          "stopped at the iteration cap before reaching the tolerance (0 is the top); "
+                          "the estimate is the last iterate")
+        return
+    iters = res.iterations_per_module
+    feedback.summary(f"{head}, refinement iterations per module {np.mean(iters):.1f}, {seconds:.1f} s "
+                     f"-> {args.output}")
+    if res.status != "ok":
+        feedback.warn(f"refinement did not converge: {res.status}; the estimate is the best found")
+
+
+def _method_label(args: argparse.Namespace) -> str:
+    """``ncut``, ``ncut distributed (loss 0.2)``: the method as the summary line names it."""
+    if not args.distributed:
+        return args.method
+    return f"{args.method} distributed" + (f" (loss {args.loss:g})" if args.loss else "")

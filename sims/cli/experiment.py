@@ -9,10 +9,10 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 from decentral.errors import InputError
+from sims.cli import feedback
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -41,11 +41,9 @@ def run(args: argparse.Namespace) -> int:
     except OSError as err:
         raise InputError(f"cannot create output folder ({err.strerror})", source=str(out)) from None
 
-    def tell(msg: str) -> None:
-        print(f"decentral experiment {args.name}: {msg}", file=sys.stderr)
-
     if args.name == "table1":
-        result = run_table1(TableConfig(seeds=args.seeds, steps=args.steps or 60, clean=args.clean), progress=tell)
+        with feedback.progress("table1", unit="stage") as bar:
+            result = run_table1(TableConfig(seeds=args.seeds, steps=args.steps or 60, clean=args.clean), progress=bar)
         write_json_atomic(out / "table1.json", result)
         md = table_markdown(result)
         write_atomic(out / "table1.md", lambda fh: fh.write(md))
@@ -53,11 +51,17 @@ def run(args: argparse.Namespace) -> int:
         plot_table1(result, tmp)
         tmp.replace(out / "table1.png")
         print(md, end="")
+        ours = next(iter(result["table_mean_over_seeds"].values()))
+        headline = ("nothing placed" if ours["position_m"] is None else
+                    f"ours {ours['position_m']:.4f} m, {ours['yaw_deg']:.2f} deg, coverage {100 * ours['coverage']:.0f}%")
+        feedback.summary(f"{args.seeds} seeds: {headline} -> {out / 'table1.json'}, table1.md, table1.png")
     else:
-        result = run_reconfig(TableConfig(seeds=1, steps=args.steps or 80, clean=args.clean))
+        with feedback.progress("reconfig", unit="stage") as bar:
+            result = run_reconfig(TableConfig(seeds=1, steps=args.steps or 80, clean=args.clean), progress=bar)
         write_json_atomic(out / "reconfig.json", result)
         tmp = out / ".reconfig.png.part.png"
         plot_reconfig(result, tmp)
         tmp.replace(out / "reconfig.png")
-        print(f"reconfig: {out / 'reconfig.json'}, {out / 'reconfig.png'}")
+        steps = len(next(iter(result["series"].values()))["t"]) if result["series"] else 0
+        feedback.summary(f"{steps} steps, {len(result['series'])} target assemblies -> {out / 'reconfig.json'}, reconfig.png")
     return 0

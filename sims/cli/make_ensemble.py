@@ -7,6 +7,7 @@ import argparse
 import numpy as np
 
 from decentral.errors import InputError
+from sims.cli import feedback
 from sims.ensembles.generator import SHAPES, EnsembleSpec, generate, save_observations, save_truth
 from sims.ensembles.sensors import SensorModel
 
@@ -35,4 +36,8 @@ def run(args: argparse.Namespace) -> int:
     if args.truth:
         save_truth(args.truth, ens, seed=args.seed)
     save_observations(args.output, ens)
+    dropped = f" ({ens.dropped} of {args.n} requested dropped: not connected to the rest)" if ens.dropped else ""
+    feedback.summary(f"{ens.n} modules ({ens.dim}D {args.shape}){dropped}, {len(ens.i) // 2} observed pairs, "
+                     f"mean degree {len(ens.i) / max(ens.n, 1):.1f} -> {args.output}"
+                     + (f", {args.truth}" if args.truth else ""))
     return 0

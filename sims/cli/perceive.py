@@ -17,6 +17,7 @@ from typing import Sequence
 import numpy as np
 
 from decentral.errors import InputError
+from sims.cli import feedback
 
 __all__ = ["HELP", "add_arguments", "run", "perceive_paths", "to_records"]
 
@@ -77,6 +78,29 @@ def to_records(results, *, K: np.ndarray | None = None):
     return frames
 
 
+def _frame_total(paths: Sequence[str]) -> int | None:
+    """Number of frames the inputs hold: one per image, a video's frame count (None if unknown)."""
+    from agents.perception.frames import is_video
+
+    if len(paths) == 1 and is_video(paths[0]):
+        import cv2
+
+        cap = cv2.VideoCapture(str(paths[0]))
+        try:
+            count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+        finally:
+            cap.release()
+        return count if count > 0 else None
+    return len(paths)
+
+
+def _frames(paths: Sequence[str]):
+    """The input frames, with a progress bar counting them."""
+    from agents.perception.frames import iter_frames
+
+    return feedback.track(iter_frames(list(paths)), "perceive", total=_frame_total(paths), unit="frame")
+
+
 def perceive_paths(
     paths: Sequence[str],
     *,
@@ -97,7 +121,6 @@ def perceive_paths(
     ``"auto"`` is image registration.
     """
     from agents.perception import AprilTagConfig, AprilTagIdentifier, HoughCircleDetector, HoughConfig, Perception
-    from agents.perception.frames import iter_frames
     from agents.perception.pipeline import perceive_frames
 
     if max_radius <= min_radius or min_radius <= 0:
@@ -111,10 +134,10 @@ def perceive_paths(
         if motion == "odometry":
             raise InputError("--motion odometry needs --log-template and --camera", field="--motion")
         perception = Perception(detector, identifier, track=track, motion="flow" if motion in ("flow", "auto") else None)
-        return to_records(perceive_frames(iter_frames(list(paths)), perception))
+        return to_records(perceive_frames(_frames(paths), perception))
     from sims.experiments.perception_run import perceive_with_log
 
-    return list(perceive_with_log(iter_frames(list(paths)), log, camera, family=family, tag_table=tag_table,
+    return list(perceive_with_log(_frames(paths), log, camera, family=family, tag_table=tag_table,
                                   track=track, motion=motion, min_radius=min_radius, max_radius=max_radius).frames)
 
 
@@ -162,4 +185,10 @@ def run(args: argparse.Namespace) -> int:
         from sims.io.log_json import write_log
 
         write_log(args.log_out, filled)
+    dets = [d for f in frames for d in f.detections]
+    ids = {d.node for d in dets if d.node is not None}
+    tracks = {d.track for d in dets if d.track is not None}
+    feedback.summary(f"{len(frames)} frames, {len(dets)} detections, {sum(d.node is not None for d in dets)} "
+                     f"identified ({len(ids)} node ids, {len(tracks)} tracks) -> {args.output}"
+                     + (f", {args.log_out}" if filled is not None else ""))
     return 0

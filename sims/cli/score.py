@@ -1,18 +1,38 @@
-"""``decentral score``: seed 000 Table I metrics of an estimate against a simulator's ground truth."""
+"""``decentral score``: an estimate against ground truth.
+
+Two kinds of input, told apart by content (an ``.npz`` archive or JSON), not by file name:
+
+- a ``decentral.estimate/1`` (JSON) against a ``decentral.truth/1``: seed 000 Table I metrics
+  (positional, relative and angular error, coverage), per assembly and overall;
+- an ensemble estimate (``.npz`` with ``position``) against a ``decentral.ensemble_truth/1``
+  (``decentral make-ensemble --truth``): seed 003's global and local RMS centre error in module
+  radii (:func:`decentral.ensemble.metrics.evaluate`). The neighbour pairs that fix the scale and
+  connect the local regions are the truth file's observed ``pairs``; a truth file without them
+  uses the true centres closer than the default infrared sensor's reach.
+
+The table (or ``--json``) goes to stdout; the one-line summary to stderr.
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
 
+import numpy as np
+
+from decentral.errors import InputError
+from sims.cli import feedback
+
 __all__ = ["HELP", "add_arguments", "run", "format_table"]
 
-HELP = "score a decentral.estimate/1 against a decentral.truth/1 (positional, relative and angular error)"
+HELP = ("score an estimate against ground truth: a decentral.estimate/1 against a decentral.truth/1 "
+        "(positional, relative and angular error), or an ensemble estimate .npz against its truth .npz "
+        "(global and local RMS)")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("estimate", metavar="EST.json", help="estimate (decentral.estimate/1)")
-    parser.add_argument("truth", metavar="TRUTH.json", help="ground truth (decentral.truth/1)")
+    parser.add_argument("estimate", metavar="EST", help="estimate: decentral.estimate/1 (JSON) or ensemble estimate (.npz)")
+    parser.add_argument("truth", metavar="TRUTH", help="ground truth: decentral.truth/1 (JSON) or decentral.ensemble_truth/1 (.npz)")
     parser.add_argument("--json", action="store_true", help="print the full score as JSON")
 
 
@@ -30,6 +50,10 @@ def format_table(rows: dict[str, dict]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from sims.io.ensemble_npz import is_npz
+
+    if is_npz(args.estimate):
+        return _run_ensemble(args)
     from decentral.metrics import score_estimate
     from sims.io.log_json import read_estimate
     from sims.world.truth import read_truth
@@ -42,4 +66,51 @@ def run(args: argparse.Namespace) -> int:
     else:
         per = {name: s.to_dict() for name, s in score.per_assembly.items()}
         print(format_table({**per, "overall": score.overall.to_dict()}))
+    o = score.overall.to_dict()
+    if o["position_m"] is None:
+        feedback.summary(f"no assembly placed (coverage {100 * o['coverage']:.0f}%)")
+    else:
+        feedback.summary(f"overall position {o['position_m']:.4f} m, relative {o['relative_position_pct']:.2f} %, "
+                         f"yaw {o['yaw_deg']:.2f} deg, coverage {100 * o['coverage']:.0f}%")
+    return 0
+
+
+def ensemble_score(estimate_path: str, truth_path: str) -> dict:
+    """Global and local RMS (module radii) of an ensemble estimate file against a truth file, JSON-ready."""
+    from decentral.ensemble.metrics import evaluate
+    from sims.io.ensemble_npz import read_ensemble_positions, read_ensemble_truth
+
+    truth = read_ensemble_truth(truth_path)
+    n, dim = truth.position.shape
+    position = read_ensemble_positions(estimate_path, n, dim)
+    pairs, source = truth.pairs, "observed"
+    if pairs is None:
+        from scipy.spatial import cKDTree
+
+        from sims.ensembles.sensors import SensorModel
+
+        pairs = cKDTree(truth.position).query_pairs(SensorModel().reach(truth.radius), output_type="ndarray")
+        source = "true contacts"
+    if len(pairs) == 0:
+        raise InputError("no neighbour pairs: cannot fix the scale", source=truth_path, field="pairs")
+    if np.ptp(position, axis=0).max() == 0.0:
+        raise InputError("every module at one point", source=estimate_path, field="position")
+    err = evaluate(position, truth.position, pairs, truth.radius)
+    if not (np.isfinite(err.global_rms) and np.isfinite(err.local_rms)):
+        raise InputError("degenerate estimate (no finite alignment)", source=estimate_path, field="position")
+    return {"modules": n, "dim": dim, "units": "module radii", "global_rms": err.global_rms,
+            "local_rms": err.local_rms, "scale": err.scale, "regions": err.regions, "pairs": int(len(pairs)),
+            "pairs_from": source}
+
+
+def _run_ensemble(args: argparse.Namespace) -> int:
+    score = ensemble_score(args.estimate, args.truth)
+    if args.json:
+        print(json.dumps(score, indent=1))
+    else:
+        print(f"{'modules':>8} {'global RMS [radii]':>19} {'local RMS [radii]':>18} {'scale':>7} {'regions':>8}")
+        print(f"{score['modules']:>8} {score['global_rms']:>19.4f} {score['local_rms']:>18.4f} "
+              f"{score['scale']:>7.4f} {score['regions']:>8}")
+    feedback.summary(f"{score['modules']} modules: global RMS {score['global_rms']:.4f}, "
+                     f"local RMS {score['local_rms']:.4f} module radii")
     return 0

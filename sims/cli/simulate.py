@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 
 from decentral.errors import InputError
+from sims.cli import feedback
 
 __all__ = ["HELP", "add_arguments", "run", "parse_params"]
 
@@ -53,13 +53,13 @@ def run(args: argparse.Namespace) -> int:
         params["noise"] = False
     scenario = get_scenario(args.scenario, **params)
     sim = simulate(scenario, seed=args.seed)
-    saved = save_simulation(sim, args.output, frames=args.frames, seed=args.seed)
+    with feedback.progress("render", unit="frame") as bar:
+        saved = save_simulation(sim, args.output, frames=args.frames, seed=args.seed, progress=bar)
     n_frames = len(saved.frames)
     n_det = sum(len(d) for step in sim.log.steps for d in step.detections.values())
-    print(
+    feedback.summary(
         f"{args.scenario}: {len(sim.log.steps)} steps, {len(sim.log.assemblies)} assemblies, "
         f"{len(sim.log.cameras)} cameras, {n_det} detections -> {saved.log}, {saved.truth}"
-        + (f", {n_frames} frame files" if n_frames else ""),
-        file=sys.stdout,
+        + (f", {n_frames} frame files" if n_frames else "")
     )
     return 0

@@ -24,6 +24,7 @@ from __future__ import annotations
 import time
 from collections import Counter
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
@@ -102,7 +103,9 @@ class DistributedResult:
     network : dict
         The network's counters (:meth:`protocols.transport.TransportStats.as_dict` totals and drops).
     info : dict
-        Timings and leader notes.
+        Timings, leader notes, ``refine_iterations`` per level, and ``capped_levels``: the levels
+        whose refinement stopped at its iteration cap (``top_max_iter`` at level 0, else
+        ``level_max_iter``) instead of at the gradient tolerance.
     """
 
     estimate: EnsembleEstimate
@@ -147,7 +150,8 @@ class _Driver:
 
 
 def run_distributed(problem: EnsembleProblem, rng: np.random.Generator,
-                    config: DistributedConfig = DistributedConfig()) -> DistributedResult:
+                    config: DistributedConfig = DistributedConfig(),
+                    progress: Callable[..., None] | None = None) -> DistributedResult:
     """Localize every module by the distributed Algorithm 1 (seed 003 §V).
 
     Parameters
@@ -157,6 +161,10 @@ def run_distributed(problem: EnsembleProblem, rng: np.random.Generator,
     rng : numpy.random.Generator
         Split into the network's stream and one stream per module (cluster-leader election).
     config : DistributedConfig
+    progress : callable, optional
+        Called after each stage (the set-up phases, each level's top-down build, each level's
+        refinement) as ``progress(stages_done, stages_total, stage=..., messages=...)``;
+        ``stages_total`` is ``None`` until the depth of the hierarchy is known.
     """
     t0 = time.perf_counter()
     n, d = problem.n, problem.dim
@@ -174,11 +182,18 @@ def run_distributed(problem: EnsembleProblem, rng: np.random.Generator,
         agents.append(ModuleAgent(cfg, module_rngs[k]))
     net = SimulatedNetwork(NetworkConfig(tuple(a.name for a in agents), link=LinkConfig(drop=config.loss)), net_rng)
     drv = _Driver(agents, net, config.max_rounds)
+    stages = [0, None]  # done, total
+
+    def tell(stage: str) -> None:
+        stages[0] += 1
+        if progress is not None:
+            progress(stages[0], stages[1], stage=stage, messages=net.stats().total.sent)
 
     drv.phase(lambda a: a.begin_hello())
     drv.phase(lambda a: a.begin_election())
     drv.phase(lambda a: a.begin_join(0))
     drv.phase(lambda a: a.begin_count())
+    tell("set-up")
     level = 0
     while True:
         if level > 0:
@@ -189,15 +204,18 @@ def run_distributed(problem: EnsembleProblem, rng: np.random.Generator,
         drv.phase(lambda a: a.begin_leaf(level), members)
         drv.phase(lambda a: a.begin_cluster(level), members)
         drv.phase(lambda a: a.begin_abstract(level), members)
+        tell(f"level {level} cut")
         if not any(level + 1 in a.levels for a in agents):
             break
         level += 1
     depth = level
+    stages[1] = stages[0] + depth
     iterations = {}
     t_refine = 0.0
     for lv in range(depth - 1, -1, -1):
         members = [k for k, a in enumerate(agents) if lv + 1 in a.levels and not a.levels[lv].leaf]
         if not members:
+            tell(f"level {lv} refinement")
             continue
         drv.phase(lambda a: a.begin_boundary(lv), members)
         drv.phase(lambda a: a.begin_align(lv), members)
@@ -206,6 +224,7 @@ def run_distributed(problem: EnsembleProblem, rng: np.random.Generator,
             iterations[lv], drv.round = BatchedRefinement(agents, members, lv, net, config.check_every,
                                                           drv).run(drv.round)
             t_refine += time.perf_counter() - t1
+            tell(f"level {lv} refinement")
             continue
         for k in members:
             agents[k].begin_refine(lv)
@@ -221,6 +240,7 @@ def run_distributed(problem: EnsembleProblem, rng: np.random.Generator,
             if it % config.check_every == 0:
                 drv.phase(lambda a: a.begin_grad(lv), live)
         iterations[lv] = it
+        tell(f"level {lv} refinement")
 
     position = np.array([a.position for a in agents])
     rotation = np.array([a.rotation for a in agents])
@@ -255,6 +275,8 @@ def run_distributed(problem: EnsembleProblem, rng: np.random.Generator,
         network={"total": stats.total.as_dict(), "drop_reasons": dict(stats.drop_reasons)},
         info={"seconds": time.perf_counter() - t0, "seconds_batched_refinement": t_refine,
               "refine_iterations": iterations,
+              "capped_levels": [lv for lv, it in sorted(iterations.items())
+                                if it >= (config.top_max_iter if lv == 0 else config.level_max_iter)],
               "refine_share_rounds": int(sum(a.share_rounds for a in agents)),
               "refine_pose_shares": int(sum(a.shares_sent for a in agents)),
               "batched": bool(config.batched),

@@ -32,6 +32,7 @@ from sims.ensembles.lattices import LATTICES, SHAPES_3D, rasterize
 from sims.ensembles.sensors import SensorModel, observe_contacts
 from sims.ensembles.settle import settle
 from sims.io.atomic import write_atomic
+from sims.io.ensemble_npz import OBSERVATION_FORMAT, TRUTH_FORMAT
 
 __all__ = [
     "EnsembleSpec",
@@ -45,8 +46,6 @@ __all__ = [
     "load_truth",
 ]
 
-OBSERVATION_FORMAT = "decentral.ensemble/1"
-TRUTH_FORMAT = "decentral.ensemble_truth/1"
 
 #: every shape name -> its dimension
 SHAPES: dict[str, int] = {**{k: 2 for k in SHAPES_2D}, **{k: 3 for k in SHAPES_3D}}
@@ -214,6 +213,8 @@ def save_truth(path: str | os.PathLike, ens: Ensemble, seed: int | None = None) 
             "shape": np.array(ens.spec.shape),
             "seed": np.array(-1 if seed is None else int(seed), dtype=np.int64),
             "dropped": np.array(ens.dropped, dtype=np.int64),
+            # observed neighbour pairs (P, 2), i < j: what `decentral score` scales and regions by
+            "pairs": np.unique(np.sort(np.stack([ens.i, ens.j], 1), axis=1), axis=0).reshape(-1, 2),
         },
     )
 

@@ -91,7 +91,11 @@ def _render_and_perceive(sim, seed: int, clean: bool):
 
 
 def run_table1(config: TableConfig = TableConfig(), progress=None) -> dict:
-    """Run the Table I reproduction; return a JSON-ready result (per method: errors, coverage, fps)."""
+    """Run the Table I reproduction; return a JSON-ready result (per method: errors, coverage, fps).
+
+    ``progress``, when given, is called after each stage (a seed's rendering and perception, then
+    each method on it) as ``progress(stages_done, stages_total, seed=..., stage=...)``.
+    """
     from agents.perception.tag_pose import estimate_log_tag_pose
     from decentral.bearing import BearingConfig, estimate_log_bearing
     from decentral.estimator import EstimatorConfig, estimate_log
@@ -107,9 +111,18 @@ def run_table1(config: TableConfig = TableConfig(), progress=None) -> dict:
     paired = {n: {"baseline": {k: [] for k in keys[:3]}, "ours": {k: [] for k in keys[:3]}, "placements": []}
               for n in names[2:]}
     perception = {"frames": 0, "identified": 0, "detections": 0, "apriltag_reads": 0}
+    stages, total = 0, config.seeds * (1 + len(names))
+
+    def tell(seed: int, stage: str) -> None:
+        nonlocal stages
+        stages += 1
+        if progress is not None:
+            progress(stages, total, seed=seed, stage=stage)
+
     for seed in range(config.seeds):
         sim = simulate(get_scenario("table1", steps=config.steps), seed=seed)
         log, frames, secs, tag_reads, tag_secs = _render_and_perceive(sim, seed, config.clean)
+        tell(seed, "frames rendered and perceived")
         t_perc = float(np.sum(secs))
         for frs in frames.values():
             perception["frames"] += len(frs)
@@ -127,12 +140,13 @@ def run_table1(config: TableConfig = TableConfig(), progress=None) -> dict:
         for name, (method, front) in runs.items():
             start = time.process_time()
             est = method()
-            total = front + time.process_time() - start
+            total_seconds = front + time.process_time() - start
             ests[name] = est
             overall = score_estimate(sim.truth.poses, est).overall.to_dict()
             for k in keys:
                 rows[name][k].append(overall[k])
-            rows[name]["fps"].append(len(log.steps) / total)
+            rows[name]["fps"].append(len(log.steps) / total_seconds)
+            tell(seed, name)
         for name in names[2:]:
             ours_there = _restricted(ests[names[0]], ests[name])
             base = score_estimate(sim.truth.poses, _restricted(ests[name], ours_there)).overall.to_dict()
@@ -141,8 +155,6 @@ def run_table1(config: TableConfig = TableConfig(), progress=None) -> dict:
                 paired[name]["baseline"][k].append(base[k])
                 paired[name]["ours"][k].append(mine[k])
             paired[name]["placements"].append(sum(len(st.poses) for st in ours_there.steps))
-        if progress:
-            progress(f"seed {seed}: done")
     table = {}
     for name, cols in rows.items():
         table[name] = {k: (float(np.mean([x for x in v if x is not None])) if any(x is not None for x in v) else None)
@@ -191,15 +203,23 @@ def _pooled(values, weights):
     return float(sum(v * w for v, w in pairs) / sum(w for _, w in pairs))
 
 
-def run_reconfig(config: TableConfig = TableConfig(seeds=1, steps=80)) -> dict:
-    """Run the Fig. 4 reproduction: per-step errors of ours and identified target nodes per frame."""
+def run_reconfig(config: TableConfig = TableConfig(seeds=1, steps=80), progress=None) -> dict:
+    """Run the Fig. 4 reproduction: per-step errors of ours and identified target nodes per frame.
+
+    ``progress``, when given, is called as ``progress(stages_done, 2, stage=...)`` after the frames
+    are rendered and perceived and after the estimate.
+    """
     from decentral.estimator import EstimatorConfig, estimate_log
     from decentral.metrics import relative_truth
     from sims.scenarios import get_scenario, simulate
 
     sim = simulate(get_scenario("reconfig", steps=config.steps), seed=0)
     log, frames, _, _, _ = _render_and_perceive(sim, 0, config.clean)
+    if progress is not None:
+        progress(1, 2, stage="frames rendered and perceived")
     est = estimate_log(log, EstimatorConfig(window=config.window, noise=_noise()))
+    if progress is not None:
+        progress(2, 2, stage="estimated")
     reference = est.reference
     series = {}
     for name in log.assemblies:

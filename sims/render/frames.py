@@ -54,7 +54,7 @@ def _open_video(path_stem: Path, fps: float, size: tuple[int, int]):
 
 
 def write_frames(sim: Simulation, outdir: str | os.PathLike, *, mode: str = "png", seed: int = 0,
-                 config: RenderConfig | None = None) -> tuple[list[Path], tuple]:
+                 config: RenderConfig | None = None, progress=None) -> tuple[list[Path], tuple]:
     """Render every camera's frames into ``outdir/frames`` and return (paths, per-step frame truth).
 
     Parameters
@@ -63,6 +63,8 @@ def write_frames(sim: Simulation, outdir: str | os.PathLike, *, mode: str = "png
     config : RenderConfig, optional
         Defaults to :class:`RenderConfig` for a noisy run and :meth:`RenderConfig.clean` when the
         scenario's sensors are noiseless.
+    progress : callable, optional
+        Called after each frame as ``progress(frames_done, frames_total)``.
 
     Returns
     -------
@@ -80,6 +82,7 @@ def write_frames(sim: Simulation, outdir: str | os.PathLike, *, mode: str = "png
     dt = float(np.median(np.diff(sim.world.times))) if sim.world.steps > 1 else 0.2
     writers, paths = {}, []
     frames: list[dict] = [dict() for _ in range(sim.world.steps)]
+    total, done = sim.world.steps * len(sim.log.cameras), 0
     try:
         for k, key, frame in render_frames(sim, seed, config):
             if mode == "png":
@@ -97,6 +100,9 @@ def write_frames(sim: Simulation, outdir: str | os.PathLike, *, mode: str = "png
                 writers[key][0].write(frame.image)
                 name = f"{writers[key][2].relative_to(outdir).as_posix()}#{k}"
             frames[k][key] = {"file": name, "nodes": frame.nodes}
+            done += 1
+            if progress is not None:
+                progress(done, total)
         for writer, tmp, final in writers.values():
             writer.release()
             os.replace(tmp, final)

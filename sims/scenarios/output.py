@@ -33,11 +33,13 @@ def prepare_outdir(outdir: str | os.PathLike) -> Path:
     return path
 
 
-def save_simulation(sim: Simulation, outdir: str | os.PathLike, *, frames: str = "none", seed: int = 0) -> SavedRun:
+def save_simulation(sim: Simulation, outdir: str | os.PathLike, *, frames: str = "none", seed: int = 0,
+                    progress=None) -> SavedRun:
     """Write ``sim``'s log and truth (and its frames) into ``outdir``; each file atomically.
 
     ``frames`` is ``"none"``, ``"png"`` or ``"video"``; with frames, the truth also records what
-    each frame shows (see :mod:`sims.world.truth`), and the frames are rendered with ``seed``.
+    each frame shows (see :mod:`sims.world.truth`), and the frames are rendered with ``seed``
+    (``progress(frames_done, frames_total)`` is called after each).
     """
     from dataclasses import replace
 
@@ -51,7 +53,7 @@ def save_simulation(sim: Simulation, outdir: str | os.PathLike, *, frames: str =
     if frames != "none":
         from sims.render.frames import write_frames
 
-        files, per_step = write_frames(sim, path, mode=frames, seed=seed)
+        files, per_step = write_frames(sim, path, mode=frames, seed=seed, progress=progress)
         truth, written = replace(truth, frames=per_step), tuple(files)
     write_log(path / "log.json", sim.log)
     write_truth(path / "truth.json", truth)
