@@ -2,7 +2,8 @@
 
 The keys are those of ``decentral make-ensemble`` (``shape``, ``n``, ``seed``, ``radius``,
 ``lattice``, ``jitter``, ``threshold``) and of ``decentral ensemble`` (``method``, ``distributed``,
-``loss``, ``tol``). ``seed`` seeds the ensemble and the localization, as the two commands do with
+``loss``, ``tol``, ``check_every``), with the same meaning: the cell calls the functions those
+commands call. ``seed`` seeds the ensemble and the localization, as the two commands do with
 ``--seed``. The metrics are the global and local RMS errors in module radii
 (:func:`decentral.ensemble.evaluate`), the cost, and with ``distributed = true`` the messages per
 module.
@@ -10,21 +11,19 @@ module.
 
 from __future__ import annotations
 
-from dataclasses import replace
 from typing import Any, Mapping
 
 import numpy as np
 
-from decentral.ensemble import EnsembleProblem, HierarchyConfig, evaluate
-from decentral.ensemble.hierarchical import normcut_localize
+from decentral.ensemble import EnsembleProblem, evaluate
 from decentral.errors import InputError
-from sims.cli.ensemble import localize
-from sims.ensembles.distributed import DistributedConfig, run_distributed
+from sims.cli.ensemble import distributed_config, localize
+from sims.ensembles.distributed import run_distributed
 from sims.ensembles.generator import SHAPES, EnsembleSpec, generate
 from sims.ensembles.sensors import SensorModel
 from sims.study.options import Option, check_value, require
 
-__all__ = ["OPTIONS", "METRICS", "normalize", "run", "hierarchy_for_tol"]
+__all__ = ["OPTIONS", "METRICS", "normalize", "run"]
 
 _METHODS = ("ncut", "incremental", "mds", "sdp", "bottom-up")
 
@@ -44,6 +43,8 @@ OPTIONS: dict[str, Option] = {
                    help="distributed: probability that a message is dropped"),
     "tol": Option(None, float, valid=require(lambda v: v > 0, "must be positive"),
                   help="refinement tolerance: largest gradient entry [module radii] at every level"),
+    "check_every": Option(None, int, valid=require(lambda v: v >= 1, "must be >= 1"),
+                          help="distributed: refinement iterations between convergence checks"),
 }
 
 METRICS: dict[str, str] = {
@@ -73,26 +74,13 @@ def normalize(params: Mapping[str, Any]) -> dict[str, Any]:
         raise InputError("only applies with distributed = true", field="loss")
     if distributed and out.get("method", "ncut") != "ncut":
         raise InputError("distributed = true runs the ncut method only", field="method")
-    if "tol" in out and out.get("method", "ncut") != "ncut":
-        raise InputError("the refinement tolerance applies to the ncut method", field="tol")
+    if "check_every" in out and not distributed:
+        raise InputError("only applies with distributed = true", field="check_every")
     return out
 
 
 def _option(params: Mapping[str, Any], key: str) -> Any:
     return params.get(key, OPTIONS[key].default)
-
-
-def hierarchy_for_tol(tol: float | None):
-    """Algorithm 1's configuration with every refinement stopped at gradient entry ``tol`` (radii).
-
-    ``None`` keeps the defaults (levels 1e-3, top 1e-6). Seed 003 §VI-B stops each level "at a
-    fixed level of accuracy, as measured by the norm of the gradient".
-    """
-    config = HierarchyConfig()
-    if tol is None:
-        return config
-    return replace(config, level_refine=replace(config.level_refine, gtol=tol),
-                   final_refine=replace(config.final_refine, gtol=tol))
 
 
 def _make(params: Mapping[str, Any]):
@@ -109,18 +97,12 @@ def run(params: Mapping[str, Any]) -> dict[str, Any]:
     seed, tol = _option(params, "seed"), _option(params, "tol")
     metrics: dict[str, Any] = {"messages_per_module": None, "messages": None, "levels": None}
     if _option(params, "distributed"):
-        config = DistributedConfig(loss=_option(params, "loss"))
-        if tol is not None:
-            config = replace(config, hierarchy=hierarchy_for_tol(tol), top_gtol=tol)
+        config = distributed_config(_option(params, "loss"), tol, _option(params, "check_every"))
         res = run_distributed(problem, np.random.default_rng(seed), config)
         total = int(np.sum(res.messages))
         metrics.update(messages_per_module=total / problem.n, messages=total, levels=int(res.levels))
     else:
-        method = _option(params, "method")
-        if method == "ncut":
-            res = normcut_localize(problem, np.random.default_rng(seed), hierarchy_for_tol(tol))
-        else:
-            res = localize(problem, method, seed)
+        res = localize(problem, _option(params, "method"), seed, tol)
     err = evaluate(res.estimate.position, ens.position, problem.pairs(), problem.radius)
     metrics.update(global_rms=err.global_rms, local_rms=err.local_rms, cost=float(res.cost),
                    n_modules=int(problem.n), observations=int(problem.num_observations))
