@@ -47,6 +47,7 @@ LABELS = {
     "n_modules": "modules",
     "observations": "observations",
     "seconds": "time per run [s]",
+    "solve_seconds": "localization time [s]",
     "peak_mb": "peak memory [MB]",
     "n": "modules N",
     "n_assemblies": "assemblies N",
@@ -65,7 +66,7 @@ SEEDS = ("seed", "scenario_seed")
 SIZES = ("n", "n_assemblies")
 #: metrics fitted against size with both laws (messages), and with the power law only (time)
 FIT_BOTH = ("messages_per_module", "messages")
-FIT_POWER = ("seconds",)
+FIT_POWER = ("seconds", "solve_seconds")
 #: metrics that are not worth a figure of their own
 NOT_PLOTTED = ("n_modules", "observations")
 
@@ -172,6 +173,7 @@ def _plot(metric: str, x: str, others: list[str], rows: list[dict], size_col: st
                         label=f"{f.formula(_short(metric))} (R² {f.r2:.3f})")
     ax.set_xlabel(_label(x))
     ax.set_ylabel(_label(metric))
+    _readable_y(ax, [r[metric] for r in rows if _is_number(r.get(metric))])
     if numeric:
         if min(xs) > 0 and max(xs) / min(xs) >= 20:
             ax.set_xscale("log")
@@ -188,8 +190,20 @@ def _plot(metric: str, x: str, others: list[str], rows: list[dict], size_col: st
     return buf.getvalue(), fits
 
 
+def _readable_y(ax, values: list[float]) -> None:
+    """No offset notation (``1e-6 + 1.647e-2``); a spread below 0.1 % of the values is drawn flat."""
+    if not values:
+        return
+    ax.ticklabel_format(axis="y", useOffset=False, style="plain")
+    lo, hi = min(values), max(values)
+    centre = (lo + hi) / 2
+    if hi - lo <= 1e-3 * abs(centre):
+        pad = 0.05 * abs(centre) or 1.0
+        ax.set_ylim(centre - pad, centre + pad)
+
+
 def _short(metric: str) -> str:
-    return {"messages_per_module": "messages/module", "seconds": "t"}.get(metric, metric)
+    return {"messages_per_module": "messages/module", "seconds": "t", "solve_seconds": "t"}.get(metric, metric)
 
 
 def _figures(params: list[str], metrics: list[str], ok: list[dict], out: Path) -> list[Figure]:
