@@ -99,7 +99,8 @@ def as_study(engine, steps: int, cells: int) -> dict:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("out/benchmarks"), help="output folder (default out/benchmarks)")
+    parser.add_argument("--out", type=Path, default=Path("out/benchmarks"),
+                        help="output folder (default out/benchmarks)")
     parser.add_argument("--durations", type=float, nargs="+", default=[0.1, 2.0], help="target seconds per cell")
     parser.add_argument("--cells", type=int, default=10, help="cells per study (default 10)")
     parser.add_argument("--workers", type=int, default=1, help="workers of the local pool and CPUs of Ray (default 1)")

@@ -119,13 +119,14 @@ def execute(command: str, params: Mapping[str, Any], key: str) -> dict[str, Any]
     -------
     dict
         ``key``, ``status`` ('ok' or 'failed'), ``error`` (one line, or ``None``), ``seconds`` (wall
-        time of the cell), ``peak_mb`` (peak resident memory of the process during the cell),
-        ``host``, ``pid``, ``started``, ``finished`` and ``metrics`` (a dict; empty when failed).
+        time of the cell), ``cpu_seconds`` (its CPU time in the worker), ``peak_mb`` (peak resident
+        memory of the process during the cell), ``host``, ``pid``, ``started``, ``finished`` and
+        ``metrics`` (a dict; empty when failed).
     """
     _module(command)  # imported before the clock starts: a cell's time is its own work
     _reset_peak_memory()
     started = _now()
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     try:
         metrics, status, error = run_cell(command, params), "ok", None
     except Exception as err:  # a failing cell is a result, not the end of the study
@@ -134,6 +135,6 @@ def execute(command: str, params: Mapping[str, Any], key: str) -> dict[str, Any]
         metrics, status, error = {}, "failed", f"{type(err).__name__}: {err}{where}"
     return {
         "key": key, "status": status, "error": error, "seconds": time.perf_counter() - t0,
-        "peak_mb": _peak_memory_mb(), "host": socket.gethostname(), "pid": os.getpid(),
-        "started": started, "finished": _now(), "metrics": metrics,
+        "cpu_seconds": time.process_time() - c0, "peak_mb": _peak_memory_mb(), "host": socket.gethostname(),
+        "pid": os.getpid(), "started": started, "finished": _now(), "metrics": metrics,
     }

@@ -55,7 +55,7 @@ METRICS: dict[str, str] = {
     "messages_per_module": "mean messages sent per module (distributed)",
     "messages": "messages sent by all modules (distributed)",
     "levels": "depth of the hierarchy (distributed)",
-    "solve_seconds": "wall time of the localization alone (the cell's seconds also count making the ensemble) [s]",
+    "solve_cpu_seconds": "CPU time of the localization alone (the cell's seconds also count making the ensemble) [s]",
     "n_modules": "modules generated (the largest connected part of n requested)",
     "observations": "observations (directed contacts)",
 }
@@ -98,7 +98,7 @@ def run(params: Mapping[str, Any]) -> dict[str, Any]:
     ens, problem = _make(params)
     seed, tol = _option(params, "seed"), _option(params, "tol")
     metrics: dict[str, Any] = {"messages_per_module": None, "messages": None, "levels": None}
-    t0 = time.perf_counter()
+    t0 = time.process_time()
     if _option(params, "distributed"):
         config = distributed_config(_option(params, "loss"), tol, _option(params, "check_every"))
         res = run_distributed(problem, np.random.default_rng(seed), config)
@@ -106,7 +106,7 @@ def run(params: Mapping[str, Any]) -> dict[str, Any]:
         metrics.update(messages_per_module=total / problem.n, messages=total, levels=int(res.levels))
     else:
         res = localize(problem, _option(params, "method"), seed, tol)
-    metrics["solve_seconds"] = time.perf_counter() - t0
+    metrics["solve_cpu_seconds"] = time.process_time() - t0
     err = evaluate(res.estimate.position, ens.position, problem.pairs(), problem.radius)
     metrics.update(global_rms=err.global_rms, local_rms=err.local_rms, cost=float(res.cost),
                    n_modules=int(problem.n), observations=int(problem.num_observations))

@@ -61,7 +61,7 @@ METRICS: dict[str, str] = {
     "rounds": "ADMM rounds over all steps (admm)",
     "converged": "1 when every agent converged at every step (admm)",
     "certified": "fraction of windows certified globally optimal (windowed estimator)",
-    "solve_seconds": "wall time of the localization alone (the cell's seconds also count the simulation) [s]",
+    "solve_cpu_seconds": "CPU time of the localization alone (the cell's seconds also count the simulation) [s]",
 }
 
 
@@ -121,9 +121,9 @@ def run(params: Mapping[str, Any]) -> dict[str, Any]:
     reference = params.get("reference") or log.assemblies[0]
     if reference not in log.assemblies:
         raise InputError(f"no assembly {reference!r} in the simulated log", field="reference")
-    t0 = time.perf_counter()
+    t0 = time.process_time()
     estimate = _localize(log, params, reference, seed)
-    solve_seconds = time.perf_counter() - t0
+    solve_cpu_seconds = time.process_time() - t0
     overall = score_estimate(sim.truth.poses, estimate).overall.to_dict()
     stats = estimate.stats
     metrics = {
@@ -132,7 +132,7 @@ def run(params: Mapping[str, Any]) -> dict[str, Any]:
         "angle_error_deg": overall["yaw_deg"],
         "coverage": overall["coverage"],
         "messages": None, "bytes": None, "rounds": None, "converged": None, "certified": None,
-        "solve_seconds": solve_seconds,
+        "solve_cpu_seconds": solve_cpu_seconds,
     }
     if stats.get("mode") == "admm":
         total = stats["messages"]["total"]

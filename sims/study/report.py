@@ -47,7 +47,8 @@ LABELS = {
     "n_modules": "modules",
     "observations": "observations",
     "seconds": "time per run [s]",
-    "solve_seconds": "localization time [s]",
+    "cpu_seconds": "CPU time per run [s]",
+    "solve_cpu_seconds": "localization CPU time [s]",
     "peak_mb": "peak memory [MB]",
     "n": "modules N",
     "n_assemblies": "assemblies N",
@@ -66,7 +67,7 @@ SEEDS = ("seed", "scenario_seed")
 SIZES = ("n", "n_assemblies")
 #: metrics fitted against size with both laws (messages), and with the power law only (time)
 FIT_BOTH = ("messages_per_module", "messages")
-FIT_POWER = ("seconds", "solve_seconds")
+FIT_POWER = ("seconds", "cpu_seconds", "solve_cpu_seconds")
 #: metrics that are not worth a figure of their own
 NOT_PLOTTED = ("n_modules", "observations")
 
@@ -104,10 +105,10 @@ def _columns(facts: dict, runs: list[dict]) -> tuple[list[str], list[str]]:
     """(parameter columns, metric columns) of the store."""
     names = list(runs[0]) if runs else []
     if "params" in facts and "metrics" in facts:
-        return json.loads(facts["params"]), json.loads(facts["metrics"]) + ["seconds", "peak_mb"]
+        return json.loads(facts["params"]), json.loads(facts["metrics"]) + ["seconds", "cpu_seconds", "peak_mb"]
     known = set(LABELS) - {"n", "n_assemblies", "loss", "window", "tol", "shape", "method", "mode", "scenario",
                            "distributed", "steps_param"}
-    metrics = [c for c in names if c in known or c in ("seconds", "peak_mb")]
+    metrics = [c for c in names if c in known or c in ("seconds", "cpu_seconds", "peak_mb")]
     params = [c for c in names if c not in BOOKKEEPING and c not in metrics]
     return params, metrics
 
@@ -203,7 +204,8 @@ def _readable_y(ax, values: list[float]) -> None:
 
 
 def _short(metric: str) -> str:
-    return {"messages_per_module": "messages/module", "seconds": "t", "solve_seconds": "t"}.get(metric, metric)
+    short = {"messages_per_module": "messages/module", "seconds": "t", "cpu_seconds": "t", "solve_cpu_seconds": "t"}
+    return short.get(metric, metric)
 
 
 def _figures(params: list[str], metrics: list[str], ok: list[dict], out: Path) -> list[Figure]:
@@ -255,7 +257,8 @@ def _summary_rows(params: list[str], metrics: list[str], ok: list[dict]) -> tupl
 
 
 _CSS = """body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;color:#222}
-table{border-collapse:collapse;margin:1em 0;font-size:0.9em}td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}
+table{border-collapse:collapse;margin:1em 0;font-size:0.9em}
+td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}
 th{background:#f3f3f3}figure{display:inline-block;margin:0.5em;vertical-align:top;max-width:680px}
 figcaption{font-size:0.85em;color:#444}pre{background:#f7f7f7;padding:0.8em;overflow-x:auto}img{max-width:100%}"""
 

@@ -6,7 +6,8 @@ Tables
     One row per finished cell, inserted and committed in one transaction when the cell ends:
     ``id``, ``cell_key`` (the canonical JSON of the cell's parameters, UNIQUE: a cell can never
     have two rows), ``cell_hash``, one column per ``[fixed]`` and ``[grid]`` key, ``status``
-    ('ok' or 'failed'), ``error``, ``seconds`` (wall time of the cell), ``peak_mb`` (peak resident
+    ('ok' or 'failed'), ``error``, ``seconds`` (wall time of the cell), ``cpu_seconds`` (its CPU
+    time in the worker), ``peak_mb`` (peak resident
     memory of the worker during the cell), one column per metric of the command (NULL where it
     does not apply), then ``engine``, ``host``, ``pid``, ``started``, ``finished`` (UTC, ISO 8601)
     and ``session`` (the ``sessions.id`` that ran it).
@@ -39,7 +40,7 @@ __all__ = ["SCHEMA", "DB_NAME", "BOOKKEEPING", "StudyStore", "open_store", "read
 SCHEMA = "decentral.study/1"
 DB_NAME = "study.sqlite"
 #: columns of ``runs`` that are neither parameters nor metrics
-BOOKKEEPING = ("id", "cell_key", "cell_hash", "status", "error", "seconds", "peak_mb",
+BOOKKEEPING = ("id", "cell_key", "cell_hash", "status", "error", "seconds", "cpu_seconds", "peak_mb",
                "engine", "host", "pid", "started", "finished", "session")
 
 
@@ -89,7 +90,7 @@ class StudyStore:
             "cell_key": result["key"], "cell_hash": hashlib.sha256(result["key"].encode()).hexdigest()[:16],
             **{k: params.get(k) for k in self.params},
             "status": result["status"], "error": result["error"], "seconds": result["seconds"],
-            "peak_mb": result.get("peak_mb"),
+            "cpu_seconds": result.get("cpu_seconds"), "peak_mb": result.get("peak_mb"),
             **{m: _sql_value(metrics.get(m)) for m in self.metrics},
             "engine": engine, "host": result.get("host"), "pid": result.get("pid"),
             "started": result.get("started"), "finished": result.get("finished"), "session": session,
@@ -160,8 +161,8 @@ def _create(con: sqlite3.Connection, name: str, command: str, params: Sequence[s
         con.execute(
             "CREATE TABLE runs (id INTEGER PRIMARY KEY, cell_key TEXT NOT NULL UNIQUE, cell_hash TEXT NOT NULL, "
             f"{param_cols}status TEXT NOT NULL CHECK (status IN ('ok', 'failed')), error TEXT, seconds REAL, "
-            f"peak_mb REAL, {metric_cols}engine TEXT, host TEXT, pid INTEGER, started TEXT, finished TEXT, "
-            "session INTEGER)")
+            f"cpu_seconds REAL, peak_mb REAL, {metric_cols}engine TEXT, host TEXT, pid INTEGER, started TEXT, "
+            "finished TEXT, session INTEGER)")
         con.execute(
             "CREATE TABLE sessions (id INTEGER PRIMARY KEY, started TEXT, finished TEXT, engine TEXT, "
             "workers INTEGER, address TEXT, spec TEXT, spec_sha256 TEXT, git_revision TEXT, python TEXT, "
@@ -241,7 +242,8 @@ def read_runs(path: str | Path) -> tuple[dict[str, str], list[dict[str, Any]], l
                 raise InputError("has no 'runs' table", source=str(path))
             facts = _study_facts(con) if "study" in tables else {}
             runs = [dict(r) for r in con.execute("SELECT * FROM runs ORDER BY rowid")]
-            sessions = [dict(r) for r in con.execute("SELECT * FROM sessions ORDER BY id")] if "sessions" in tables else []
+            sessions = ([dict(r) for r in con.execute("SELECT * FROM sessions ORDER BY id")]
+                        if "sessions" in tables else [])
     except sqlite3.DatabaseError as err:
         raise InputError(f"not a readable study store: {err}", source=str(path)) from None
     return facts, runs, sessions
