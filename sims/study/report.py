@@ -176,7 +176,7 @@ def _plot(metric: str, x: str, others: list[str], rows: list[dict], size_col: st
     ax.set_ylabel(_label(metric))
     _readable_y(ax, [r[metric] for r in rows if _is_number(r.get(metric))])
     if numeric:
-        if min(xs) > 0 and max(xs) / min(xs) >= 20:
+        if min(xs) > 0 and max(xs) / min(xs) >= 8:
             ax.set_xscale("log")
         if metric in FIT_POWER and x in SIZES and all(_is_number(r.get(metric)) and r[metric] > 0 for r in rows):
             ax.set_yscale("log")
