@@ -54,14 +54,17 @@ class LocalEngine:
     ----------
     workers : int
         Worker processes (>= 1).
+    task : callable
+        What a worker runs for a cell: ``task(command, params, key) -> row`` (default
+        :func:`sims.study.worker.work`); must be importable by name in a fresh process.
     """
 
     name = "local"
 
-    def __init__(self, workers: int = 1):
+    def __init__(self, workers: int = 1, task: Callable[..., dict] = work):
         if workers < 1:
             raise InputError(f"must be >= 1, got {workers}", field="--workers")
-        self.workers = int(workers)
+        self.workers, self.task = int(workers), task
 
     def _pool(self) -> ProcessPoolExecutor:
         return ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
@@ -77,7 +80,7 @@ class LocalEngine:
                 for cell in suspects:  # in flight when a worker died: find out which one it was
                     with self._pool_of(1) as pool:
                         try:
-                            row = pool.submit(work, cell.command, dict(cell.params), cell.key).result()
+                            row = pool.submit(self.task, cell.command, dict(cell.params), cell.key).result()
                         except BrokenProcessPool:
                             row = _died(cell, "worker process died while running this cell "
                                               "(killed, out of memory or crashed)")
@@ -103,7 +106,7 @@ class LocalEngine:
         while queue or running:
             while queue and len(running) < self.workers:
                 cell = queue.pop()
-                running[pool.submit(work, cell.command, dict(cell.params), cell.key)] = cell
+                running[pool.submit(self.task, cell.command, dict(cell.params), cell.key)] = cell
             done, _ = wait(running, return_when=FIRST_COMPLETED)
             suspects = []
             for future in done:

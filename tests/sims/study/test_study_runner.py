@@ -102,3 +102,22 @@ def test_progress_goes_to_stderr_never_into_files_and_q_silences_it(specs, write
     assert quiet.returncode == 0 and quiet.stdout == "" and quiet.stderr == ""
     report = cli("-q", "report", str(tmp_path / "b"))
     assert report.returncode == 0 and report.stdout == "" and report.stderr == ""
+
+
+def crash_on_n_99(command, params, key):
+    """A worker task that kills its own process for n = 99 and runs every other cell normally."""
+    if params["n"] == 99:
+        os._exit(1)
+    from sims.study.worker import work
+
+    return work(command, params, key)
+
+
+def test_worker_that_dies_fails_only_its_own_cell(specs, tmp_path, rows):
+    """A cell that kills its worker gets a 'failed' row; cells in flight beside it run again and succeed."""
+    text = specs["ensemble"].replace("n = [60, 120]", "n = [60, 99, 120]")
+    result = run_study(parse_spec(text), tmp_path, LocalEngine(2, task=crash_on_n_99))
+    assert (result.total, result.ran, result.failed) == (6, 6, 2)
+    for n, status, error in rows(tmp_path / "study.sqlite", "n, status, error"):
+        assert (status == "failed") == (n == 99)
+        assert n != 99 or "worker process died" in error
