@@ -178,8 +178,10 @@ def _plot(metric: str, x: str, others: list[str], rows: list[dict], size_col: st
     if numeric:
         if min(xs) > 0 and max(xs) / min(xs) >= 8:
             ax.set_xscale("log")
+            _plain_ticks(ax.xaxis, at=[float(v) for v in xs])
         if metric in FIT_POWER and x in SIZES and all(_is_number(r.get(metric)) and r[metric] > 0 for r in rows):
             ax.set_yscale("log")
+            _plain_ticks(ax.yaxis)
     else:
         ax.set_xticks(range(len(xs)), [str(v) for v in xs])
     ax.grid(True, alpha=0.3)
@@ -189,6 +191,15 @@ def _plot(metric: str, x: str, others: list[str], rows: list[dict], size_col: st
     fig.savefig(buf, format="png", dpi=110)
     plt.close(fig)
     return buf.getvalue(), fits
+
+
+def _plain_ticks(axis, at: list[float] | None = None) -> None:
+    """Plain numbers (1,000; 0.5; 20) on a logarithmic ``axis``, at ``at`` or at 1-2-5 steps."""
+    from matplotlib.ticker import FixedLocator, FuncFormatter, LogLocator, NullFormatter
+
+    axis.set_major_locator(FixedLocator(at) if at else LogLocator(subs=(1.0, 2.0, 5.0)))
+    axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:,.0f}" if v >= 100 else f"{v:g}"))
+    axis.set_minor_formatter(NullFormatter())
 
 
 def _readable_y(ax, values: list[float]) -> None:
