@@ -12,15 +12,19 @@ duration the same cells are run
 - as a study on Ray (a local instance with ``--workers`` CPUs, started before the clock: the setting
   of a running cluster; its start-up time is reported on its own).
 
-Reported per engine and duration: the study's wall time against the direct one (ratio, overhead in %
-and per cell), and the steady-state overhead per cell (the time between consecutive rows minus the
-cell's own time, median over cells after the first: what each further cell costs beyond its work).
-Target: under 5 % for 2 s cells on the local pool.
+Reported per engine and duration, as medians over ``--repeats`` (engines alternate order between
+repeats): the study's wall time against the direct one (ratio, overhead in % and per cell), the
+time to the first row (worker start-up: a fresh interpreter importing the library and building its
+per-process caches), the wall time spent outside the cells against the cells' own time in the
+workers (what the runner itself costs, apart from cells running slower or faster in a worker than
+in this process), and the steady-state overhead per cell (the time between consecutive rows
+minus the cell's own time, median over cells after the first: what each further cell costs beyond
+its work). Target: under 5 % for 2 s cells on the local pool.
 
 Usage::
 
     python benchmarks/study_overhead.py [--out out/benchmarks] [--durations 0.1 2] [--cells 10]
-        [--workers 1] [--engines local ray]
+        [--workers 1] [--engines local ray] [--repeats 3]
 
 Writes ``OUT/study_overhead.json`` and prints a summary table.
 """
@@ -97,6 +101,36 @@ def as_study(engine, steps: int, cells: int) -> dict:
             "steady_overhead_per_cell_seconds": statistics.median(gaps) if gaps else None}
 
 
+def _row(target: float, steps: int, repeat: int, name: str, direct_runs: tuple, got: dict, args) -> dict:
+    reference = sum(direct_runs) / 2
+    ideal = reference / args.workers  # with w workers the study can be up to w times faster than the serial reference
+    row = {"target_cell_seconds": target, "steps": steps, "repeat": repeat, "engine": name,
+           "direct_seconds": reference, "direct_seconds_before_after": list(direct_runs), **got,
+           "ratio_to_direct": got["wall_seconds"] / ideal, "overhead_pct": 100 * (got["wall_seconds"] / ideal - 1),
+           "overhead_per_cell_seconds": (got["wall_seconds"] - ideal) / args.cells * args.workers,
+           # the wall time not spent inside cells (start-up, transfer, store), against the cells' own time
+           "outside_cells_pct": 100 * (got["wall_seconds"] * args.workers / got["cell_seconds_in_workers"] - 1)}
+    print(f"{target:5.1f} s cells ({steps} steps), {name:5s} #{repeat}: direct {reference:6.2f} s, study "
+          f"{got['wall_seconds']:6.2f} s -> overhead {row['overhead_pct']:+5.1f} % "
+          f"(steady {got['steady_overhead_per_cell_seconds'] * 1e3:+.0f} ms/cell)", flush=True)
+    return row
+
+
+def _summary(runs: list[dict]) -> list[dict]:
+    """Medians over the repeats, per cell duration and engine."""
+    out = []
+    keys = sorted({(r["target_cell_seconds"], r["engine"]) for r in runs})
+    for target, engine in keys:
+        mine = [r for r in runs if (r["target_cell_seconds"], r["engine"]) == (target, engine)]
+        row = {"target_cell_seconds": target, "engine": engine, "repeats": len(mine)}
+        for field in ("direct_seconds", "wall_seconds", "cell_seconds_in_workers", "ratio_to_direct", "overhead_pct",
+                      "overhead_per_cell_seconds", "steady_overhead_per_cell_seconds", "first_row_after_seconds",
+                      "outside_cells_pct"):
+            row[f"{field}_median"] = statistics.median(r[field] for r in mine)
+        out.append(row)
+    return out
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("out/benchmarks"),
@@ -105,9 +139,10 @@ def main(argv=None) -> int:
     parser.add_argument("--cells", type=int, default=10, help="cells per study (default 10)")
     parser.add_argument("--workers", type=int, default=1, help="workers of the local pool and CPUs of Ray (default 1)")
     parser.add_argument("--engines", nargs="+", choices=("local", "ray"), default=["local", "ray"])
+    parser.add_argument("--repeats", type=int, default=3, help="repeats of the whole comparison (default 3)")
     args = parser.parse_args(argv)
-    if args.cells < 3 or args.workers < 1:
-        parser.error("--cells must be >= 3 and --workers >= 1")
+    if args.cells < 3 or args.workers < 1 or args.repeats < 1:
+        parser.error("--cells must be >= 3, --workers and --repeats >= 1")
     payload = {"machine": machine(), "cells": args.cells, "workers": args.workers, "workload": BASE, "runs": []}
     ray = None
     if "ray" in args.engines:
@@ -119,24 +154,23 @@ def main(argv=None) -> int:
     try:
         for target in args.durations:
             steps = calibrate(target)
-            before = direct(steps, args.cells)
-            engines = {name: as_study(LocalEngine(args.workers) if name == "local" else RayEngine(), steps, args.cells)
-                       for name in args.engines}
-            after = direct(steps, args.cells)
-            reference = (before + after) / 2
-            for name, got in engines.items():
-                # with w workers the study can be up to w times faster than the serial reference
-                ideal = reference / args.workers
-                row = {"target_cell_seconds": target, "steps": steps, "engine": name,
-                       "direct_seconds": reference, "direct_seconds_before_after": [before, after], **got,
-                       "ratio_to_direct": got["wall_seconds"] / ideal,
-                       "overhead_pct": 100 * (got["wall_seconds"] / ideal - 1),
-                       "overhead_per_cell_seconds": (got["wall_seconds"] - ideal) / args.cells * args.workers}
-                payload["runs"].append(row)
-                print(f"{target:5.1f} s cells ({steps} steps), {name:5s}: direct {reference:6.2f} s, study "
-                      f"{got['wall_seconds']:6.2f} s -> overhead {row['overhead_pct']:+5.1f} % "
-                      f"({row['overhead_per_cell_seconds'] * 1e3:+.0f} ms/cell; steady "
-                      f"{got['steady_overhead_per_cell_seconds'] * 1e3:+.0f} ms/cell)", flush=True)
+            for repeat in range(args.repeats):
+                # direct, then each engine, then direct again: both sides see the same drift of the load
+                before = direct(steps, args.cells)
+                order = args.engines if repeat % 2 == 0 else list(reversed(args.engines))
+                engines = {name: as_study(LocalEngine(args.workers) if name == "local" else RayEngine(), steps,
+                                          args.cells) for name in order}
+                after = direct(steps, args.cells)
+                for name, got in engines.items():
+                    payload["runs"].append(_row(target, steps, repeat, name, (before, after), got, args))
+        payload["summary"] = _summary(payload["runs"])
+        for row in payload["summary"]:
+            print(f"{row['target_cell_seconds']:4.1f} s cells, {row['engine']:5s}: study / direct "
+                  f"{row['ratio_to_direct_median']:.3f} (overhead {row['overhead_pct_median']:+.1f} %, "
+                  f"{row['overhead_per_cell_seconds_median'] * 1e3:+.0f} ms/cell; outside cells "
+                  f"{row['outside_cells_pct_median']:+.1f} %), steady "
+                  f"{row['steady_overhead_per_cell_seconds_median'] * 1e3:+.1f} ms/cell, first row after "
+                  f"{row['first_row_after_seconds_median']:.2f} s", flush=True)
     finally:
         if ray is not None:
             ray.shutdown()

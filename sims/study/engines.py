@@ -66,10 +66,6 @@ class LocalEngine:
             raise InputError(f"must be >= 1, got {workers}", field="--workers")
         self.workers, self.task = int(workers), task
 
-    def _pool(self) -> ProcessPoolExecutor:
-        return ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=pin_blas_threads)
-
     def run(self, cells: Sequence[Cell], on_result: OnResult) -> None:
         """Run every cell of ``cells``; ``on_result`` gets each row as its cell ends."""
         queue = list(reversed(cells))  # a stack: the next cell is at the end
