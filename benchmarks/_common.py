@@ -1,4 +1,11 @@
-"""Shared bits of the benchmark programs: single-core pinning, machine description, JSON output."""
+"""Shared bits of the benchmark programs: single-core pinning, the argument parser, machine description, output.
+
+Every benchmark builds its parser with :func:`parser` (its module docstring as the description, and
+``--out DIR``) and parses the arguments before it runs anything, so ``--help`` only prints. Results
+go to ``--out`` (default ``out/benchmarks``, git-ignored); the committed results in
+``benchmarks/results`` are replaced only when a run is pointed there explicitly
+(``--out benchmarks/results``).
+"""
 
 from __future__ import annotations
 
@@ -7,6 +14,7 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")  # one core, before numpy is imported
 
+import argparse  # noqa: E402
 import json  # noqa: E402
 import platform  # noqa: E402
 import sys  # noqa: E402
@@ -16,9 +24,28 @@ from pathlib import Path  # noqa: E402
 
 from sims.io.atomic import write_atomic  # noqa: E402
 
+#: the committed results (the README's figures and tables); written only when ``--out`` names it
 RESULTS = Path(__file__).resolve().parent / "results"
+#: where benchmark runs write by default (relative to the working directory; ``out/`` is git-ignored)
+DEFAULT_OUT = Path("out") / "benchmarks"
 
-__all__ = ["RESULTS", "machine", "save", "save_figure", "timed"]
+__all__ = ["RESULTS", "DEFAULT_OUT", "parser", "output", "machine", "save", "save_figure", "timed"]
+
+
+def parser(doc: str) -> argparse.ArgumentParser:
+    """The argument parser of a benchmark: ``doc`` (its module docstring) as help text, and ``--out DIR``."""
+    ap = argparse.ArgumentParser(description=doc.strip(), formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", type=Path, default=DEFAULT_OUT, metavar="DIR",
+                    help=f"folder for the JSON results and figures (default {DEFAULT_OUT}, created if needed); "
+                         "the committed results are replaced only with --out benchmarks/results")
+    return ap
+
+
+def output(out: Path, name: str, suffix: str = ".json") -> Path:
+    """``out/<name><suffix>``, creating ``out``."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    return out / f"{name}{suffix}"
 
 
 def machine() -> dict:
@@ -57,12 +84,11 @@ def save_figure(fig, path: Path, dpi: int = 110) -> None:
     plt.close(fig)
 
 
-def save(name: str, payload: dict) -> Path:
-    """Write ``payload`` to ``benchmarks/results/<name>.json`` (with the end-of-run load) and print it."""
+def save(name: str, payload: dict, out: Path) -> Path:
+    """Write ``payload`` to ``out/<name>.json`` (with the end-of-run load) and print it."""
     payload.setdefault("machine", machine())
     payload["machine"]["loadavg_end"] = list(os.getloadavg())
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    path = RESULTS / f"{name}.json"
+    path = output(out, name)
     text = json.dumps(payload, indent=1) + "\n"
     write_atomic(path, lambda fh: fh.write(text))  # an interrupted run never leaves half a result
     print(text, end="")

@@ -2,16 +2,15 @@
 
 One observer on a 0.75 m table, three moving targets of different configurations at the seed's distances (mean about 1.85 m),
 5 Hz frames, realistic noise (scenario ``table1``), several seeds. Writes
-``benchmarks/results/accuracy_table1.json``, ``.md`` (the README table) and ``.png``.
+``OUT/accuracy_table1.json``, ``.md`` (the README table) and ``.png``.
 
 Usage: ``python benchmarks/accuracy_table1.py [--seeds 5] [--steps 150]``
 """
 
 from __future__ import annotations
 
-import argparse
 
-from _common import RESULTS, machine, save, save_figure, timed  # noqa: I001  (pins threads before numpy)
+from _common import machine, output, parser, save, save_figure, timed  # noqa: I001  (pins threads before numpy)
 
 import numpy as np
 
@@ -81,15 +80,15 @@ def plot(result: dict, path) -> None:
     save_figure(fig, path)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seeds", type=int, default=5)
-    parser.add_argument("--steps", type=int, default=150)
-    args = parser.parse_args()
+def main(argv=None) -> None:
+    ap = parser(__doc__)
+    ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--steps", type=int, default=150)
+    args = ap.parse_args(argv)
     result = run(args.seeds, args.steps)
-    save("accuracy_table1", result)
-    (RESULTS / "accuracy_table1.md").write_text(table_markdown(result))
-    plot(result, RESULTS / "accuracy_table1.png")
+    save("accuracy_table1", result, args.out)
+    output(args.out, "accuracy_table1", ".md").write_text(table_markdown(result))
+    plot(result, output(args.out, "accuracy_table1", ".png"))
     print(table_markdown(result))
 
 

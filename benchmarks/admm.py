@@ -22,12 +22,11 @@ process), and the centralized estimator's time per window on the same log in the
 reference).
 
 Run ``OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python benchmarks/admm.py [--quick]``; writes
-``benchmarks/results/admm.json`` and ``benchmarks/results/admm.png``.
+``OUT/admm.json`` and ``OUT/admm.png``.
 """
 
 from __future__ import annotations
 
-import argparse
 import os
 import platform
 import sys
@@ -38,7 +37,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from _common import save_figure  # noqa: E402
+from _common import output, parser, save_figure  # noqa: E402
 from decentral.estimator import EstimatorConfig, estimate_log  # noqa: E402
 from decentral.metrics import estimate_gap  # noqa: E402
 from sims.admm_run import AdmmRunConfig, run_admm  # noqa: E402
@@ -162,14 +161,13 @@ def _flatness(rows: list[dict]) -> dict | None:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="sizes up to 16 only")
-    parser.add_argument("--sizes", type=int, nargs="*", default=None, help="assembly counts (default 2..64)")
-    parser.add_argument("--steps", type=int, default=4, help="log steps of the shared-forms runs (1 cold + steady)")
-    parser.add_argument("--max-rounds", type=int, default=400, help="round cap per step of plain ADMM (n <= 16)")
-    parser.add_argument("--max-rounds-large", type=int, default=250, help="round cap per step of plain ADMM, n > 16")
-    parser.add_argument("--out", default=str(Path(__file__).resolve().parent / "results" / "admm"))
-    args = parser.parse_args(argv)
+    ap = parser(__doc__)
+    ap.add_argument("--quick", action="store_true", help="sizes up to 16 only")
+    ap.add_argument("--sizes", type=int, nargs="*", default=None, help="assembly counts (default 2..64)")
+    ap.add_argument("--steps", type=int, default=4, help="log steps of the shared-forms runs (1 cold + steady)")
+    ap.add_argument("--max-rounds", type=int, default=400, help="round cap per step of plain ADMM (n <= 16)")
+    ap.add_argument("--max-rounds-large", type=int, default=250, help="round cap per step of plain ADMM, n > 16")
+    args = ap.parse_args(argv)
     sizes = args.sizes or ([2, 4, 8, 16] if args.quick else [2, 4, 8, 16, 32, 64])
     losses = [0.0, 0.1, 0.3, 0.5]
     load0 = os.getloadavg()
@@ -225,8 +223,7 @@ def main(argv=None) -> int:
         "seconds": time.perf_counter() - t0,
         "cpu_seconds": time.process_time() - c0,
     }
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    out = output(args.out, "admm", "")
     write_json_atomic(out.with_suffix(".json"), result)
     _plot(result, out.with_suffix(".png"))
     for mode, fit in result["steady_state_messages_per_neighbour_vs_n"].items():

@@ -10,7 +10,7 @@ Fixed inputs: the ``multi`` ring with 4 assemblies (scenario seed 1, 6 steps), K
 aggregation), network seeds 0-7. Step 0 is the cold start (broadcast), steps 1-5 the steady state.
 
 Run ``python benchmarks/admm_loss_seeds.py [--loss 0.5 0.3] [--seeds 8] [--assemblies 4]``; writes
-``benchmarks/results/admm_loss_seeds.json``. The reference for every figure is the centralized
+``OUT/admm_loss_seeds.json``. The reference for every figure is the centralized
 estimator on the same log, computed in the same run.
 """
 
@@ -18,12 +18,11 @@ from __future__ import annotations
 
 import _common  # noqa: F401  (pins BLAS threads before numpy loads)
 
-import argparse
 import time
 
 import numpy as np
 
-from _common import machine, save
+from _common import machine, parser, save
 from decentral.estimator import EstimatorConfig, estimate_log
 from decentral.metrics import estimate_gap
 from decentral.observations import Estimate
@@ -38,13 +37,13 @@ def _step_gap(central: Estimate, decentral: Estimate, k: int) -> tuple[float, fl
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--loss", type=float, nargs="+", default=[0.5, 0.3])
-    parser.add_argument("--seeds", type=int, default=8)
-    parser.add_argument("--assemblies", type=int, default=4)
-    parser.add_argument("--steps", type=int, default=6)
-    parser.add_argument("--max-rounds", type=int, default=600)
-    args = parser.parse_args(argv)
+    ap = parser(__doc__)
+    ap.add_argument("--loss", type=float, nargs="+", default=[0.5, 0.3])
+    ap.add_argument("--seeds", type=int, default=8)
+    ap.add_argument("--assemblies", type=int, default=4)
+    ap.add_argument("--steps", type=int, default=6)
+    ap.add_argument("--max-rounds", type=int, default=600)
+    args = ap.parse_args(argv)
     sim = simulate(get_scenario("multi", n_assemblies=args.assemblies, steps=args.steps), seed=1)
     central = estimate_log(sim.log, EstimatorConfig(window=5))
     start = time.process_time()
@@ -84,7 +83,7 @@ def main(argv=None) -> int:
         "runs": runs,
         "cpu_seconds": time.process_time() - start,
         "machine": machine(),
-    })
+    }, args.out)
     return 0
 
 

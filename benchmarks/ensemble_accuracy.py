@@ -35,7 +35,7 @@ Every instance also records what makes it hard (is it lacking the seed's weak re
 noise kind?): the observation pairs crossing the exact top normalized cut and its value, the mean
 angular error of the observed sensor direction, and the share of observed pairs not touching.
 
-Writes ``benchmarks/results/ensemble_accuracy.json`` and ``ensemble_accuracy.png``.
+Writes ``OUT/ensemble_accuracy.json`` and ``ensemble_accuracy.png``.
 Usage: ``python benchmarks/ensemble_accuracy.py [--instances R] [--sdp-instances K] [--modules N]``;
 ``--replot [NAME]`` redraws the figure from the saved JSON. The study with the seed's looser
 threshold is ``--gtol 1.0 --sdp-modules 0 --name ensemble_accuracy_gtol1``; ``--shapes`` adds
@@ -52,14 +52,13 @@ from __future__ import annotations
 
 import _common  # noqa: F401  (pins BLAS threads before numpy loads)
 
-import argparse
 import json
 import sys
 import time
 
 import numpy as np
 
-from _common import RESULTS, machine, save, save_figure
+from _common import machine, output, parser, save, save_figure
 
 SHAPES = ("triple", "sparse", "open")
 METHODS = ("mds", "sdp", "incremental", "bottom-up", "ncut")
@@ -347,9 +346,9 @@ def plot(payload: dict, path) -> None:
     save_figure(fig, path, dpi=100)
 
 
-def main() -> None:
+def main(argv=None) -> None:
     global SHAPES
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("--instances", type=int, default=5)
     ap.add_argument("--modules", type=int, default=1000)
     ap.add_argument("--sdp-modules", type=int, default=400, help="size of the SDP pass (0: no SDP pass)")
@@ -359,7 +358,11 @@ def main() -> None:
     ap.add_argument("--shapes", default=",".join(SHAPES), help="comma-separated 2D shapes (default: triple,sparse,open)")
     ap.add_argument("--bottom-up-cluster", type=int, default=BOTTOM_UP_CLUSTER, metavar="K",
                     help="modules per starting cluster of bottom-up, both protocols (default: 32; 1: single modules)")
-    args = ap.parse_args()
+    ap.add_argument("--replot", action="store_true", help="only redraw the PNG from OUT/NAME.json")
+    args = ap.parse_args(argv)
+    if args.replot:
+        plot(json.loads(output(args.out, args.name).read_text()), output(args.out, args.name, ".png"))
+        return
     SHAPES = tuple(args.shapes.split(","))
     info = machine()
     c0, w0 = time.process_time(), time.perf_counter()
@@ -394,13 +397,9 @@ def main() -> None:
         "wall_s_total": time.perf_counter() - w0,
         "machine": info,
     }
-    save(args.name, payload)
-    plot(payload, RESULTS / f"{args.name}.png")
+    save(args.name, payload, args.out)
+    plot(payload, output(args.out, args.name, ".png"))
 
 
 if __name__ == "__main__":
-    if sys.argv[1:2] == ["--replot"]:  # redraw the figure from the saved JSON: --replot [NAME]
-        stem = sys.argv[2] if len(sys.argv) > 2 else "ensemble_accuracy"
-        plot(json.loads((RESULTS / f"{stem}.json").read_text()), RESULTS / f"{stem}.png")
-    else:
-        main()
+    main()

@@ -3,10 +3,14 @@
 For ensembles of growing size (2D ``triple`` scenario, settled under gravity, fixed seeds) it runs
 :func:`sims.ensembles.distributed.run_distributed` over the lossless simulated network, records the
 messages sent per module and per phase, fits messages per module against ``a + b ln N`` (least
-squares, R^2 reported), and saves ``benchmarks/results/ensemble_messages.json`` and ``.png``.
+squares, R^2 reported), and saves ``OUT/NAME.json`` and ``.png`` (``--out``, default
+``out/benchmarks``; ``--name``, default ``ensemble_messages``).
 Each level's refinement stops at the same gradient tolerance (seed 003 §VI-B: "each estimate reaches
 a fixed level of accuracy, as measured by the norm of the gradient"), ``--gtol`` module radii on
-the largest entry. The centralized Algorithm 1 on the same input is timed as the reference.
+the largest entry, with a convergence check every 5 iterations: the configuration of
+``decentral ensemble OBS.npz -o EST.npz --distributed --tol GTOL --check-every 5``, so one row is one
+such command on the ensemble of that size. The centralized Algorithm 1 on the same input is timed as
+the reference.
 
 The refinement (about 90 % of the messages) runs through the batched path
 (:class:`agents.modules.BatchedRefinement`: the same messages, bytes and rounds as the per-message
@@ -32,7 +36,6 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-import argparse  # noqa: E402
 import json  # noqa: E402
 import platform  # noqa: E402
 import sys  # noqa: E402
@@ -44,8 +47,9 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from _common import save_figure  # noqa: E402
-from decentral.ensemble import EnsembleProblem, HierarchyConfig, RefineConfig, normcut_localize  # noqa: E402
+from _common import output, parser, save_figure  # noqa: E402
+from decentral.ensemble import EnsembleProblem, normcut_localize  # noqa: E402
+from sims.cli.ensemble import distributed_config  # noqa: E402
 from sims.ensembles import EnsembleSpec, generate  # noqa: E402
 from sims.ensembles.distributed import DistributedConfig, run_distributed  # noqa: E402
 from sims.io.atomic import write_json_atomic  # noqa: E402
@@ -104,8 +108,8 @@ def _distributed_row(prob, cfg, seed, central=None) -> dict:
 
 
 def _config(gtol: float) -> DistributedConfig:
-    hier = HierarchyConfig(level_refine=RefineConfig(max_iter=100, gtol=gtol))
-    return DistributedConfig(hierarchy=hier, top_gtol=gtol, check_every=5)
+    """The CLI's ``--distributed --tol GTOL --check-every 5`` (one definition for both)."""
+    return distributed_config(tol=gtol, check_every=5)
 
 
 def run(sizes, shape, gtol, budget, seed, save=None):
@@ -137,7 +141,9 @@ def run(sizes, shape, gtol, budget, seed, save=None):
             save(rows, skipped)
     return rows, skipped, {"gtol": gtol, "check_every": cfg.check_every, "leaf_size": hier.leaf_size,
                            "abstract_size": hier.abstract_size, "step": cfg.step, "momentum": cfg.momentum,
-                           "shape": shape, "seed": seed, "loss": cfg.loss, "ensemble_rng": "default_rng([seed, N])"}
+                           "shape": shape, "seed": seed, "loss": cfg.loss, "ensemble_rng": "default_rng([seed, N])",
+                           "cli": f"decentral ensemble OBS.npz -o EST.npz --distributed --tol {gtol} --check-every 5 "
+                                  f"--seed {seed}"}
 
 
 def run_cubes(sides, gtol, seed) -> list[dict]:
@@ -232,24 +238,23 @@ def plot(result: dict, path: Path) -> None:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__)
     ap.add_argument("--sizes", type=int, nargs="*", default=[250, 500, 1000, 2000, 4000, 8000, 20000])
     ap.add_argument("--shape", default="triple")
     ap.add_argument("--gtol", type=float, default=0.01)
     ap.add_argument("--budget", type=float, default=5400.0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--cubes", type=int, nargs="*", default=[5, 10], help="sides of the 3D cubic test cases")
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "ensemble_messages"))
+    ap.add_argument("--name", default="ensemble_messages", help="results file stem (default ensemble_messages)")
     ap.add_argument("--merge", help="a previous result JSON of the same parameters whose rows to include")
     ap.add_argument("--replot", action="store_true", help="only redraw the PNG from the saved JSON")
     args = ap.parse_args(argv)
     if args.replot:
-        with open(Path(args.out).with_suffix(".json"), encoding="utf-8") as fh:
-            plot(json.load(fh), Path(args.out).with_suffix(".png"))
+        with open(output(args.out, args.name), encoding="utf-8") as fh:
+            plot(json.load(fh), output(args.out, args.name, ".png"))
         return 0
     t0 = time.perf_counter()
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    out = output(args.out, args.name, "")
     old = None
     if args.merge:
         with open(args.merge, encoding="utf-8") as fh:

@@ -35,7 +35,7 @@ sizes' medians and as the median (and range) of the per-repeat ratios of back-to
 - on the first repeat (up to 30,000 modules), the CPU time below the top level (cuts, leaves, lower
   merges and their refinements), from a second run whose top refinement is skipped.
 
-It prints and writes ``benchmarks/results/<name>.json`` and ``<name>.png``. Targets (issue 5):
+It prints and writes ``OUT/<name>.json`` and ``<name>.png``. Targets (issue 5):
 10,000 modules <= 5 s, 100,000 <= 120 s under 4 GB, and 4x the modules for at most 4.6x the time.
 BLAS is pinned to one thread; the machine is shared, so CPU time is the figure of merit and the load
 is recorded per run.
@@ -49,7 +49,6 @@ from __future__ import annotations
 
 import _common  # noqa: F401  (pins BLAS threads before numpy loads)
 
-import argparse
 import json
 import os
 import resource
@@ -61,7 +60,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _common import RESULTS, machine, save, save_figure
+from _common import machine, output, parser, save, save_figure
 
 SIZES_2D = [1000, 2500, 10000, 25000, 100000]
 SIZES_3D = [1000, 5000, 20000]
@@ -268,7 +267,7 @@ def main() -> None:
     if len(sys.argv) > 1 and sys.argv[1] == "--measure":
         print(json.dumps(_measure(sys.argv[2], sys.argv[3], sys.argv[4] == "1")))
         return
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = parser(__doc__)
     ap.add_argument("--quick", action="store_true", help="small sizes only (a smoke run)")
     ap.add_argument("--sizes", help='only these sizes, e.g. "2:2500,10000;3:5000,20000" (a spot check)')
     ap.add_argument("--repeats", type=int, default=5, help="interleaved repeats of each size")
@@ -278,7 +277,7 @@ def main() -> None:
     ap.add_argument("--replot", action="store_true", help="only redraw the PNG from the saved JSON")
     args = ap.parse_args()
     if args.replot:
-        plot(json.loads((RESULTS / f"{args.name}.json").read_text()), RESULTS / f"{args.name}.png")
+        plot(json.loads(output(args.out, args.name).read_text()), output(args.out, args.name, ".png"))
         return
     sizes = {2: [1000, 4000], 3: [1000]} if args.quick else {2: SIZES_2D, 3: SIZES_3D}
     if args.sizes:
@@ -340,8 +339,8 @@ def main() -> None:
         "runs": runs,
         "machine": info,
     }
-    save(args.name, payload)
-    plot(payload, RESULTS / f"{args.name}.png")
+    save(args.name, payload, args.out)
+    plot(payload, output(args.out, args.name, ".png"))
     for r in targets["4x"]:
         per = r["paired_cpu_ratios"]
         print(f"{r['config']:11s} {r['dim']}D {r['from']} -> {r['to']}: CPU ratio of medians {r['cpu_ratio']:.2f}, "

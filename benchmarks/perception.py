@@ -18,16 +18,15 @@ changing between frames where it is matched to a tracked detection), node-id cha
 shown on a true node changing), and matched detections left untracked (low score, no track).
 
 Usage: ``python benchmarks/perception.py [--steps 60] [--repeats 3]`` (each sequence runs ``repeats`` times and
-per frame the smallest CPU time counts: the machine is shared, and interference only adds time); writes ``benchmarks/results/perception.json``
+per frame the smallest CPU time counts: the machine is shared, and interference only adds time); writes ``OUT/perception.json``
 and ``perception.png``.
 """
 
 from __future__ import annotations
 
-import argparse
 import time
 
-from _common import RESULTS, machine, save, save_figure  # noqa: I001  (pins threads before numpy)
+from _common import machine, output, parser, save, save_figure  # noqa: I001  (pins threads before numpy)
 
 import cv2
 import numpy as np
@@ -188,12 +187,12 @@ def _summary(r: dict, ref_median: float) -> dict:
     }
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--steps", type=int, default=60)
-    parser.add_argument("--repeats", type=int, default=3,
-                        help="runs of each sequence; per frame the smallest CPU time counts (default 3)")
-    args = parser.parse_args()
+def main(argv=None) -> None:
+    ap = parser(__doc__)
+    ap.add_argument("--steps", type=int, default=60)
+    ap.add_argument("--repeats", type=int, default=3,
+                    help="runs of each sequence; per frame the smallest CPU time counts (default 3)")
+    args = ap.parse_args(argv)
     result = {"benchmark": "perception", "parameters": {"scenarios": ["table1", "multi"], "seed": 0, "steps": args.steps,
                                                          "image": [1024, 768], "threads": 1, "repeats": args.repeats,
                                                          "timing": "per frame the minimum CPU time over the repeats, "
@@ -208,8 +207,8 @@ def main() -> None:
             r = _run(sim, frames, "sphere" if mode == "sphere_model" else "opencv", args.repeats)
             entry[mode] = _summary(r, ref_med)
         result["scenarios"][name] = entry
-    save("perception", result)
-    plot(result, RESULTS / "perception.png")
+    save("perception", result, args.out)
+    plot(result, output(args.out, "perception", ".png"))
 
 
 def plot(result: dict, path) -> None:

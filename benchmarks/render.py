@@ -14,16 +14,15 @@ single-core cost, while wall time also counts waiting for a core. Also reports t
 ``ArucoDetector`` (36h11, default parameters) on clean frames of one sphere at several distances,
 over all yaws (the stickers bend with the sphere, so off-facing tags fail).
 
-Usage: ``python benchmarks/render.py [--quick]``; writes ``benchmarks/results/render.json``.
+Usage: ``python benchmarks/render.py [--quick]``; writes ``OUT/render.json``.
 """
 
 from __future__ import annotations
 
-import argparse
 import statistics
 import time
 
-from _common import machine, save  # noqa: I001  (pins threads before numpy)
+from _common import machine, parser, save  # noqa: I001  (pins threads before numpy)
 
 import cv2
 import numpy as np
@@ -113,10 +112,10 @@ def tag_read_rates(distances, yaw_step_deg: float) -> dict:
     return out
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="fewer frames (a smoke run)")
-    args = parser.parse_args()
+def main(argv=None) -> None:
+    ap = parser(__doc__)
+    ap.add_argument("--quick", action="store_true", help="fewer frames (a smoke run)")
+    args = ap.parse_args(argv)
     cv2.setNumThreads(1)
     steps, reps = (4, 1) if args.quick else (20, 2)
     result = {
@@ -128,7 +127,7 @@ def main() -> None:
     result["table1"] = time_frames(simulate(get_scenario("table1", steps=steps), seed=0), steps, reps)
     result["multi6"] = time_frames(simulate(get_scenario("multi", steps=steps, n_assemblies=6), seed=0), steps, reps)
     result["tag_read_rate_clean"] = tag_read_rates((0.6, 1.0, 1.5, 2.0, 2.5), 15.0 if args.quick else 5.0)
-    save("render", result)
+    save("render", result, args.out)
 
 
 if __name__ == "__main__":

@@ -7,18 +7,17 @@ over steps, pairs and seeds), fraction of pairs tracked and with known yaw at th
 yaw-known tracks (3 = consistent), messages and bytes sent per robot per second, wall time per step.
 Ratios are against the lossless run measured in the same program. Single core.
 
-Usage: ``python benchmarks/swarm.py [--quick]``; writes ``benchmarks/results/swarm.json`` and
+Usage: ``python benchmarks/swarm.py [--quick]``; writes ``OUT/swarm.json`` and
 ``swarm.png`` (plotted from the saved JSON).
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
 from dataclasses import replace
 
-from _common import RESULTS, machine, save, save_figure  # noqa: I001  (pins threads before numpy)
+from _common import machine, output, parser, save, save_figure  # noqa: I001  (pins threads before numpy)
 
 import numpy as np
 
@@ -92,10 +91,10 @@ def plot(path_json, path_png) -> None:
     save_figure(fig, path_png)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="2 seeds, 60 steps")
-    args = parser.parse_args()
+def main(argv=None) -> None:
+    ap = parser(__doc__)
+    ap.add_argument("--quick", action="store_true", help="2 seeds, 60 steps")
+    args = ap.parse_args(argv)
     seeds = range(2) if args.quick else range(5)
     steps = 60 if args.quick else 150
     n_robots = 6
@@ -112,8 +111,8 @@ def main() -> None:
         "machine": info,
         "results": results,
     }
-    path = save("swarm", payload)
-    plot(path, RESULTS / "swarm.png")
+    path = save("swarm", payload, args.out)
+    plot(path, output(args.out, "swarm", ".png"))
 
 
 if __name__ == "__main__":

@@ -9,15 +9,14 @@ printed for every window. Single core (BLAS threads pinned to 1).
 Targets (issue 2): pairwise K=5 >= 500 windows/s with certificate; >= 15x the naive loop on a whole
 log; a 20-assembly joint window well under a second.
 
-Usage: ``python benchmarks/window.py [--quick]``; writes ``benchmarks/results/window.json``.
+Usage: ``python benchmarks/window.py [--quick]``; writes ``OUT/window.json``.
 """
 
 from __future__ import annotations
 
-import argparse
 import time
 
-from _common import machine, save, timed  # noqa: I001  (pins threads before numpy)
+from _common import machine, parser, save, timed  # noqa: I001  (pins threads before numpy)
 
 import numpy as np
 
@@ -95,10 +94,10 @@ def whole_log(measurements, K: int, reference: str, naive: bool) -> tuple[float,
     return time.perf_counter() - start, count
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="fewer windows and repeats (a smoke run)")
-    args = parser.parse_args()
+def main(argv=None) -> None:
+    ap = parser(__doc__)
+    ap.add_argument("--quick", action="store_true", help="fewer windows and repeats (a smoke run)")
+    args = ap.parse_args(argv)
     limit, budget = (5, 5.0) if args.quick else (40, 60.0)
     grid = []
     for n in (2, 5, 20):
@@ -136,7 +135,7 @@ def main() -> None:
         },
         "machine": machine(),
     }
-    save("window", result)
+    save("window", result, args.out)
 
 
 if __name__ == "__main__":

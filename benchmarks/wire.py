@@ -8,14 +8,14 @@ per round for 200 rounds over a lossy link (30 % loss, 5 % duplication, jitter),
 delivered message; ratio of a broadcast's cost to a raw ``to_bytes`` + ``decode`` of the same frame
 measured in the same run. Single core.
 
-Usage: ``python benchmarks/wire.py``; writes ``benchmarks/results/wire.json``.
+Usage: ``python benchmarks/wire.py``; writes ``OUT/wire.json``.
 """
 
 from __future__ import annotations
 
 import time
 
-from _common import machine, save  # noqa: I001  (pins threads before numpy)
+from _common import machine, parser, save  # noqa: I001  (pins threads before numpy)
 
 import numpy as np
 
@@ -91,7 +91,8 @@ def network_rate(msg: AdmmPrimal, n_agents: int = 8, rounds: int = 200) -> dict:
     }
 
 
-def main() -> None:
+def main(argv=None) -> None:
+    args = parser(__doc__).parse_args(argv)
     info = machine()
     kinds = {}
     for kind, msg in samples().items():
@@ -106,7 +107,7 @@ def main() -> None:
     raw = kinds["admm.primal"]["encode_median_us"] + kinds["admm.primal"]["decode_median_us"]
     net["ratio_per_delivered_vs_encode_plus_decode"] = 1e6 * net["seconds_per_delivered_message"] / raw
     save("wire", {"benchmark": "wire", "parameters": {"repetitions": REPS, "warmup": WARM}, "machine": info,
-                  "kinds": kinds, "network": net})
+                  "kinds": kinds, "network": net}, args.out)
 
 
 if __name__ == "__main__":

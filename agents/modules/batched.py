@@ -165,8 +165,12 @@ class BatchedRefinement:
         self.shares_sent = np.zeros(m, dtype=np.int64)
 
     # ------------------------------------------------------------------ public
-    def run(self, round_: int) -> tuple[int, int]:
-        """Iterate until every group's leader says stop; return (iterations, last round used)."""
+    def run(self, round_: int, progress=None) -> tuple[int, int]:
+        """Iterate until every group's leader says stop; return (iterations, last round used).
+
+        ``progress(iterations, refining)``, when given, is called after each convergence check with
+        the iterations so far and the number of modules still refining.
+        """
         self.round = int(round_)
         it = 0
         while self.active.any():
@@ -182,6 +186,8 @@ class BatchedRefinement:
                     self._check_per_message(live)
                 else:
                     self._check(live)
+                if progress is not None:
+                    progress(it, int(self.active.sum()))
         self._write_back()
         return it, self.round
 

@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import math
 import time
+from contextlib import nullcontext
 from dataclasses import replace
 
 import numpy as np
@@ -143,9 +144,10 @@ def run(args: argparse.Namespace) -> int:
         with feedback.progress("ensemble", unit="stage") as bar:
             res, extra = _distributed(problem, args, progress=bar)
     else:
-        hierarchical = args.method == "ncut"
-        with feedback.progress("ensemble", total=problem.n if hierarchical else None, unit="module") as bar:
-            res = localize(problem, args.method, args.seed, args.tol, progress=bar if hierarchical else None)
+        # the baselines report no progress: only the hierarchy gets a bar
+        bar = feedback.progress("ensemble", total=problem.n, unit="module") if args.method == "ncut" else nullcontext()
+        with bar as progress:
+            res = localize(problem, args.method, args.seed, args.tol, progress=progress)
         extra = {"cost": np.float64(res.cost), "iterations_per_module": res.iterations_per_module}
     seconds = time.perf_counter() - t0
     extra["seconds"] = np.float64(seconds)

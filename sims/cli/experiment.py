@@ -63,5 +63,5 @@ def run(args: argparse.Namespace) -> int:
         plot_reconfig(result, tmp)
         tmp.replace(out / "reconfig.png")
         steps = len(next(iter(result["series"].values()))["t"]) if result["series"] else 0
-        feedback.summary(f"{steps} steps, {len(result['series'])} target assemblies -> {out / 'reconfig.json'}, reconfig.png")
+        feedback.summary(f"{steps} steps, targets {', '.join(result['series']) or 'none'} -> {out / 'reconfig.json'}, reconfig.png")
     return 0

@@ -99,30 +99,33 @@ class Progress:
         self.failed = 0
 
     def __call__(self, done: int, total: int | None = None, **info: object) -> None:
-        """Set the absolute count ``done`` (of ``total`` when given) and postfix fields ``info``."""
+        """Set the absolute count ``done`` (of ``total`` when given) and the postfix fields ``info``
+        (they replace the previous call's; a call without fields keeps them)."""
         if total is not None and total != self._bar.total:
             self._bar.total = total
         self._bar.update(done - self._bar.n)
         self._post(info)
 
     def advance(self, n: int = 1, **info: object) -> None:
-        """Count ``n`` more items done and update the postfix fields ``info``."""
+        """Count ``n`` more items done; postfix fields ``info`` as for a call."""
         self._bar.update(n)
         self._post(info)
 
     def fail(self, n: int = 1) -> None:
-        """Count ``n`` failed items (shown as ``failed=N`` in the postfix)."""
+        """Count ``n`` failed items (shown as ``failed=N`` in the postfix, kept across calls)."""
         self.failed += n
-        self._post({"failed": self.failed})
+        self._post(self._info)
 
     def _post(self, info: dict) -> None:
         if info:
-            self._info.update(info)
-            self._bar.set_postfix(self._info, refresh=False)
+            self._info = dict(info)
+        if info or self.failed:
+            shown = {**self._info, "failed": self.failed} if self.failed else self._info
+            self._bar.set_postfix(shown, refresh=False)
 
 
 @contextlib.contextmanager
-def progress(desc: str, total: int | None = None, unit: str = "step", *, leave: bool = False) -> Iterator[Progress]:
+def progress(desc: str, total: int | None = None, unit: str = "step", *, leave: bool | None = None) -> Iterator[Progress]:
     """Open a progress bar for ``total`` units of work (``None``: unknown, no ETA).
 
     Parameters
@@ -133,9 +136,13 @@ def progress(desc: str, total: int | None = None, unit: str = "step", *, leave: 
         Expected count; a library callback may set or correct it later.
     unit : str
         Name of one unit (``step``, ``frame``, ``cell``).
-    leave : bool
-        Keep the finished bar on screen (default: erase it; the summary line follows).
+    leave : bool, optional
+        Keep the finished bar. Default: erase it on a terminal (the summary line follows), keep its
+        final state when bars are forced onto a non-terminal (a log file then ends with the counts).
     """
+    if leave is None:
+        isatty = getattr(sys.stderr, "isatty", None)
+        leave = not (isatty and isatty())
     bar = tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, leave=leave, disable=not _bars_enabled(),
                dynamic_ncols=True, mininterval=0.2)
     try:

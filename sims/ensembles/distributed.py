@@ -189,6 +189,13 @@ def run_distributed(problem: EnsembleProblem, rng: np.random.Generator,
         if progress is not None:
             progress(stages[0], stages[1], stage=stage, messages=net.stats().total.sent)
 
+    def refining(level: int):
+        """Per-check callback of a level's refinement: same stage count, the iterations so far."""
+        if progress is None:
+            return None
+        return lambda it, live: progress(stages[0], stages[1], stage=f"level {level} refinement",
+                                         iteration=it, refining=live)
+
     drv.phase(lambda a: a.begin_hello())
     drv.phase(lambda a: a.begin_election())
     drv.phase(lambda a: a.begin_join(0))
@@ -222,7 +229,7 @@ def run_distributed(problem: EnsembleProblem, rng: np.random.Generator,
         if config.batched:
             t1 = time.perf_counter()
             iterations[lv], drv.round = BatchedRefinement(agents, members, lv, net, config.check_every,
-                                                          drv).run(drv.round)
+                                                          drv).run(drv.round, refining(lv))
             t_refine += time.perf_counter() - t1
             tell(f"level {lv} refinement")
             continue
@@ -239,6 +246,8 @@ def run_distributed(problem: EnsembleProblem, rng: np.random.Generator,
             it += 1
             if it % config.check_every == 0:
                 drv.phase(lambda a: a.begin_grad(lv), live)
+                if progress is not None:
+                    refining(lv)(it, len(live))
         iterations[lv] = it
         tell(f"level {lv} refinement")
 

@@ -49,6 +49,13 @@ def _int_scalar(data: Any, key: str, src: str) -> int:
     return int(v)
 
 
+def _number(data: Any, key: str, src: str) -> float:
+    v = _scalar(data, key, src)
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+        raise InputError(f"expected a number, got {type(v).__name__}", source=src, field=key)
+    return float(v)
+
+
 def _int_array(data: Any, key: str, src: str) -> np.ndarray:
     if key not in data.files:
         raise InputError("missing", source=src, field=key)
@@ -146,9 +153,8 @@ def read_ensemble_truth(path: str | os.PathLike) -> EnsembleTruth:
     with _open_npz(src) as data:
         _format(data, TRUTH_FORMAT, src)
         position = _points(data, "position", src)
-        radius = _scalar(data, "radius", src)
-        if isinstance(radius, bool) or not isinstance(radius, (int, float, np.integer, np.floating)) \
-                or not (np.isfinite(radius) and radius > 0):
+        radius = _number(data, "radius", src)
+        if not (np.isfinite(radius) and radius > 0):
             raise InputError(f"expected a positive number, got {radius!r}", source=src, field="radius")
         pairs = None
         if "pairs" in data.files:
@@ -178,9 +184,7 @@ def read_ensemble(path: str | os.PathLike) -> EnsembleProblem:
         _format(data, OBSERVATION_FORMAT, src)
         dim = _int_scalar(data, "dim", src)
         n = _int_scalar(data, "n", src)
-        radius_v = _scalar(data, "radius", src)
-        if isinstance(radius_v, bool) or not isinstance(radius_v, (int, float, np.integer, np.floating)):
-            raise InputError(f"expected a number, got {type(radius_v).__name__}", source=src, field="radius")
+        radius_v = _number(data, "radius", src)
         i = _int_array(data, "i", src)
         j = _int_array(data, "j", src)
         if "z" not in data.files:

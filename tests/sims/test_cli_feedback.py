@@ -58,3 +58,15 @@ def test_callback_sets_absolute_count_and_total(monkeypatch):
         bar(2, 10)
         bar(5)
         assert (bar._bar.n, bar._bar.total) == (5, 10)
+
+
+def test_postfix_fields_are_replaced_per_call_and_failures_kept(monkeypatch):
+    """Each call's fields replace the last call's (no stale counters); failed=N stays."""
+    monkeypatch.setenv(feedback.PROGRESS_ENV, "always")
+    with feedback.progress("stages", total=3) as bar:
+        bar(1, stage="cut", messages=10)
+        bar.fail()
+        bar(1, stage="refine", iteration=5)
+        assert bar._bar.postfix == "stage=refine, iteration=5, failed=1"
+        bar.advance()
+        assert bar._bar.postfix == "stage=refine, iteration=5, failed=1"
