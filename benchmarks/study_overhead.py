@@ -33,14 +33,13 @@ from __future__ import annotations
 
 import _common  # noqa: F401  (pins BLAS threads before numpy loads)
 
-import argparse
+import sqlite3
 import statistics
 import tempfile
 import time
 from pathlib import Path
 
-from _common import machine
-from sims.io.atomic import write_json_atomic
+from _common import machine, parser, save
 from sims.study.cells import run_cell
 from sims.study.engines import LocalEngine, RayEngine
 from sims.study.runner import run_study
@@ -89,8 +88,6 @@ def as_study(engine, steps: int, cells: int) -> dict:
         start = time.perf_counter()
         result = run_study(spec, tmp, engine, progress=lambda done, total, **_: marks.append(time.perf_counter()))
         wall = time.perf_counter() - start
-        import sqlite3
-
         with sqlite3.connect(Path(tmp) / "study.sqlite") as con:
             seconds = [r[0] for r in con.execute("SELECT seconds FROM runs ORDER BY id")]
     if result.failed:
@@ -132,18 +129,16 @@ def _summary(runs: list[dict]) -> list[dict]:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("out/benchmarks"),
-                        help="output folder (default out/benchmarks)")
-    parser.add_argument("--durations", type=float, nargs="+", default=[0.1, 2.0], help="target seconds per cell")
-    parser.add_argument("--cells", type=int, default=10, help="cells per study (default 10)")
-    parser.add_argument("--workers", type=int, default=1, help="workers of the local pool and CPUs of Ray (default 1)")
-    parser.add_argument("--engines", nargs="+", choices=("local", "ray"), default=["local", "ray"])
-    parser.add_argument("--repeats", type=int, default=3, help="repeats of the whole comparison (default 3)")
-    args = parser.parse_args(argv)
+    ap = parser(__doc__)
+    ap.add_argument("--durations", type=float, nargs="+", default=[0.1, 2.0], help="target seconds per cell")
+    ap.add_argument("--cells", type=int, default=10, help="cells per study (default 10)")
+    ap.add_argument("--workers", type=int, default=1, help="workers of the local pool and CPUs of Ray (default 1)")
+    ap.add_argument("--engines", nargs="+", choices=("local", "ray"), default=["local", "ray"])
+    ap.add_argument("--repeats", type=int, default=3, help="repeats of the whole comparison (default 3)")
+    args = ap.parse_args(argv)
     if args.cells < 3 or args.workers < 1 or args.repeats < 1:
-        parser.error("--cells must be >= 3, --workers and --repeats >= 1")
-    payload = {"machine": machine(), "cells": args.cells, "workers": args.workers, "workload": BASE, "runs": []}
+        ap.error("--cells must be >= 3, --workers and --repeats >= 1")
+    payload = {"benchmark": "study_overhead", "machine": machine(), "cells": args.cells, "workers": args.workers, "workload": BASE, "runs": []}
     ray = None
     if "ray" in args.engines:
         import ray
@@ -174,11 +169,7 @@ def main(argv=None) -> int:
     finally:
         if ray is not None:
             ray.shutdown()
-    payload["machine"]["loadavg_end"] = list(__import__("os").getloadavg())
-    args.out.mkdir(parents=True, exist_ok=True)
-    path = args.out / "study_overhead.json"
-    write_json_atomic(path, payload)
-    print(f"wrote {path}")
+    save("study_overhead", payload, args.out)
     return 0
 
 
