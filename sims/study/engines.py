@@ -101,8 +101,12 @@ class LocalEngine:
         running: dict[Future, Cell] = {}
         while queue or running:
             while queue and len(running) < self.workers:
-                cell = queue.pop()
-                running[pool.submit(self.task, cell.command, dict(cell.params), cell.key)] = cell
+                cell = queue[-1]
+                try:
+                    future = pool.submit(self.task, cell.command, dict(cell.params), cell.key)
+                except BrokenProcessPool:  # a worker died since the last wait: the cells in flight are suspects
+                    return queue, list(running.values())
+                running[future] = queue.pop()
             done, _ = wait(running, return_when=FIRST_COMPLETED)
             suspects = []
             for future in done:
