@@ -94,10 +94,8 @@ def normalize(params: Mapping[str, Any]) -> dict[str, Any]:
             raise InputError(f"unknown key: neither scenario {scenario!r} nor the localize command knows it",
                              field=key)
     get_scenario(scenario, **_scenario_params(out))
-    if out.get("mode") != "admm":
-        for key in ("loss", "share_forms", "aggregation", "max_rounds"):
-            if key in out and out[key] != OPTIONS[key].default:
-                raise InputError("only applies with mode = \"admm\"", field=key)
+    # as with `decentral localize`, the network options (loss, share_forms, ...) are accepted in
+    # centralized mode and change nothing there: a grid may cross mode with loss
     if out.get("mode") == "admm" and out.get("estimator", "windowed") != "windowed":
         raise InputError("mode = \"admm\" runs the windowed estimator only", field="estimator")
     return out

@@ -99,7 +99,8 @@ def _scalar(value, source: str, field: str) -> Value:
 
 def _key(key: str, source: str, section: str) -> str:
     if not _NAME.match(key):
-        raise InputError("a key must be a name made of letters, digits and underscores",
+        hint = f" (write {key.replace('-', '_')})" if _NAME.match(key.replace("-", "_")) else ""
+        raise InputError(f"a key must be a name made of letters, digits and underscores{hint}",
                          source=source, field=f"{section} {key}")
     return key
 

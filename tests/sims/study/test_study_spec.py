@@ -75,3 +75,15 @@ def test_store_with_other_keys_is_refused_with_the_difference(specs, tmp_path):
     other = parse_spec(specs["ensemble"] + "tol = [0.01]\n")
     with pytest.raises(InputError, match="tol"):
         run_study(other, tmp_path, LocalEngine(1))
+
+
+def test_dashed_key_is_refused_with_the_underscore_spelling(specs):
+    """A CLI-style key (share-forms) is refused with a hint naming share_forms."""
+    with pytest.raises(InputError, match="share_forms"):
+        parse_spec(specs["localize"].replace("steps = 4", "steps = 4\nshare-forms = \"first\""))
+
+
+def test_admm_with_the_bearing_estimator_is_refused(specs):
+    """mode = "admm" runs the windowed estimator only: estimator = "bearing" beside it is refused."""
+    with pytest.raises(InputError, match="estimator"):
+        check_cells(parse_spec(specs["localize"].replace("steps = 4", "steps = 4\nestimator = \"bearing\"")))
