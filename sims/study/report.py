@@ -127,7 +127,7 @@ def _order(values) -> list[Any]:
 
 
 def _group_label(group: tuple, names: Sequence[str]) -> str:
-    return ", ".join(f"{_label(k)} {v}" for k, v in zip(names, group)) or "all runs"
+    return ", ".join(f"{_label(k)} = {v}" for k, v in zip(names, group)) or "all runs"
 
 
 def _plot(metric: str, x: str, others: list[str], rows: list[dict], size_col: str | None):
@@ -157,9 +157,14 @@ def _plot(metric: str, x: str, others: list[str], rows: list[dict], size_col: st
                 q1, q2, q3 = np.percentile(ys, [25, 50, 75])
                 med.append(q2), lo.append(q1), hi.append(q3)
         label = _group_label(group, others) if others else "median over seeds"
-        ax.plot(at, med, "o-", color=color, label=label)
-        if any(h > l for h, l in zip(hi, lo)):
-            ax.fill_between(at, lo, hi, color=color, alpha=0.2, linewidth=0)
+        if numeric:
+            ax.plot(at, med, "o-", color=color, label=label)
+            if any(h > l for h, l in zip(hi, lo)):
+                ax.fill_between(at, lo, hi, color=color, alpha=0.2, linewidth=0)
+        else:  # categories: no line between them; the interquartile range as an error bar, groups side by side
+            shift = 0.1 * (gi - (len(groups) - 1) / 2)
+            ax.errorbar(np.array(at) + shift, med, yerr=[np.subtract(med, lo), np.subtract(hi, med)], fmt="o",
+                        color=color, capsize=3, label=label)
         if numeric and x in SIZES and (metric in FIT_BOTH or metric in FIT_POWER):
             n = [r[size_col] if size_col and _is_number(r.get(size_col)) else r[x] for r in mine]
             y = [r[metric] for r in mine]
@@ -231,8 +236,8 @@ def _figures(params: list[str], metrics: list[str], ok: list[dict], out: Path) -
             png, fits = _plot(metric, x, others, ok, size_col if x == "n" else None)
             path = out / f"{metric}_vs_{x}.png"
             spread = "seeds" if any(len({r[s] for r in ok}) > 1 for s in SEEDS if ok and s in ok[0]) else "runs"
-            caption = (f"{_label(metric)} against {_label(x)}: median over {spread} (line) and interquartile "
-                       f"range (band)" + (f", one line per {', '.join(_label(o) for o in others)}" if others else ""))
+            caption = (f"{_label(metric)} against {_label(x)}: median over {spread} and interquartile "
+                       f"range" + (f", one line per {', '.join(_label(o) for o in others)}" if others else ""))
             figures.append(Figure(path, f"{_label(metric)} vs {_label(x)}", caption, png, fits))
     return figures
 
