@@ -37,6 +37,8 @@ COMMANDS: dict[str, str] = {
     "keys": "sims.cli.keys",
     "agent": "sims.cli.agent",
     "launch": "sims.cli.launch",
+    "study": "sims.cli.study",
+    "report": "sims.cli.report",
 }
 
 EXIT_BAD_INPUT = 2

@@ -1,0 +1,140 @@
+"""Cells: what one point of a study's grid runs, and the checks made before any of them runs.
+
+A cell is fully determined by its command and parameters (seed included): it calls the library in
+the process it is given, never the CLI, and returns one flat row. :func:`execute` is what every
+engine runs; it never raises for a failing cell (the row says ``status = 'failed'`` and why), and
+measures the cell's wall time and peak memory.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import socket
+import time
+import traceback
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from typing import Any, Mapping
+
+from decentral.errors import InputError
+from sims.study.spec import StudySpec, cell_key
+
+__all__ = ["CELL_COMMANDS", "Cell", "metrics_of", "check_cells", "execute", "run_cell"]
+
+#: study command -> module with ``OPTIONS``, ``METRICS``, ``normalize(params)`` and ``run(params)``
+CELL_COMMANDS: dict[str, str] = {
+    "localize": "sims.study.localize_cell",
+    "ensemble": "sims.study.ensemble_cell",
+}
+
+
+def _module(command: str):
+    if command not in CELL_COMMANDS:
+        raise InputError(f"must be one of {', '.join(CELL_COMMANDS)}, got {command!r}", field="command")
+    return importlib.import_module(CELL_COMMANDS[command])
+
+
+def metrics_of(command: str) -> tuple[str, ...]:
+    """The metric columns of ``command``, in table order."""
+    return tuple(_module(command).METRICS)
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One point of the grid.
+
+    Attributes
+    ----------
+    command : str
+    params : Mapping[str, Value]
+        Normalized parameters ([fixed] and [grid] values).
+    key : str
+        :func:`sims.study.spec.cell_key` of ``params``: the cell's identity in the store.
+    """
+
+    command: str
+    params: Mapping[str, Any]
+    key: str
+
+
+def check_cells(spec: StudySpec) -> list[Cell]:
+    """Every cell of ``spec``, checked and normalized; raises :class:`InputError` before any runs.
+
+    The error names the spec file and the key (``[fixed] n_asemblies``).
+    """
+    module = _module(spec.command)
+    cells, seen = [], set()
+    for params in spec.cells():
+        try:
+            normalized = module.normalize(params)
+        except InputError as err:
+            field = f"{spec.section_of(err.field)} {err.field}" if err.field in params else err.field
+            raise InputError(err.message, source=spec.source, field=field) from None
+        key = cell_key(normalized)
+        if key in seen:  # e.g. loss = [0, 0.0]: one cell written twice
+            raise InputError(f"two grid values name the same cell {key}", source=spec.source, field="[grid]")
+        seen.add(key)
+        cells.append(Cell(spec.command, normalized, key))
+    return cells
+
+
+def _reset_peak_memory() -> bool:
+    """Reset this process's resident-memory high-water mark (Linux); False where unsupported."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        return True
+    except OSError:
+        return False
+
+
+def _peak_memory_mb() -> float | None:
+    """Peak resident memory of this process since the last reset [MB] (``VmHWM``), or ``None``."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # lifetime peak: an upper bound
+
+
+def run_cell(command: str, params: Mapping[str, Any]) -> dict[str, Any]:
+    """The metrics of one cell, computed in this process (raises on failure)."""
+    return _module(command).run(params)
+
+
+def _now() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="milliseconds")
+
+
+def execute(command: str, params: Mapping[str, Any], key: str) -> dict[str, Any]:
+    """Run one cell and return its row (never raises for the cell's own failures).
+
+    Returns
+    -------
+    dict
+        ``key``, ``status`` ('ok' or 'failed'), ``error`` (one line, or ``None``), ``seconds`` (wall
+        time of the cell), ``cpu_seconds`` (its CPU time in the worker), ``peak_mb`` (peak resident
+        memory of the process during the cell), ``host``, ``pid``, ``started``, ``finished`` and
+        ``metrics`` (a dict; empty when failed).
+    """
+    _module(command)  # imported before the clock starts: a cell's time is its own work
+    _reset_peak_memory()
+    started = _now()
+    t0, c0 = time.perf_counter(), time.process_time()
+    try:
+        metrics, status, error = run_cell(command, params), "ok", None
+    except Exception as err:  # a failing cell is a result, not the end of the study
+        frame = traceback.extract_tb(err.__traceback__)[-1] if err.__traceback__ else None
+        where = f" (at {os.path.basename(frame.filename)}:{frame.lineno})" if frame else ""
+        metrics, status, error = {}, "failed", f"{type(err).__name__}: {err}{where}"
+    return {
+        "key": key, "status": status, "error": error, "seconds": time.perf_counter() - t0,
+        "cpu_seconds": time.process_time() - c0, "peak_mb": _peak_memory_mb(), "host": socket.gethostname(),
+        "pid": os.getpid(), "started": started, "finished": _now(), "metrics": metrics,
+    }
