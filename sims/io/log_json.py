@@ -325,7 +325,7 @@ def parse_estimate(doc: Any) -> Estimate:
             if not isinstance(reason, str):
                 raise InputError("expected a reason string", field=f"steps[{k}].unplaced.{name}")
         steps.append(EstimateStep(require_number(raw.get("t"), f"steps[{k}].t", MAX_SECONDS), poses, dict(unplaced)))
-    return Estimate(doc["reference"], tuple(steps), doc.get("stats", {}))
+    return require_estimate(Estimate(doc["reference"], tuple(steps), doc.get("stats", {})))
 
 
 def read_estimate(path: str | os.PathLike) -> Estimate:

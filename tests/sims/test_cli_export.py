@@ -149,3 +149,18 @@ def test_bad_inputs_end_in_one_line_and_write_nothing(tmp_path, run_dir, capsys)
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and "bad.json: format" in err[0] and "--reference" in err[1]
     assert not (tmp_path / "o1").exists() and not (tmp_path / "o2").exists()
+
+
+@pytest.mark.parametrize("times", [(0.0, 0.2, 0.2), (0.0, 0.4, 0.2)])
+def test_every_estimate_reader_refuses_step_times_that_do_not_increase(tmp_path, run_dir, capsys, times):
+    """export and score refuse a repeated or backward estimate time, naming steps[2].t; nothing is written."""
+    root, _ = run_dir
+    est = tmp_path / "est.json"
+    steps = [{"t": t, "poses": {"A1": {"p": [1.0, 0.0, 0.0], "theta": 0.0}}} for t in times]
+    est.write_text(json.dumps({"format": "decentral.estimate/1", "reference": "A0", "steps": steps}))
+    assert main(["export", str(est), "-o", str(tmp_path / "out")]) == 2
+    assert main(["score", str(est), str(root / "sim" / "truth.json")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and all(f"{est}: steps[2].t" in line for line in err), err
+    assert not (tmp_path / "out").exists()
+
