@@ -127,6 +127,11 @@ class Step:
         """Map node id -> assembly at this step."""
         return {node: name for name, nodes in self.config.items() for node in nodes}
 
+    def stray_detections(self) -> int:
+        """Number of detections whose id is in no assembly's configuration at this step (stray tags)."""
+        owner = self.node_owner()
+        return sum(det.node not in owner for dets in self.detections.values() for det in dets)
+
 
 @dataclass(frozen=True)
 class ObservationLog:

@@ -175,3 +175,18 @@ def test_contract_example_leaves_an_undetermined_yaw_out(tmp_path, mode):
     assert main(["localize", str(write(tmp_path, CONTRACT_EXAMPLE)), "-o", str(out), "--mode", mode]) == 0
     steps = json.loads(out.read_text())["steps"]
     assert steps[0]["poses"] == {} and set(steps[1]["poses"]) == {"A1"}
+
+
+def test_both_modes_count_the_same_stray_tags_in_stats(tmp_path):
+    """A detection whose id no assembly holds (CONTRACT §1) is counted in stats.stray_detections by both modes."""
+    doc = copy.deepcopy(CONTRACT_EXAMPLE)
+    doc["steps"][0]["detections"]["A0/cam0"].append({"id": 99, "u": 300.0, "v": 380.0, "r": 20.0})
+    doc["steps"][1]["detections"]["A0/cam0"] += [{"id": 42, "u": 200.0, "v": 380.0, "r": 20.0},
+                                                  {"id": 99, "u": 300.0, "v": 380.0, "r": 20.0}]
+    log = write(tmp_path, doc)
+    counts = []
+    for mode in ("centralized", "admm"):
+        out = tmp_path / f"{mode}.json"
+        assert main(["localize", str(log), "-o", str(out), "--mode", mode]) == 0
+        counts.append(json.loads(out.read_text())["stats"]["stray_detections"])
+    assert counts == [3, 3]
