@@ -9,9 +9,9 @@ the positional error ``decentral score`` reports for A1.
 from __future__ import annotations
 
 import argparse
-import sys
 
 from decentral.errors import InputError
+from sims.cli import feedback
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -54,6 +54,6 @@ def run(args: argparse.Namespace) -> int:
         raise err.located(str(args.input)) from None
     outdir = prepare_outdir(args.output)
     written = write_trajectories(trajectories, outdir, args.format)
-    print(f"export: {len(trajectories)} assemblies, {len(written)} files ({args.format}) -> {outdir}"
-          + ("" if trajectories else " (no assembly is placed at any step)"), file=sys.stderr)
+    feedback.summary(f"{len(trajectories)} assemblies, {len(written)} files ({args.format}) -> {outdir}"
+                     + ("" if trajectories else " (no assembly is placed at any step)"))
     return 0

@@ -228,3 +228,12 @@ def test_a_video_with_a_frame_rate_is_perceived_like_its_frames(tmp_path):
     assert report.frames["A0/cam0"] == len(frames) and not report.unmatched_frames["A0/cam0"]
     ids = lambda log: {(k, d.node) for k, s in enumerate(log.steps) for d in s.detections.get("A0/cam0", ())}  # noqa: E731
     assert len(ids(video_log) & ids(png_log)) >= 0.8 * len(ids(png_log)) > 0
+
+
+def test_quiet_silences_the_summary_and_the_summary_names_the_command(tmp_path, sim, capsys):
+    """build-log prints its summary as `decentral build-log: ...`, and nothing at all under -q."""
+    rig = write_robot_data(sim, tmp_path / "rec", odometry="tum")
+    assert main(["build-log", str(rig), "-o", str(tmp_path / "log.json")]) == 0
+    assert capsys.readouterr().err.startswith("decentral build-log: ")
+    assert main(["-q", "build-log", str(rig), "-o", str(tmp_path / "log2.json")]) == 0
+    assert capsys.readouterr().err == "" and (tmp_path / "log2.json").exists()

@@ -164,3 +164,11 @@ def test_every_estimate_reader_refuses_step_times_that_do_not_increase(tmp_path,
     assert len(err) == 2 and all(f"{est}: steps[2].t" in line for line in err), err
     assert not (tmp_path / "out").exists()
 
+
+def test_quiet_silences_the_summary_and_the_summary_names_the_command(tmp_path, run_dir, capsys):
+    """export prints its summary as `decentral export: ...`, and nothing at all under -q."""
+    root, _ = run_dir
+    assert main(["export", str(root / "est.json"), "-o", str(tmp_path / "a")]) == 0
+    assert capsys.readouterr().err.startswith("decentral export: ")
+    assert main(["-q", "export", str(root / "est.json"), "-o", str(tmp_path / "b")]) == 0
+    assert capsys.readouterr().err == "" and (tmp_path / "b" / "A1.tum").exists()
