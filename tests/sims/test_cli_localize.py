@@ -190,3 +190,22 @@ def test_both_modes_count_the_same_stray_tags_in_stats(tmp_path):
         assert main(["localize", str(log), "-o", str(out), "--mode", mode]) == 0
         counts.append(json.loads(out.read_text())["stats"]["stray_detections"])
     assert counts == [3, 3]
+
+
+@pytest.mark.parametrize("argv,option", [
+    (["--mode", "admm", "--estimator", "bearing"], "--estimator"),
+    (["--mode", "admm", "--solver", "sdp"], "--solver"),
+    (["--estimator", "bearing", "--solver", "sdp"], "--solver"),
+    (["--loss", "0.1"], "--loss"),
+    (["--seed", "3"], "--seed"),
+    (["--share-forms", "first"], "--share-forms"),
+    (["--aggregation", "broadcast"], "--aggregation"),
+    (["--mode", "centralized", "--max-rounds", "10"], "--max-rounds"),
+])
+def test_an_option_of_the_other_mode_is_refused_not_ignored(tmp_path, good_doc, capsys, argv, option):
+    """An option that the chosen mode (or estimator) would ignore: exit 2, one line naming it, nothing written."""
+    out = tmp_path / "est.json"
+    assert main(["localize", str(write(tmp_path, good_doc)), "-o", str(out), *argv]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert f"{option}: " in line and "appl" in line, line
+    assert not out.exists()
