@@ -26,7 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a decentral.estimate/1 or a decentral.truth/1 (told apart by its 'format' field)")
     parser.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder (created if needed)")
     parser.add_argument("--format", choices=tuple(FORMATS), default="tum",
-                        help="; ".join(f"{k}: {v}" for k, v in FORMATS.items()) + " (default tum)")
+                        help="; ".join(f"{k}: {v}" for k, v in FORMATS.items()) + " (default: tum)")
     parser.add_argument("--reference", default=None,
                         help="write poses relative to this assembly (default: the estimate's reference, or the "
                              "truth's 'reference' field; give an estimate's reference here to export its truth "
