@@ -79,6 +79,8 @@ BAD = {
     "undeclared assembly": (["steps", 0, "config", "B9"], {"99": [0, 0, 0]}, "config.B9"),
     "bad dtheta": (["steps", 1, "odometry", "A1", "dtheta"], None, "dtheta"),
     "non-integer node id": (["steps", 0, "config", "A1", "x"], [0, 0, 0], "config.A1.x"),
+    "odometry on the first step": (["steps", 0, "odometry"], {"A1": {"dp": [0.01, 0, 0], "dtheta": 0.0}},
+                                   "steps[0].odometry"),
 }
 
 
@@ -209,3 +211,17 @@ def test_an_option_of_the_other_mode_is_refused_not_ignored(tmp_path, good_doc, 
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert f"{option}: " in line and "appl" in line, line
     assert not out.exists()
+
+
+def test_the_log_writer_never_writes_what_the_reader_refuses():
+    """An in-memory log with odometry on its first step is written without it, so it reads back."""
+    import dataclasses
+
+    from decentral.observations import Odometry
+    from sims.io.log_json import parse_log
+
+    log = parse_log(CONTRACT_EXAMPLE)
+    first = dataclasses.replace(log.steps[0], odometry={"A1": Odometry(np.array([0.01, 0.0, 0.0]), 0.0)})
+    doc = log_to_dict(dataclasses.replace(log, steps=(first, *log.steps[1:])))
+    assert "odometry" not in doc["steps"][0] and doc["steps"][1]["odometry"]
+    assert parse_log(doc).steps[0].odometry == {}
