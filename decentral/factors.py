@@ -157,7 +157,7 @@ def measure_log(log: ObservationLog, noise: NoiseModel = NoiseModel()) -> list[S
     for step in log.steps:
         owner = step.node_owner()
         rows: dict[str, list] = {k: [] for k in ("observer", "target", "node", "q", "t", "bearing", "origin", "w")}
-        stray = self_seen = 0
+        stray, self_seen = step.stray_detections(), 0
         for key, dets in step.detections.items():
             if not dets:
                 continue
@@ -166,8 +166,8 @@ def measure_log(log: ObservationLog, noise: NoiseModel = NoiseModel()) -> list[S
             for det in dets:
                 target = owner.get(det.node)
                 if target is None:
-                    stray += 1
-                elif target == camera.assembly:
+                    continue
+                if target == camera.assembly:
                     self_seen += 1
                 else:
                     keep.append((det, target))

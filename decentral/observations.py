@@ -7,6 +7,7 @@ horizontal frames have z up; camera frames follow OpenCV (x right, y down, z for
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -25,6 +26,7 @@ __all__ = [
     "Estimate",
     "require_log",
     "require_estimate",
+    "require_increasing_times",
     "resolve_reference",
 ]
 
@@ -124,6 +126,11 @@ class Step:
     def node_owner(self) -> dict[int, str]:
         """Map node id -> assembly at this step."""
         return {node: name for name, nodes in self.config.items() for node in nodes}
+
+    def stray_detections(self) -> int:
+        """Number of detections whose id is in no assembly's configuration at this step (stray tags)."""
+        owner = self.node_owner()
+        return sum(det.node not in owner for dets in self.detections.values() for det in dets)
 
 
 @dataclass(frozen=True)
@@ -251,17 +258,28 @@ def require_log(log: object) -> ObservationLog:
         _check_pose(cam.cam_in_strut, f"cameras.{key}.cam_in_strut")
     if not log.steps:
         raise InputError("the log has no steps", field="steps")
-    previous = -np.inf
     for k, step in enumerate(log.steps):
         _check_step(step, k, log)
-        if step.t <= previous:
-            raise InputError(f"step times must increase ({step.t:g} after {previous:g})", field=f"steps[{k}].t")
-        previous = step.t
+    require_increasing_times([step.t for step in log.steps])
     return log
 
 
+def require_increasing_times(times: Sequence[float], field: str = "steps") -> None:
+    """Raise :class:`InputError` naming ``{field}[k].t`` at the first time that does not exceed the one before.
+
+    Logs, estimates and ground truths all key their steps by time; a repeated or backward time would
+    make two steps indistinguishable (the contract, §4: "step times that do not increase" are bad input).
+    """
+    previous = -np.inf
+    for k, t in enumerate(times):
+        if not t > previous:
+            raise InputError(f"step times must increase ({t:g} after {previous:g})", field=f"{field}[{k}].t")
+        previous = t
+
+
 def require_estimate(estimate: object) -> Estimate:
-    """Return ``estimate`` if it is an :class:`Estimate` whose poses are :class:`PlanarPose` s, else raise."""
+    """Return ``estimate`` if it is an :class:`Estimate` whose poses are :class:`PlanarPose` s and whose
+    step times increase, else raise :class:`InputError` naming the field (``steps[2].t``)."""
     if not isinstance(estimate, Estimate):
         raise InputError(_hint(estimate, "Estimate"), field="estimate")
     for k, step in enumerate(estimate.steps):
@@ -270,6 +288,7 @@ def require_estimate(estimate: object) -> Estimate:
         for name, pose in step.poses.items():
             if not isinstance(pose, PlanarPose):
                 raise InputError(f"expected a PlanarPose, got {type(pose).__name__}", field=f"steps[{k}].poses.{name}")
+    require_increasing_times([step.t for step in estimate.steps])
     return estimate
 
 

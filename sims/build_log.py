@@ -216,13 +216,16 @@ def build_log(rig: Rig) -> tuple[ObservationLog, BuildReport]:
     detection_files = {key: read_detections(cam.source.path) for key, cam in cams.items()
                        if cam.source.kind == "detections"}
     times = {key: frame_times(cam, detection_files.get(key)) for key, cam in cams.items()}
+    for key, t in times.items():  # times and detections files check their own order; bags are checked here
+        bad = np.flatnonzero(np.diff(t) <= 0)
+        if len(bad):
+            src = cams[key].source
+            raise InputError(f"frame times must increase ({t[bad[0] + 1]:g} after {t[bad[0]]:g} at frame "
+                             f"{bad[0] + 1})", source=str(src.path) if src.path else None,
+                             field=src.image_topic or f"camera {key}")
     step_t = times[rig.clock]
     if len(step_t) == 0:
         raise InputError("the clock camera has no frames", field="clock")
-    bad = np.flatnonzero(np.diff(step_t) <= 0)
-    if len(bad):
-        raise InputError(f"frame times of the clock camera must increase ({step_t[bad[0] + 1]:g} after "
-                         f"{step_t[bad[0]]:g})", field="clock")
     matches, unmatched = {}, {}
     for key, t in times.items():
         matches[key], lost = associate(t, step_t, rig.tolerance)

@@ -5,7 +5,8 @@ videos, ROS 1/2 bags) in, a ``decentral.log/1`` out. The rig format is in :mod:`
 from __future__ import annotations
 
 import argparse
-import sys
+
+from sims.cli import feedback
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -38,5 +39,5 @@ def run(args: argparse.Namespace) -> int:
     write_log(args.output, log)
     if args.report:
         write_json_atomic(args.report, report.to_dict())
-    print(f"build-log: {report.summary()} -> {args.output}", file=sys.stderr)
+    feedback.summary(f"{report.summary()} -> {args.output}")
     return 0

@@ -53,15 +53,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--distributed", action="store_true",
                         help="run Algorithm 1 as one agent per module over the simulated network")
     parser.add_argument("--loss", type=float, default=None,
-                        help="with --distributed: probability that a message is dropped (default 0)")
+                        help="with --distributed: probability that a message is dropped (default: 0)")
     parser.add_argument("--seed", type=int, default=0,
-                        help="seed of the random leaders (and of the simulated network with --distributed)")
+                        help="seed of the random leaders (and of the simulated network with --distributed) "
+                             "(default: 0)")
     parser.add_argument("--tol", type=float, default=None, metavar="GTOL",
                         help="refinement tolerance: largest gradient entry, in module radii, at which every "
                              "level's refinement and the top's stop (default: the method's own, 1e-3 for "
                              "levels and 1e-6 (centralized) or 1e-4 (distributed) for the top)")
     parser.add_argument("--check-every", type=int, default=None, metavar="K",
-                        help="with --distributed: refinement iterations between convergence checks (default 10)")
+                        help="with --distributed: refinement iterations between convergence checks (default: 10)")
 
 
 def localize(problem, method: str, seed: int, tol: float | None = None, progress=None):

@@ -9,9 +9,10 @@ the positional error ``decentral score`` reports for A1.
 from __future__ import annotations
 
 import argparse
-import sys
+from pathlib import Path
 
 from decentral.errors import InputError
+from sims.cli import feedback
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -25,7 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a decentral.estimate/1 or a decentral.truth/1 (told apart by its 'format' field)")
     parser.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder (created if needed)")
     parser.add_argument("--format", choices=tuple(FORMATS), default="tum",
-                        help="; ".join(f"{k}: {v}" for k, v in FORMATS.items()) + " (default tum)")
+                        help="; ".join(f"{k}: {v}" for k, v in FORMATS.items()) + " (default: tum)")
     parser.add_argument("--reference", default=None,
                         help="write poses relative to this assembly (default: the estimate's reference, or the "
                              "truth's 'reference' field; give an estimate's reference here to export its truth "
@@ -35,7 +36,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from sims.io.log_json import ESTIMATE_FORMAT, load_json, parse_estimate
     from sims.io.trajectories import estimate_trajectories, truth_trajectories, write_trajectories
-    from sims.scenarios.output import prepare_outdir
     from sims.world.truth import TRUTH_FORMAT, parse_truth
 
     doc = load_json(args.input)
@@ -48,12 +48,15 @@ def run(args: argparse.Namespace) -> int:
             trajectories = truth_trajectories(truth.poses, args.reference or truth.reference)
         else:
             raise InputError(f"expected {ESTIMATE_FORMAT!r} or {TRUTH_FORMAT!r}, got {kind!r}", field="format")
+        if Path(args.output).exists() and not Path(args.output).is_dir():
+            raise InputError("exists and is not a folder", source=str(args.output), field="-o")
+        # checks every name and line before it creates the folder: bad input writes nothing
+        written = write_trajectories(trajectories, args.output, args.format)
     except InputError as err:
         if err.field == "reference" and args.reference:
             raise InputError(err.message, field="--reference") from None
         raise err.located(str(args.input)) from None
-    outdir = prepare_outdir(args.output)
-    written = write_trajectories(trajectories, outdir, args.format)
-    print(f"export: {len(trajectories)} assemblies, {len(written)} files ({args.format}) -> {outdir}"
-          + ("" if trajectories else " (no assembly is placed at any step)"), file=sys.stderr)
+    outdir = args.output
+    feedback.summary(f"{len(trajectories)} assemblies, {len(written)} files ({args.format}) -> {outdir}"
+                     + ("" if trajectories else " (no assembly is placed at any step)"))
     return 0

@@ -9,6 +9,7 @@ all (the estimate is still written: its ``stats`` say what the network did).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 
 from decentral.errors import InputError
 from decentral.factors import NoiseModel
@@ -28,36 +29,75 @@ ESTIMATORS = {
 }
 
 
+#: options that apply only with ``--mode admm`` (attribute -> default); argparse leaves them None when not given
+ADMM_DEFAULTS = {"loss": 0.0, "seed": 0, "share_forms": "every", "aggregation": "tree", "max_rounds": 300}
+#: options that apply only to the centralized mode (attribute -> default)
+CENTRAL_DEFAULTS = {"estimator": "windowed", "solver": "low-rank"}
+
+
+def _option(attribute: str) -> str:
+    return "--" + attribute.replace("_", "-")
+
+
+def _apply_mode_defaults(args: argparse.Namespace) -> None:
+    """Refuse an option given for a mode it does not apply to, then fill in the defaults of the others.
+
+    An option that would be silently ignored (``--loss`` without ``--mode admm``, ``--solver sdp`` with
+    ``--mode admm`` or ``--estimator bearing``) is a user's mistake: exit 2 naming it.
+    """
+    admm = args.mode == "admm"
+    for attribute in ADMM_DEFAULTS if not admm else ():
+        if getattr(args, attribute) is not None:
+            raise InputError("only applies with --mode admm", field=_option(attribute))
+    for attribute in CENTRAL_DEFAULTS if admm else ():
+        if getattr(args, attribute) is not None:
+            raise InputError("does not apply with --mode admm", field=_option(attribute))
+    if args.estimator == "bearing" and args.solver is not None:
+        raise InputError("only applies with --estimator windowed", field="--solver")
+    for attribute, default in {**ADMM_DEFAULTS, **CENTRAL_DEFAULTS}.items():
+        if getattr(args, attribute) is None:
+            setattr(args, attribute, default)
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("log", metavar="LOG.json", help="observation log (decentral.log/1)")
     parser.add_argument("-o", "--output", required=True, metavar="EST.json", help="estimate to write")
-    parser.add_argument("--window", type=int, default=5, help="steps per sliding window K (default 5; 1 = per frame)")
+    parser.add_argument("--window", type=int, default=5, help="steps per sliding window K, 1 = per frame (default: 5)")
     parser.add_argument("--reference", default=None, help="reference assembly (default: the first listed)")
     parser.add_argument("--mode", choices=("centralized", "admm"), default="centralized",
-                        help="joint estimate (default) or one agent per assembly with consensus-ADMM")
-    parser.add_argument("--loss", type=float, default=0.0, help="admm: probability that a message is dropped")
-    parser.add_argument("--seed", type=int, default=0, help="admm: seed of the simulated network")
-    parser.add_argument("--share-forms", choices=("every", "first", "never"), default="every",
+                        help="joint estimate or one agent per assembly with consensus-ADMM (default: centralized)")
+    parser.add_argument("--loss", type=float, default=None,
+                        help=f"admm: probability that a message is dropped (default: {ADMM_DEFAULTS['loss']})")
+    parser.add_argument("--seed", type=int, default=None,
+                        help=f"admm: seed of the simulated network (default: {ADMM_DEFAULTS['seed']})")
+    parser.add_argument("--share-forms", choices=("every", "first", "never"), default=None,
                         help="admm: when agents share their pairs' cost forms and start at the joint solution: "
-                             "every step (default: each window starts at the joint solution), the first step only, "
-                             "or never (plain consensus-ADMM)")
-    parser.add_argument("--aggregation", choices=("tree", "broadcast"), default="tree",
+                             "every step (each window starts at the joint solution), the first step only, "
+                             f"or never (plain consensus-ADMM) (default: {ADMM_DEFAULTS['share_forms']})")
+    parser.add_argument("--aggregation", choices=("tree", "broadcast"), default=None,
                         help="admm: how the shared forms travel once agents know their route to the reference: "
-                             "up and down a spanning tree of the view graph (default: messages per agent per "
+                             "up and down a spanning tree of the view graph (messages per agent per "
                              "window bounded by its number of neighbours) or one broadcast per agent (fewer "
-                             "rounds, messages grow with the number of assemblies)")
-    parser.add_argument("--max-rounds", type=int, default=300, help="admm: round budget per step (default 300)")
-    parser.add_argument("--estimator", choices=tuple(ESTIMATORS), default="windowed",
-                        help="; ".join(f"{k}: {v}" for k, v in ESTIMATORS.items()))
-    parser.add_argument("--solver", choices=("low-rank", "sdp"), default="low-rank",
-                        help="low-rank with certificate (default) or the cvxpy/Clarabel SDP reference")
+                             "rounds, messages grow with the number of assemblies) "
+                             f"(default: {ADMM_DEFAULTS['aggregation']})")
+    parser.add_argument("--max-rounds", type=int, default=None,
+                        help=f"admm: round budget per step (default: {ADMM_DEFAULTS['max_rounds']})")
+    parser.add_argument("--estimator", choices=tuple(ESTIMATORS), default=None,
+                        help="centralized: " + "; ".join(f"{k}: {v}" for k, v in ESTIMATORS.items())
+                             + f" (default: {CENTRAL_DEFAULTS['estimator']})")
+    parser.add_argument("--solver", choices=("low-rank", "sdp"), default=None,
+                        help="centralized windowed: low-rank with certificate or the cvxpy/Clarabel SDP reference "
+                             f"(default: {CENTRAL_DEFAULTS['solver']})")
     parser.add_argument("--weighting", choices=("information", "unit"), default="information",
-                        help="weight factors by their noise (default) or not at all, as the paper's sums")
-    parser.add_argument("--sigma-pixel", type=float, default=NoiseModel.sigma_pixel, help="detection centre std, px")
-    parser.add_argument("--sigma-radius", type=float, default=NoiseModel.sigma_radius, help="detection radius std, px")
-    parser.add_argument("--sigma-odom-p", type=float, default=NoiseModel.sigma_odom_p, help="odometry step std, m")
+                        help="weight factors by their noise or not at all, as the paper's sums (default: information)")
+    parser.add_argument("--sigma-pixel", type=float, default=NoiseModel.sigma_pixel,
+                        help=f"detection centre std, px (default: {NoiseModel.sigma_pixel})")
+    parser.add_argument("--sigma-radius", type=float, default=NoiseModel.sigma_radius,
+                        help=f"detection radius std, px (default: {NoiseModel.sigma_radius})")
+    parser.add_argument("--sigma-odom-p", type=float, default=NoiseModel.sigma_odom_p,
+                        help=f"odometry step std, m (default: {NoiseModel.sigma_odom_p})")
     parser.add_argument("--sigma-odom-theta", type=float, default=NoiseModel.sigma_odom_theta,
-                        help="odometry yaw step std, rad")
+                        help=f"odometry yaw step std, rad (default: {NoiseModel.sigma_odom_theta})")
 
 
 #: command-line noise levels must lie in this range (in their units: px, px, m, rad)
@@ -74,6 +114,7 @@ def _noise(args: argparse.Namespace) -> NoiseModel:
 
 
 def run(args: argparse.Namespace) -> int:
+    _apply_mode_defaults(args)
     if args.window < 1:
         raise InputError(f"must be >= 1, got {args.window}", field="--window")
     if not 0.0 <= args.loss < 1.0:
@@ -118,7 +159,10 @@ def _run_admm(log, args, noise, reference, progress):
 
     config = AdmmRunConfig(window=args.window, noise=noise, loss=args.loss, share_forms=args.share_forms,
                            aggregation=args.aggregation, max_rounds=args.max_rounds)
-    return run_admm(log, reference, config, seed=args.seed, progress=progress).estimate
+    estimate = run_admm(log, reference, config, seed=args.seed, progress=progress).estimate
+    # the contract counts stray tags in every estimate's stats, as the centralized estimator does
+    stray = sum(step.stray_detections() for step in log.steps)
+    return dataclasses.replace(estimate, stats={**estimate.stats, "stray_detections": stray})
 
 
 def _report(estimate, args: argparse.Namespace, n_assemblies: int) -> int:

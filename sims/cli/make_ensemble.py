@@ -19,16 +19,21 @@ __all__ = ["HELP", "add_arguments", "run"]
 HELP = "make a module ensemble (2D settled under gravity, or 3D lattice) and its IR observations"
 
 
+#: EnsembleSpec field -> the option that sets it
+OPTIONS = {"n": "-n", "radius": "--radius", "lattice": "--lattice", "jitter": "--jitter"}
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("shape", choices=tuple(SHAPES), help="2D container or 3D solid")
-    parser.add_argument("-n", type=int, default=1000, help="modules requested (default 1000)")
+    parser.add_argument("-n", type=int, default=1000, help="modules requested (default: 1000)")
     parser.add_argument("-o", "--output", required=True, metavar="OBS.npz", help="observations to write")
     parser.add_argument("--truth", metavar="TRUTH.npz", help="also write the true poses here")
-    parser.add_argument("--radius", type=float, default=0.05, help="module radius, m (default 0.05)")
-    parser.add_argument("--lattice", choices=("hcp", "cubic"), default="hcp", help="3D lattice (default hcp)")
-    parser.add_argument("--jitter", type=float, default=0.03, help="3D lattice jitter, module radii")
-    parser.add_argument("--threshold", type=float, default=0.2, help="IR detection threshold, fraction of peak")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--radius", type=float, default=0.05, help="module radius, m (default: 0.05)")
+    parser.add_argument("--lattice", choices=("hcp", "cubic"), default="hcp", help="3D lattice (default: hcp)")
+    parser.add_argument("--jitter", type=float, default=0.03, help="3D lattice jitter, module radii (default: 0.03)")
+    parser.add_argument("--threshold", type=float, default=0.2,
+                        help="IR detection threshold, fraction of peak (default: 0.2)")
+    parser.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -41,7 +46,11 @@ def run(args: argparse.Namespace) -> int:
     check_output(args.output)
     if args.truth:
         check_output(args.truth, [args.output], field="--truth")
-    spec = EnsembleSpec(args.shape, args.n, args.radius, args.lattice, args.jitter, SensorModel(threshold=args.threshold))
+    try:
+        spec = EnsembleSpec(args.shape, args.n, args.radius, args.lattice, args.jitter,
+                            SensorModel(threshold=args.threshold))
+    except InputError as err:  # the spec names its fields; the user gave them as options
+        raise InputError(err.message, field=OPTIONS.get(err.field, err.field)) from None
     ens = generate(spec, np.random.default_rng(args.seed))
     if args.truth:
         save_truth(args.truth, ens, seed=args.seed)

@@ -29,14 +29,20 @@ HELP = "find, identify and track the spherical nodes in camera frames (writes de
 RADIUS_RANGE = (1.0, 1e5)
 
 
+#: the names of agents.perception.apriltag.FAMILIES, listed here so that building the parser of every
+#: command does not import OpenCV (a test keeps the two equal)
+TAG_FAMILIES = ("tag36h11", "tag25h9", "tag16h5", "tag36h10")
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("frames", nargs="+", metavar="FRAME", help="image files in time order, or one video file")
     parser.add_argument("-o", "--output", required=True, metavar="DETS.json", help="detections output (decentral.detections/1)")
-    parser.add_argument("--family", default="tag36h11", help="AprilTag family (default tag36h11)")
+    parser.add_argument("--family", default="tag36h11",
+                        help=f"AprilTag family: {', '.join(TAG_FAMILIES)} (default: tag36h11)")
     parser.add_argument("--no-track", action="store_true", help="no tracking: ids come from tag reads only")
     parser.add_argument("--tag-table", metavar="TABLE.json", help='JSON object tag id -> node id (default: node id = tag id)')
-    parser.add_argument("--min-radius", type=float, default=8.0, help="smallest node radius in pixels (default 8)")
-    parser.add_argument("--max-radius", type=float, default=160.0, help="largest node radius in pixels (default 160)")
+    parser.add_argument("--min-radius", type=float, default=8.0, help="smallest node radius in pixels (default: 8)")
+    parser.add_argument("--max-radius", type=float, default=160.0, help="largest node radius in pixels (default: 160)")
     parser.add_argument("--motion", choices=("auto", "flow", "odometry", "none"), default="auto",
                         help="camera-motion compensation for tracking: auto (default: the observer's "
                              "odometry when --log-template has it, else image registration), flow (image "
@@ -45,7 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--camera", metavar="ASSEMBLY/CAMERA", help="the camera of the frames in --log-template")
     parser.add_argument("--log-out", metavar="LOG_OUT.json", help="where to write the filled decentral.log/1")
     parser.add_argument("--log-min-score", type=float, default=0.5,
-                        help="detections with a lower rim score stay out of --log-out (default 0.5); so do "
+                        help="detections with a lower rim score stay out of --log-out (default: 0.5); so do "
                              "circles not wholly inside the image")
 
 

@@ -69,6 +69,7 @@ def run(args: argparse.Namespace) -> int:
         score = score_estimate(truth.poses, estimate)
     except InputError as err:  # what the truth lacks is named in the estimate's fields
         raise err.located(args.estimate) from None
+    _check_times_match(score.unmatched_steps, estimate, truth.poses.times, args)
     doc = score.to_dict()
     bad = first_non_finite(doc)
     if bad is not None:  # never print NaN/Infinity as a score
@@ -86,6 +87,21 @@ def run(args: argparse.Namespace) -> int:
         feedback.summary(f"overall position {o['position_m']:.4f} m, relative {o['relative_position_pct']:.2f} %, "
                          f"yaw {o['yaw_deg']:.2f} deg, coverage {100 * o['coverage']:.0f}%")
     return 0
+
+
+def _check_times_match(unmatched: int, estimate, truth_times, args: argparse.Namespace) -> None:
+    """Refuse an estimate none of whose step times is a truth time; warn when only some are not.
+
+    Without this, an estimate made from another run (or with shifted clocks) would read as
+    "no assembly placed": the scorer simply found nothing to compare.
+    """
+    steps = len(estimate.steps)
+    if steps and unmatched == steps:
+        raise InputError(f"no estimate step time matches a truth time (first estimate t={estimate.steps[0].t:g}, "
+                         f"truth t={truth_times[0]:g}; is {args.truth} the truth of this run?)",
+                         source=args.estimate, field="steps[0].t")
+    if unmatched:
+        feedback.warn(f"{unmatched} of {steps} estimate steps match no truth time and are not scored")
 
 
 def ensemble_score(estimate_path: str, truth_path: str) -> dict:

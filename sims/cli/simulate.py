@@ -20,11 +20,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument("scenario", metavar="SCENARIO", help="scenario name: " + ", ".join(SCENARIOS))
     parser.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="output folder (created if needed)")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
     parser.add_argument("--steps", type=int, default=None, help="number of steps (default: the scenario's)")
     parser.add_argument("--no-noise", action="store_true", help="exact sensors: no noise, drop-outs or outliers")
     parser.add_argument("--frames", choices=("png", "video", "none"), default="none",
-                        help="also render camera frames as PNG files or one video per camera (default none)")
+                        help="also render camera frames as PNG files or one video per camera (default: none)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="params",
                         help="scenario parameter (JSON value), e.g. --set n_assemblies=8 --set pixel_sigma=1.0")
     parser.add_argument("--robot-data", metavar="DIR",
@@ -32,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "odometry trajectories and per-camera detections (or images with --robot-images)")
     parser.add_argument("--robot-odometry", choices=ODOMETRY_FORMATS, default="tum",
                         help="--robot-data odometry as TUM or CSV files, or nav_msgs/Odometry in a ROS 1 bag "
-                             "(DIR/run.bag) or a ROS 2 bag (DIR/run) (default tum)")
+                             "(DIR/run.bag) or a ROS 2 bag (DIR/run) (default: tum)")
     parser.add_argument("--robot-images", action="store_true",
                         help="--robot-data with rendered camera images (PNG files, or sensor_msgs/Image in the bag) "
                              "for build-log to perceive, instead of detection files")

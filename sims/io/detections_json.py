@@ -9,7 +9,7 @@
                                          "corners": [[600.1, 395.0], [620.3, 395.4], [620.0, 410.8], [600.4, 410.2]]}}]}]}
 
 A frame may carry its capture time ``"t"`` in seconds (optional; ``decentral build-log`` uses it to
-place the frame in time). ``id`` is the node id (null where neither the tag nor the track names the node), ``track`` the track
+place the frame in time); the times given must increase from frame to frame. ``id`` is the node id (null where neither the tag nor the track names the node), ``track`` the track
 number (null when untracked). ``tag`` (optional, beyond the contract) is the accepted tag read inside
 the circle: its tag id, hamming distance, decision margin and image corners (canonical order).
 
@@ -128,7 +128,7 @@ def parse_detections(doc: Any) -> list[DetectionFrame]:
     doc = require_mapping(doc, "(document)")
     if doc.get("format") != DETECTIONS_FORMAT:
         raise InputError(f"expected format {DETECTIONS_FORMAT!r}, got {doc.get('format')!r}", field="format")
-    frames = []
+    frames, previous_t = [], -float("inf")
     for k, fr in enumerate(require_list(doc.get("frames"), "frames")):
         where = f"frames[{k}]"
         fr = require_mapping(fr, where)
@@ -159,6 +159,9 @@ def parse_detections(doc: Any) -> list[DetectionFrame]:
                 tag,
             ))
         t = None if fr.get("t") is None else require_number(fr["t"], f"{where}.t")
+        if t is not None and not t > previous_t:  # frames are in time order
+            raise InputError(f"frame times must increase ({t:g} after {previous_t:g})", field=f"{where}.t")
+        previous_t = previous_t if t is None else t
         frames.append(DetectionFrame(source, tuple(dets), t))
     return frames
 

@@ -9,12 +9,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping, Sequence
-from urllib.parse import quote
 
 from decentral.errors import InputError
 from protocols.auth import new_private_key, public_key_bytes
 from protocols.peers import Peer, check_address, check_name, peers_json, private_key_json, public_key_json
 from sims.io.atomic import write_json_atomic
+from sims.io.paths import name_stem
 
 __all__ = ["KeySet", "write_keys", "key_paths"]
 
@@ -40,13 +40,11 @@ class KeySet:
 def key_paths(folder: str | Path, name: str) -> tuple[Path, Path]:
     """The private and public key file of agent ``name`` in ``folder``: ``NAME.key.json``, ``NAME.pub.json``.
 
-    ``NAME`` is the name percent-encoded where it is not a letter, digit, ``_``, ``-`` or a ``.`` after
-    the first character (``robot 1`` -> ``robot%201``, ``a/b`` -> ``a%2Fb``), so every agent name
-    gives one plain file name in ``folder``; the files hold the name itself.
+    ``NAME`` is :func:`sims.io.paths.name_stem` of the name (percent-encoded: ``robot 1`` ->
+    ``robot%201``, ``a/b`` -> ``a%2Fb``), so every agent name gives one plain file name in ``folder``;
+    the files hold the name itself.
     """
-    stem = quote(name, safe="")
-    if stem.startswith("."):
-        stem = "%2E" + stem[1:]
+    stem = name_stem(name, field=f"name {name[:40]!r}")
     folder = Path(folder)
     return folder / f"{stem}.key.json", folder / f"{stem}.pub.json"
 

@@ -227,11 +227,14 @@ def parse_log(doc: Any) -> ObservationLog:
         if t <= previous_t:
             raise InputError(f"step times must increase ({t:g} after {previous_t:g})", field=f"{field}.t")
         previous_t = t
+        if k == 0 and raw.get("odometry"):  # motion since step k-1: there is no step -1
+            raise InputError("the first step has no previous step to have moved from; leave its odometry out",
+                             field=f"{field}.odometry")
         steps.append(
             Step(
                 t=t,
                 config=_parse_config(raw["config"], f"{field}.config", declared),
-                odometry=_parse_odometry(raw.get("odometry", {}), f"{field}.odometry", declared) if k else {},
+                odometry=_parse_odometry(raw.get("odometry", {}), f"{field}.odometry", declared),
                 detections=_parse_detections(raw.get("detections", {}), f"{field}.detections", cameras),
                 mounts=_parse_mounts(raw.get("mounts", {}), f"{field}.mounts", cameras),
             )
@@ -255,12 +258,12 @@ def log_to_dict(log: ObservationLog) -> dict:
             "cam_in_strut": _pose_to_dict(camera.cam_in_strut),
         }
     steps = []
-    for step in log.steps:
+    for k, step in enumerate(log.steps):
         raw: dict[str, Any] = {
             "t": step.t,
             "config": {a: {str(n): c.tolist() for n, c in nodes.items()} for a, nodes in step.config.items()},
         }
-        if step.odometry:
+        if step.odometry and k:  # the first step's odometry (motion from before the log) is not written
             raw["odometry"] = {a: {"dp": o.dp.tolist(), "dtheta": o.dtheta} for a, o in step.odometry.items()}
         if step.mounts:
             raw["mounts"] = {key: _pose_to_dict(pose) for key, pose in step.mounts.items()}
@@ -325,7 +328,7 @@ def parse_estimate(doc: Any) -> Estimate:
             if not isinstance(reason, str):
                 raise InputError("expected a reason string", field=f"steps[{k}].unplaced.{name}")
         steps.append(EstimateStep(require_number(raw.get("t"), f"steps[{k}].t", MAX_SECONDS), poses, dict(unplaced)))
-    return Estimate(doc["reference"], tuple(steps), doc.get("stats", {}))
+    return require_estimate(Estimate(doc["reference"], tuple(steps), doc.get("stats", {})))
 
 
 def read_estimate(path: str | os.PathLike) -> Estimate:

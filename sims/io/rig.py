@@ -215,6 +215,27 @@ def _assembly(name: str, body: Any, root: Path) -> RigAssembly:
     return RigAssembly(name, layout, odometry, cameras)
 
 
+def _check_unique_nodes(assemblies: tuple[RigAssembly, ...]) -> None:
+    """Refuse a node id held by two assemblies at once (at any time a layout changes).
+
+    A module may leave one assembly and later join another; what the log forbids is one id in two
+    configurations of the same step. The error names the file (rig or layout file) and field where
+    the second holder lists the node.
+    """
+    changes = sorted({float(t) for a in assemblies for t in a.layout.times})
+    for t in changes:
+        owner: dict[int, str] = {}
+        for a in assemblies:
+            index = a.layout.index(t)
+            for node in a.layout.nodes[index]:
+                if node in owner:
+                    raise InputError(f"node id {node} also belongs to {owner[node]}"
+                                     + (f" at t={t:g}" if a.layout.source or len(changes) > 1 else ""),
+                                     source=a.layout.source or None,
+                                     field=a.layout.field(index, node, f"assemblies.{a.name}.nodes"))
+                owner[node] = a.name
+
+
 def parse_rig(doc: Any, root: str | os.PathLike = ".", source: str = "") -> Rig:
     """Validate a decoded rig document (paths relative to ``root``)."""
     doc = require_mapping(doc, "(top level)")
@@ -227,12 +248,7 @@ def parse_rig(doc: Any, root: str | os.PathLike = ".", source: str = "") -> Rig:
     if not raw:
         raise InputError("no assemblies", field="assemblies")
     assemblies = tuple(_assembly(name, body, Path(root)) for name, body in raw.items())
-    owner: dict[int, str] = {}
-    for a in assemblies:
-        for node in {n for nodes in a.layout.nodes for n in nodes}:
-            if node in owner:
-                raise InputError(f"node id {node} also belongs to {owner[node]}", field=f"assemblies.{a.name}")
-            owner[node] = a.name
+    _check_unique_nodes(assemblies)
     cameras = [cam.key for a in assemblies for cam in a.cameras]
     if not cameras:
         raise InputError("no camera: at least one assembly needs cameras", field="assemblies")

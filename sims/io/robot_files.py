@@ -149,17 +149,23 @@ class Layout:
     times: np.ndarray
     nodes: tuple[dict[int, np.ndarray], ...]
     mounts: tuple[dict[str, Pose], ...] = ()
+    source: str = ""  #: the layout file it was read from ("" when given inline in the rig)
 
-    def _index(self, t: float) -> int:
+    def field(self, index: int, node: int, inline: str) -> str:
+        """The field path of ``node`` in entry ``index``: in the layout file, or ``inline`` + ``.ID`` in the rig."""
+        return f"layouts[{index}].nodes.{node}" if self.source else f"{inline}.{node}"
+
+    def index(self, t: float) -> int:
+        """Index of the entry in force at time ``t``."""
         return max(int(np.searchsorted(self.times, t, side="right")) - 1, 0)
 
     def at(self, t: float) -> dict[int, np.ndarray]:
         """The node layout in force at time ``t``."""
-        return self.nodes[self._index(t)]
+        return self.nodes[self.index(t)]
 
     def mounts_at(self, t: float) -> dict[str, Pose]:
         """The strut mounts (camera name -> pose) in force at time ``t``."""
-        return self.mounts[self._index(t)] if self.mounts else {}
+        return self.mounts[self.index(t)] if self.mounts else {}
 
 
 def parse_nodes(value, field: str) -> dict[int, np.ndarray]:
@@ -192,4 +198,4 @@ def read_layout(path: str | os.PathLike) -> Layout:
             mounts.append({cam: parse_pose(pose, f"layouts[{i}].mounts.{cam}") for cam, pose in raw.items()})
     except InputError as err:
         raise err.located(str(path)) from None
-    return Layout(np.array(times), tuple(nodes), tuple(mounts))
+    return Layout(np.array(times), tuple(nodes), tuple(mounts), str(path))

@@ -15,13 +15,15 @@ File formats written by :func:`write_trajectories` (one file per assembly, named
   time, ``DIR/<NAME>.times.txt`` with one time in seconds per line (as KITTI's ``times.txt``).
 - ``csv``: ``DIR/<NAME>.csv`` with the header ``t,x,y,z,theta,qx,qy,qz,qw``.
 
+``<NAME>`` is the assembly name percent-encoded as ``decentral keys`` names its files
+(:func:`sims.io.paths.name_stem`: ``r/1`` -> ``r%2F1``), so every name gives one file in ``DIR``.
+
 Numbers are written with Python's shortest round-trip representation, so nothing is lost.
 """
 
 from __future__ import annotations
 
 import os
-import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,6 +34,7 @@ from decentral.geometry import wrap_angle
 from decentral.metrics import GroundTruth, relative_truth
 from decentral.observations import Estimate, require_estimate
 from sims.io.atomic import write_atomic
+from sims.io.paths import name_stem
 
 __all__ = [
     "FORMATS",
@@ -48,8 +51,6 @@ FORMATS: dict[str, str] = {
     "kitti": "DIR/<NAME>.txt: 3x4 [R|p] row by row per line, and DIR/<NAME>.times.txt (KITTI odometry; evo_ape kitti)",
     "csv": "DIR/<NAME>.csv: header t,x,y,z,theta,qx,qy,qz,qw",
 }
-
-_SAFE_NAME = re.compile(r"[A-Za-z0-9_.+-]+")
 
 
 @dataclass(frozen=True)
@@ -174,18 +175,30 @@ def trajectory_lines(traj: Trajectory, fmt: str) -> dict[str, list[str]]:
     raise InputError(f"unknown format {fmt!r}; known: {', '.join(FORMATS)}", field="format")
 
 
-def write_trajectories(trajectories: dict[str, Trajectory], outdir: str | os.PathLike, fmt: str) -> list[Path]:
-    """Write one file (KITTI: two) per trajectory into ``outdir`` (which must exist), each atomically.
+def _trajectory_files(trajectories: dict[str, Trajectory], outdir: str | os.PathLike, fmt: str) -> list[tuple[Path, str]]:
+    """The files :func:`write_trajectories` writes, as ``(path, text)`` pairs, without touching the disk.
 
-    Every name and line is checked before the first file is written, so bad input writes nothing.
-    Returns the paths written, in the order of ``trajectories``.
+    Raises :class:`InputError` (a name that gives no file name, an unknown format) before anything is written.
     """
     files: list[tuple[Path, str]] = []
     for name, traj in trajectories.items():
-        if not _SAFE_NAME.fullmatch(name) or name in (".", ".."):
-            raise InputError(f"assembly name {name!r} cannot be used as a file name", field="assemblies")
+        stem = name_stem(name, field=f"assembly {name[:40]!r}")
         for suffix, lines in trajectory_lines(traj, fmt).items():
-            files.append((Path(outdir) / f"{name}{suffix}", "\n".join(lines) + "\n"))
+            files.append((Path(outdir) / f"{stem}{suffix}", "\n".join(lines) + "\n"))
+    return files
+
+
+def write_trajectories(trajectories: dict[str, Trajectory], outdir: str | os.PathLike, fmt: str) -> list[Path]:
+    """Write one file (KITTI: two) per trajectory into ``outdir``, each atomically.
+
+    Every name and line is checked before ``outdir`` (and its parents) is created and the first file
+    written, so bad input writes nothing. Returns the paths written, in the order of ``trajectories``.
+    """
+    files = _trajectory_files(trajectories, outdir, fmt)
+    try:
+        Path(outdir).mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise InputError(f"cannot create output folder ({err.strerror})", source=str(outdir)) from None
     for path, text in files:
         write_atomic(path, lambda fh, text=text: fh.write(text))
     return [path for path, _ in files]

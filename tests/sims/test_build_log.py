@@ -6,6 +6,7 @@ import json
 import numpy as np
 import pytest
 
+from decentral.errors import InputError
 from decentral.estimator import EstimatorConfig, estimate_log
 from decentral.odometry import increments, interpolate_planar
 from sims.build_log import associate, build_log
@@ -228,3 +229,54 @@ def test_a_video_with_a_frame_rate_is_perceived_like_its_frames(tmp_path):
     assert report.frames["A0/cam0"] == len(frames) and not report.unmatched_frames["A0/cam0"]
     ids = lambda log: {(k, d.node) for k, s in enumerate(log.steps) for d in s.detections.get("A0/cam0", ())}  # noqa: E731
     assert len(ids(video_log) & ids(png_log)) >= 0.8 * len(ids(png_log)) > 0
+
+
+def test_quiet_silences_the_summary_and_the_summary_names_the_command(tmp_path, sim, capsys):
+    """build-log prints its summary as `decentral build-log: ...`, and nothing at all under -q."""
+    rig = write_robot_data(sim, tmp_path / "rec", odometry="tum")
+    assert main(["build-log", str(rig), "-o", str(tmp_path / "log.json")]) == 0
+    assert capsys.readouterr().err.startswith("decentral build-log: ")
+    assert main(["-q", "build-log", str(rig), "-o", str(tmp_path / "log2.json")]) == 0
+    assert capsys.readouterr().err == "" and (tmp_path / "log2.json").exists()
+
+
+def test_frame_times_out_of_order_name_the_detections_file(tmp_path, sim, capsys):
+    """Detection frames whose times go backwards: the error names that file and frames[i].t, not the rig."""
+    rig = write_robot_data(sim, tmp_path / "rec", odometry="tum")
+    dets = json.loads((tmp_path / "rec" / "A0_cam0.json").read_text())
+    dets["frames"][3]["t"] = dets["frames"][1]["t"]
+    (tmp_path / "rec" / "A0_cam0.json").write_text(json.dumps(dets))
+    assert main(["build-log", str(rig), "-o", str(tmp_path / "log.json")]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "A0_cam0.json: frames[3].t" in line and "rig.toml" not in line, line
+
+
+def test_a_node_id_in_two_assemblies_names_the_layout_file_that_repeats_it(tmp_path, capsys):
+    """A layout file giving a node that another assembly holds at the same time: that file and its field are named."""
+    run = simulate(get_scenario("reconfig", steps=40, sensors=SensorNoise(odom_missing=0.0)), seed=0)
+    rig = write_robot_data(run, tmp_path / "rec")
+    layout_file = next((tmp_path / "rec").glob("*_layout.json"))
+    owner = layout_file.name.removesuffix("_layout.json")
+    other = next(name for name in run.log.assemblies if name != owner)
+    taken = next(iter(run.log.steps[0].config[other]))
+    doc = json.loads(layout_file.read_text())
+    doc["layouts"][0]["nodes"][str(taken)] = [0.0, 0.4, 0.0]
+    layout_file.write_text(json.dumps(doc))
+    assert main(["build-log", str(rig), "-o", str(tmp_path / "log.json")]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert f"{layout_file.name}: layouts[0].nodes.{taken}" in line and "rig.toml" not in line, line
+
+
+def test_a_node_may_move_to_another_assembly_over_time():
+    """Node ids must be unique among the layouts in force at one time, not over the whole recording."""
+    from sims.io.rig import RigAssembly, _check_unique_nodes
+    from sims.io.robot_files import Layout
+
+    node = {7: np.zeros(3)}
+    a = RigAssembly("A", Layout(np.array([0.0, 5.0]), ({0: np.zeros(3), **node}, {0: np.zeros(3)}), (), "a.json"), None, ())
+    b = RigAssembly("B", Layout(np.array([0.0, 5.0]), ({1: np.zeros(3)}, {1: np.zeros(3), **node}), (), "b.json"), None, ())
+    _check_unique_nodes((a, b))
+    early = RigAssembly("B", Layout(np.array([0.0, 4.0]), ({1: np.zeros(3)}, {1: np.zeros(3), **node}), (), "b.json"), None, ())
+    with pytest.raises(InputError, match="node id 7 also belongs to A at t=4") as err:
+        _check_unique_nodes((a, early))
+    assert err.value.source == "b.json" and err.value.field == "layouts[1].nodes.7"

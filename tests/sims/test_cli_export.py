@@ -149,3 +149,54 @@ def test_bad_inputs_end_in_one_line_and_write_nothing(tmp_path, run_dir, capsys)
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and "bad.json: format" in err[0] and "--reference" in err[1]
     assert not (tmp_path / "o1").exists() and not (tmp_path / "o2").exists()
+
+
+@pytest.mark.parametrize("times", [(0.0, 0.2, 0.2), (0.0, 0.4, 0.2)])
+def test_every_estimate_reader_refuses_step_times_that_do_not_increase(tmp_path, run_dir, capsys, times):
+    """export and score refuse a repeated or backward estimate time, naming steps[2].t; nothing is written."""
+    root, _ = run_dir
+    est = tmp_path / "est.json"
+    steps = [{"t": t, "poses": {"A1": {"p": [1.0, 0.0, 0.0], "theta": 0.0}}} for t in times]
+    est.write_text(json.dumps({"format": "decentral.estimate/1", "reference": "A0", "steps": steps}))
+    assert main(["export", str(est), "-o", str(tmp_path / "out")]) == 2
+    assert main(["score", str(est), str(root / "sim" / "truth.json")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and all(f"{est}: steps[2].t" in line for line in err), err
+    assert not (tmp_path / "out").exists()
+
+
+def test_quiet_silences_the_summary_and_the_summary_names_the_command(tmp_path, run_dir, capsys):
+    """export prints its summary as `decentral export: ...`, and nothing at all under -q."""
+    root, _ = run_dir
+    assert main(["export", str(root / "est.json"), "-o", str(tmp_path / "a")]) == 0
+    assert capsys.readouterr().err.startswith("decentral export: ")
+    assert main(["-q", "export", str(root / "est.json"), "-o", str(tmp_path / "b")]) == 0
+    assert capsys.readouterr().err == "" and (tmp_path / "b" / "A1.tum").exists()
+
+
+def test_assembly_names_are_percent_encoded_into_file_names(tmp_path):
+    """A name that is no file name (`r/1`, `..`) is written as its percent-encoding, the one keys uses."""
+    from urllib.parse import unquote
+
+    from sims.io.keyfiles import key_paths
+
+    est = tmp_path / "est.json"
+    poses = {name: {"p": [1.0, 0.0, 0.0], "theta": 0.0} for name in ("r/1", "..", "robot 2")}
+    est.write_text(json.dumps({"format": "decentral.estimate/1", "reference": "A0",
+                               "steps": [{"t": 0.0, "poses": poses}]}))
+    assert main(["export", str(est), "-o", str(tmp_path / "out")]) == 0
+    files = sorted(p.name for p in (tmp_path / "out").iterdir())
+    assert files == ["%2E..tum", "r%2F1.tum", "robot%202.tum"]
+    assert {unquote(f[:-4]) for f in files} == set(poses)
+    assert key_paths(tmp_path, "r/1")[0].name == "r%2F1.key.json"
+
+
+def test_a_name_without_a_file_name_writes_no_folder(tmp_path, capsys):
+    """An empty assembly name: exit 2, one line naming the input file, and no output folder created."""
+    est = tmp_path / "est.json"
+    est.write_text(json.dumps({"format": "decentral.estimate/1", "reference": "A0",
+                               "steps": [{"t": 0.0, "poses": {"": {"p": [1.0, 0.0, 0.0], "theta": 0.0}}}]}))
+    assert main(["export", str(est), "-o", str(tmp_path / "a" / "b")]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert f"{est}: assembly ''" in line, line
+    assert not (tmp_path / "a").exists()

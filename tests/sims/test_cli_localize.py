@@ -79,6 +79,8 @@ BAD = {
     "undeclared assembly": (["steps", 0, "config", "B9"], {"99": [0, 0, 0]}, "config.B9"),
     "bad dtheta": (["steps", 1, "odometry", "A1", "dtheta"], None, "dtheta"),
     "non-integer node id": (["steps", 0, "config", "A1", "x"], [0, 0, 0], "config.A1.x"),
+    "odometry on the first step": (["steps", 0, "odometry"], {"A1": {"dp": [0.01, 0, 0], "dtheta": 0.0}},
+                                   "steps[0].odometry"),
 }
 
 
@@ -175,3 +177,51 @@ def test_contract_example_leaves_an_undetermined_yaw_out(tmp_path, mode):
     assert main(["localize", str(write(tmp_path, CONTRACT_EXAMPLE)), "-o", str(out), "--mode", mode]) == 0
     steps = json.loads(out.read_text())["steps"]
     assert steps[0]["poses"] == {} and set(steps[1]["poses"]) == {"A1"}
+
+
+def test_both_modes_count_the_same_stray_tags_in_stats(tmp_path):
+    """A detection whose id no assembly holds (CONTRACT §1) is counted in stats.stray_detections by both modes."""
+    doc = copy.deepcopy(CONTRACT_EXAMPLE)
+    doc["steps"][0]["detections"]["A0/cam0"].append({"id": 99, "u": 300.0, "v": 380.0, "r": 20.0})
+    doc["steps"][1]["detections"]["A0/cam0"] += [{"id": 42, "u": 200.0, "v": 380.0, "r": 20.0},
+                                                  {"id": 99, "u": 300.0, "v": 380.0, "r": 20.0}]
+    log = write(tmp_path, doc)
+    counts = []
+    for mode in ("centralized", "admm"):
+        out = tmp_path / f"{mode}.json"
+        assert main(["localize", str(log), "-o", str(out), "--mode", mode]) == 0
+        counts.append(json.loads(out.read_text())["stats"]["stray_detections"])
+    assert counts == [3, 3]
+
+
+@pytest.mark.parametrize("argv,option", [
+    (["--mode", "admm", "--estimator", "bearing"], "--estimator"),
+    (["--mode", "admm", "--solver", "sdp"], "--solver"),
+    (["--estimator", "bearing", "--solver", "sdp"], "--solver"),
+    (["--loss", "0.1"], "--loss"),
+    (["--seed", "3"], "--seed"),
+    (["--share-forms", "first"], "--share-forms"),
+    (["--aggregation", "broadcast"], "--aggregation"),
+    (["--mode", "centralized", "--max-rounds", "10"], "--max-rounds"),
+])
+def test_an_option_of_the_other_mode_is_refused_not_ignored(tmp_path, good_doc, capsys, argv, option):
+    """An option that the chosen mode (or estimator) would ignore: exit 2, one line naming it, nothing written."""
+    out = tmp_path / "est.json"
+    assert main(["localize", str(write(tmp_path, good_doc)), "-o", str(out), *argv]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert f"{option}: " in line and "appl" in line, line
+    assert not out.exists()
+
+
+def test_the_log_writer_never_writes_what_the_reader_refuses():
+    """An in-memory log with odometry on its first step is written without it, so it reads back."""
+    import dataclasses
+
+    from decentral.observations import Odometry
+    from sims.io.log_json import parse_log
+
+    log = parse_log(CONTRACT_EXAMPLE)
+    first = dataclasses.replace(log.steps[0], odometry={"A1": Odometry(np.array([0.01, 0.0, 0.0]), 0.0)})
+    doc = log_to_dict(dataclasses.replace(log, steps=(first, *log.steps[1:])))
+    assert "odometry" not in doc["steps"][0] and doc["steps"][1]["odometry"]
+    assert parse_log(doc).steps[0].odometry == {}
