@@ -200,7 +200,7 @@ def _draw_shadow(img: np.ndarray, sp: Sphere, light: np.ndarray, strength: float
         return
     ys, xs = np.mgrid[y0:y1, x0:x1].astype(np.float32)
     q = ((xs - cu) / (1.1 * sp.r)) ** 2 + ((ys - cv) / (0.8 * sp.r)) ** 2
-    img[y0:y1, x0:x1] *= (1.0 - strength * np.exp(-2.0 * q))[:, :, None]
+    img[y0:y1, x0:x1] *= (1.0 - strength * np.exp(-1.5 * q))[:, :, None]  # soft: a room's diffuse light
 
 
 def render(spheres: tuple[Sphere, ...], struts: tuple[Strut, ...], look: Look, floor: np.ndarray,
@@ -278,7 +278,7 @@ def _random_look(rng: np.random.Generator) -> Look:
     light = (np.cos(elev) * np.cos(az), np.cos(elev) * np.sin(az), np.sin(elev))
     return Look(light=light, ambient=float(rng.uniform(0.25, 0.55)), noise=float(rng.uniform(1.0, 6.0)),
                 blur=float(rng.uniform(0.0, 1.1)), gain=float(rng.uniform(0.8, 1.2)),
-                jpeg=int(rng.choice([0, 0, 70, 85])), shadow=float(rng.uniform(0.05, 0.3)))
+                jpeg=int(rng.choice([0, 0, 70, 85])), shadow=float(rng.uniform(0.05, 0.25)))
 
 
 def _rotate(v: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
@@ -295,8 +295,8 @@ def sequence(seed: int, frames: int = 30, *, width: int = 1024, height: int = 76
     degradations, 5-10 spheres (radius log-uniform in ``radius``, about a third of them coloured
     within a few per cent of the floor's mean colour), 0-3 struts. Per frame: smooth motion (spheres
     bounce off the borders and pass in front of each other; nearer = larger), slow changes of size,
-    tags that turn with the node (sometimes to the far side), and now and then a jerk that smears
-    the tags (typically 5-15 px) or shakes the camera.
+    tags that turn with the node (sometimes to the far side), and now and then a jerk (the spheres move
+    2.5 times as far, and the exposure is up to 0.9 of the frame interval) that smears the tags or shakes the camera.
     """
     rng = np.random.default_rng(np.random.SeedSequence(seed))
     floor_rng, noise_rng, motion_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(3))
@@ -330,19 +330,21 @@ def sequence(seed: int, frames: int = 30, *, width: int = 1024, height: int = 76
     out = []
     for k in range(frames):
         jerk = motion_rng.random() < 0.15  # a fast frame: tags smeared
+        shutter = motion_rng.uniform(0.1, 0.9) if jerk else motion_rng.uniform(0.05, 0.4)
         shake = tuple(motion_rng.normal(0, 4.0, 2)) if motion_rng.random() < 0.08 else (0.0, 0.0)
         drawn = []
         for m in movers:
             m.vel = 0.9 * m.vel + motion_rng.normal(0.0, 1.2, 2)
+            step = m.vel * (2.5 if jerk else 1.0)
             sp = m.sphere
             r = float(np.clip(m.base_r * (1.0 + 0.12 * np.sin(0.07 * k + m.phase)), radius[0], radius[1]))
-            u, v = sp.u + m.vel[0], sp.v + m.vel[1]
+            u, v = sp.u + step[0], sp.v + step[1]
             if not -0.3 * r < u < width + 0.3 * r:
                 m.vel[0] = -m.vel[0]
             if not -0.3 * r < v < height + 0.3 * r:
                 m.vel[1] = -m.vel[1]
             normal = _rotate(np.asarray(sp.tag_normal), m.rot_axis, m.rot_rate)
-            smear = m.vel * (motion_rng.uniform(1.5, 3.0) if jerk else motion_rng.uniform(0.1, 0.5))
+            smear = step * shutter  # the exposure is a fraction of the frame interval
             m.sphere = replace(sp, u=float(u), v=float(v), r=r, tag_normal=tuple(normal), velocity=tuple(smear))
             drawn.append(m.sphere)
         moved = []
