@@ -71,7 +71,7 @@ class HoughConfig:
         Rim search and fit parameters.
     """
 
-    levels: tuple[tuple[float, float, float], ...] = ((0.5, 8.0, 36.0), (0.25, 32.0, 160.0))
+    levels: tuple[tuple[float, float, float], ...] = ((0.5, 8.0, 36.0), (0.25, 32.0, 80.0), (0.125, 72.0, 160.0))
     method: int = cv2.HOUGH_GRADIENT
     blur: float = 1.0
     dp: float = 1.5
@@ -79,7 +79,7 @@ class HoughConfig:
     param2: float = 15.0
     chroma_param1: float = 30.0
     radius_multipliers: tuple[float, ...] = (1.0,)
-    max_proposals: int = 120
+    max_proposals: int = 60
     min_radius: int = 8
     max_radius: int = 160
     refine_blur: float = 1.0

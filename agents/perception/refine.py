@@ -70,6 +70,8 @@ class RefineConfig:
         (a proposal on the tag inside a node is 0.3-0.6 of the node's radius).
     search_candidates, search_hypotheses : int
         First pass (:func:`rim_search`): candidate edges per ray, and three-point circles tried.
+    search_below : float
+        First pass: proposals whose voted rim scores below this are also searched.
     vote_samples : int
         Samples of the log-spaced radius grid of the vote.
     vote_floor : float
@@ -97,12 +99,25 @@ class RefineConfig:
     max_axis_turn_deg: float = 20.0
     min_focal_px: float = 500.0
     vote_band: tuple[float, float] = (0.5, 3.0)
-    search_candidates: int = 4
-    search_hypotheses: int = 48
+    search_candidates: int = 3
+    search_below: float = 0.7
+    search_hypotheses: int = 24
     vote_samples: int = 40
     vote_floor: float = 0.05
     vote_width: int = 2
     vote_keep: float = 0.6
+
+
+def _sample(image: np.ndarray, mx: np.ndarray, my: np.ndarray) -> np.ndarray:
+    """Bilinear samples of ``image`` at float32 maps (P, S), shape (P, S) or (P, S, C); edges replicated.
+
+    ``cv2.remap`` takes maps of fewer than 2^15 rows, so long maps are sampled in blocks.
+    """
+    rows = 32000
+    if len(mx) <= rows:
+        return cv2.remap(image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return np.concatenate([cv2.remap(image, mx[i:i + rows], my[i:i + rows], cv2.INTER_LINEAR,
+                                     borderMode=cv2.BORDER_REPLICATE) for i in range(0, len(mx), rows)])
 
 
 def _radial_steps(image: np.ndarray, circles: np.ndarray, radii: np.ndarray, n_rays: int):
@@ -140,10 +155,8 @@ def _radial_steps(image: np.ndarray, circles: np.ndarray, radii: np.ndarray, n_r
     inside = ((ends_x >= 0) & (ends_x <= w - 1) & (ends_y >= 0) & (ends_y <= h - 1)).all(axis=2)
     img = image if image.dtype == np.float32 else image.astype(np.float32)
     ch = 1 if img.ndim == 2 else img.shape[2]
-    prof = cv2.remap(
-        img, mx.reshape(n * n_rays, n_samples), my.reshape(n * n_rays, n_samples), cv2.INTER_LINEAR,
-        borderMode=cv2.BORDER_REPLICATE,
-    ).reshape(n * n_rays, n_samples * ch)
+    prof = _sample(img, mx.reshape(n * n_rays, n_samples), my.reshape(n * n_rays, n_samples)).reshape(
+        n * n_rays, n_samples * ch)
     deriv = cv2.absdiff(prof[:, ch:], prof[:, :-ch])
     if ch > 1:
         deriv = cv2.transform(deriv.reshape(n * n_rays, n_samples - 1, ch), np.ones((1, ch), np.float32))
@@ -377,7 +390,7 @@ def radial_edges(image: np.ndarray, points: np.ndarray, circles: np.ndarray, max
     mx = np.concatenate([px + 1, px - 1, px, px], axis=1)
     my = np.concatenate([py, py, py + 1, py - 1], axis=1)
     img = image if image.dtype == np.float32 else image.astype(np.float32)
-    vals = cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    vals = _sample(img, mx, my)
     vals = vals.reshape(n * r, 4, -1)
     gx, gy = vals[:, 0] - vals[:, 1], vals[:, 2] - vals[:, 3]  # (P, C)
     d = points - circles[:, None, :2]
@@ -469,24 +482,37 @@ def rim_search(image: np.ndarray, rough: np.ndarray, cfg: RefineConfig) -> tuple
 
 
 def coarse_fit(image: np.ndarray, rough: np.ndarray, cfg: RefineConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """First pass on every proposal: the best-supported circle of the rays' edges
-    (:func:`rim_search`), its radius re-voted from its own centre (:func:`rim_votes`), then a robust
-    fit with shrinking gates.
+    """First pass on every proposal: the rim voted from the proposal's centre (:func:`rim_votes`;
+    right when that centre is, even on a weak rim), and where that finds no good rim (score below
+    ``cfg.search_below``) also the best-supported three-edge circle (:func:`rim_search`; right from
+    a centre far off, such as a tag near the node's limb). Each start is re-voted from its own
+    centre over a narrow range and fitted robustly with shrinking gates.
 
-    Returns (circles (2N, 3), scores (2N,), ok (2N,)) as :func:`refine_circles`: two per proposal
-    (from the vote around its centre, then from the search), the score over the coarse rays (rim
-    points within the tolerance whose gradient is radial).
+    Returns
+    -------
+    circles : ndarray, shape (M, 3)
+        One circle per proposal, then one per searched proposal (N <= M <= 2N).
+    scores : ndarray, shape (M,)
+        Share of the coarse rays whose rim point lies within the tolerance and whose gradient is
+        radial (:func:`radial_edges`).
+    ok : ndarray of bool, shape (M,)
     """
     rough = np.asarray(rough, dtype=float).reshape(-1, 3)
     if len(rough) == 0:
         return rough.copy(), np.zeros(0), np.zeros(0, dtype=bool)
-    # two starts per proposal: the rim voted from the proposal's centre (right when that centre is,
-    # even on a weak rim), and the best three-edge circle (right from a centre far off)
     pts, strength, r0 = rim_votes(image, rough, cfg)
     voted, vok = _robust_fit(pts, strength, np.column_stack([rough[:, :2], r0]), [0.25 * r0, 0.12 * r0])
-    searched, _ = rim_search(image, rough, cfg)
-    found = np.concatenate([np.where(vok[:, None], voted, rough), searched])
-    rough = np.concatenate([rough, rough])
+    circles, scores, ok = _settle(image, np.where(vok[:, None], voted, rough), rough, cfg)
+    weak = scores < cfg.search_below
+    if not weak.any():
+        return circles, scores, ok
+    searched, _ = rim_search(image, rough[weak], cfg)
+    more, more_scores, more_ok = _settle(image, searched, rough[weak], cfg)
+    return (np.concatenate([circles, more]), np.concatenate([scores, more_scores]), np.concatenate([ok, more_ok]))
+
+
+def _settle(image: np.ndarray, found: np.ndarray, rough: np.ndarray, cfg: RefineConfig):
+    """Re-vote the rim of circles ``found`` (N, 3) from their own centres, fit robustly, score."""
     pts, strength, r0 = rim_votes(image, found, cfg, band=(0.75, 1.35))
     start = np.column_stack([found[:, :2], r0])
     tol = cfg.tol + cfg.tol_rel * r0 + 0.02 * r0
