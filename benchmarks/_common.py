@@ -24,7 +24,8 @@ __all__ = ["RESULTS", "machine", "save", "save_figure", "timed"]
 def machine() -> dict:
     """Machine, versions and load at the time of the run."""
     versions = {}
-    for pkg in ("numpy", "scipy", "cvxpy", "clarabel", "networkx", "opencv-python-headless", "pettingzoo"):
+    for pkg in ("numpy", "scipy", "cvxpy", "clarabel", "networkx", "opencv-python-headless", "pettingzoo",
+                "pupil-apriltags"):
         try:
             versions[pkg] = metadata.version(pkg)
         except metadata.PackageNotFoundError:
@@ -57,12 +58,14 @@ def save_figure(fig, path: Path, dpi: int = 110) -> None:
     plt.close(fig)
 
 
-def save(name: str, payload: dict) -> Path:
-    """Write ``payload`` to ``benchmarks/results/<name>.json`` (with the end-of-run load) and print it."""
+def save(name: str, payload: dict, directory: Path | None = None) -> Path:
+    """Write ``payload`` to ``<directory>/<name>.json`` (default ``benchmarks/results``; with the
+    end-of-run load) and print it."""
     payload.setdefault("machine", machine())
     payload["machine"]["loadavg_end"] = list(os.getloadavg())
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    path = RESULTS / f"{name}.json"
+    directory = RESULTS if directory is None else Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    path = directory / f"{name}.json"
     text = json.dumps(payload, indent=1) + "\n"
     write_atomic(path, lambda fh: fh.write(text))  # an interrupted run never leaves half a result
     print(text, end="")

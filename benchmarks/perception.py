@@ -1,25 +1,30 @@
-"""Perception front end on rendered frames: frames per second on one core, and detection/id quality.
+"""Perception front end: frames per second on one core, detection and id quality, and AprilTag 3 beside it.
 
-Fixed inputs: the ``table1`` and ``multi`` scenarios (seed 0), rendered at 1024 x 768 with the
-renderer's default degradations (sensor noise, blur, motion blur, exposure drift; struts and nearer
-nodes occlude). For each frame the front end runs detection + identification + tracking; two
-configurations are timed: images only (OpenCV's AprilTag detector restricted to the circles, camera
-motion from image registration), and with the log (the sphere-model reader with the log's camera
-model, camera motion from the observer's odometry: what ``decentral perceive --log-template`` does).
-The reference measured in the same run is OpenCV's ``HoughCircles(HOUGH_GRADIENT_ALT)`` alone on the
-same frames (FINDINGS' detector). Times are CPU seconds of the process (threads pinned to one, so
-this is one core's work; wall time, inflated when the shared machine is loaded, is kept beside it).
+Two sets of frames:
 
-Quality against the renderer's truth (every node with visible pixels, its silhouette circle):
-precision and recall of circles (a detection matches the nearest unmatched node within half its
-radius; nodes count if at least half visible and wholly inside the image), radius error, id
-accuracy (identified detections naming the matched node), id switches (a node's track number
-changing between frames where it is matched to a tracked detection), node-id changes (the node id
-shown on a true node changing), and matched detections left untracked (low score, no track).
+- ``varied`` (default): image-plane sequences of :mod:`sims.experiments.varied_scenes` at 1024 x 768
+  with 5-10 spheres (floors of several kinds, colours close to the floor's, 15-90 px radius,
+  highlights, lighting gradients, tags on the cap, occlusion by spheres and struts, smear), on the
+  held-out scene seeds (no parameter was tuned on them; ``--tuning`` adds the tuning seeds). Per
+  scene: recall (a detection within max(2 px, 0.1 r) of a sphere's centre and 10 % of its radius;
+  spheres at least half visible), false and double circles per sphere, wrong ids, ids carried
+  through frames without a tag read (:mod:`sims.experiments.perception_scores`). Tag reads, ours
+  (OpenCV's quads inside our circles, no tracking) against the AprilTag 3 C library on the whole
+  grey frame (``pupil-apriltags``, the ``bench`` extra; skipped with a note when not installed):
+  share of facing tags read, wrong ids, CPU time per frame.
+- ``rendered``: the 3-D renderer's ``table1`` and ``multi`` scenarios (seed 0), images only and with
+  the log's camera model (see docs/perception.md).
 
-Usage: ``python benchmarks/perception.py [--steps 60] [--repeats 3]`` (each sequence runs ``repeats`` times and
-per frame the smallest CPU time counts: the machine is shared, and interference only adds time); writes ``benchmarks/results/perception.json``
-and ``perception.png``.
+Times: CPU seconds of this process (``time.process_time``; BLAS and OpenCV pinned to one thread, so
+one core's work) and wall seconds; each sequence runs ``--repeats`` times and per frame the smallest
+time counts (other processes on a shared machine only add time), then the median over frames. The
+load average at start and end is saved with the results. The reference measured in the same run:
+AprilTag 3 on the same frames, and OpenCV's ``HoughCircles(HOUGH_GRADIENT_ALT)`` (FINDINGS'
+detector).
+
+Usage: ``python benchmarks/perception.py [--scenes varied rendered] [--frames 30] [--repeats 3]
+[--out DIR]``; writes ``perception_varied.{json,md}`` and/or ``perception.{json,png}`` under ``--out``
+(default ``out/benchmarks``; pass ``--out benchmarks/results`` to replace the committed results).
 """
 
 from __future__ import annotations
@@ -27,7 +32,11 @@ from __future__ import annotations
 import argparse
 import time
 
-from _common import RESULTS, machine, save, save_figure  # noqa: I001  (pins threads before numpy)
+from _common import machine, save, save_figure  # noqa: I001  (pins threads before numpy)
+
+from pathlib import Path
+
+from sims.io.atomic import write_atomic
 
 import cv2
 import numpy as np
@@ -188,12 +197,143 @@ def _summary(r: dict, ref_median: float) -> dict:
     }
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--steps", type=int, default=60)
-    parser.add_argument("--repeats", type=int, default=3,
-                        help="runs of each sequence; per frame the smallest CPU time counts (default 3)")
-    args = parser.parse_args()
+def _reference_apriltag():
+    """The AprilTag 3 C library's detector (tag36h11, one thread), or None when not installed."""
+    try:
+        from pupil_apriltags import Detector
+    except ImportError:
+        return None
+    return Detector(families="tag36h11", nthreads=1, quad_decimate=1.0, refine_edges=1)
+
+
+def _tags_facing(frame) -> np.ndarray:
+    """Spheres whose tag faces the camera (normal within 60 deg of the view) and that show wholly."""
+    return np.array([s.tag and s.tag_normal[2] >= 0.5 for s in frame.spheres]) & (frame.visible >= 0.9)
+
+
+def _score_reads(frame, reads) -> tuple[int, int, int]:
+    """(facing tags read, wrong reads, facing tags) of tag reads [(id, (u, v))] on one frame."""
+    facing = _tags_facing(frame)
+    hit, wrong = set(), 0
+    for tag, (u, v) in reads:
+        under = [j for j, s in enumerate(frame.spheres) if np.hypot(u - s.u, v - s.v) <= s.r]
+        j = min(under, key=lambda j: -frame.spheres[j].r) if under else None  # the nearest sphere
+        if j is None or frame.spheres[j].id != tag:
+            wrong += 1
+        elif facing[j]:
+            hit.add(j)
+    return len(hit), wrong, int(facing.sum())
+
+
+def _run_varied(seed: int, frames: int, repeats: int, detector) -> dict:
+    """One held-out or tuning scene: our front end (timed, scored) and the references."""
+    from agents.perception import Perception
+    from sims.experiments.perception_scores import SequenceScore, score_frame
+    from sims.experiments.varied_scenes import sequence
+
+    seq = sequence(seed, frames)
+    ours = Perception()
+    cpu = np.full((repeats, len(seq)), np.inf)
+    wall = np.full((repeats, len(seq)), np.inf)
+    stages: dict[str, np.ndarray] = {}
+    score = SequenceScore()
+    for rep in range(repeats):
+        ours.reset()
+        for k, fr in enumerate(seq):
+            start, c0 = time.perf_counter(), time.process_time()
+            dets, secs = ours.process(fr.image)
+            cpu[rep, k], wall[rep, k] = time.process_time() - c0, time.perf_counter() - start
+            for name, v in secs.items():
+                stages.setdefault(name, np.full((repeats, len(seq)), np.inf))[rep, k] = v
+            if rep == 0:
+                score_frame(score, fr, dets)
+    # tag reads: ours inside our circles (every circle read, no tracking) against AprilTag 3
+    plain = Perception(track=False)
+    tags = {"ours": [0, 0, 0, []], "apriltag3": [0, 0, 0, []]}
+    for fr in seq:
+        c0 = time.process_time()
+        dets, _ = plain.process(fr.image)
+        t_ours = time.process_time() - c0
+        got = [(d.read.node, (float(np.mean(d.read.corners[:, 0])), float(np.mean(d.read.corners[:, 1]))))
+               for d in dets if d.read is not None and d.read.node is not None]
+        for i, v in enumerate(_score_reads(fr, got)):
+            tags["ours"][i] += v
+        tags["ours"][3].append(t_ours)
+        if detector is not None:
+            grey = cv2.cvtColor(fr.image, cv2.COLOR_BGR2GRAY)
+            c0 = time.process_time()
+            found = detector.detect(grey)
+            tags["apriltag3"][3].append(time.process_time() - c0)
+            got = [(int(r.tag_id), (float(r.center[0]), float(r.center[1]))) for r in found]
+            for i, v in enumerate(_score_reads(fr, got)):
+                tags["apriltag3"][i] += v
+    alt = _hough_alt_seconds({"all": [(k, fr) for k, fr in enumerate(seq)]}, 1)
+    best_cpu, best_wall = cpu.min(axis=0), wall.min(axis=0)
+    out = {"seed": seed, "frames": len(seq), "spheres": len(seq[0].spheres), **score.summary(),
+           "cpu_seconds_median": float(np.median(best_cpu)), "wall_seconds_median": float(np.median(best_wall)),
+           "fps_cpu": 1.0 / float(np.median(best_cpu)), "fps_wall": 1.0 / float(np.median(best_wall)),
+           "stage_cpu_seconds_median": {k: float(np.median(v.min(axis=0))) for k, v in stages.items()},
+           "reference_hough_alt_cpu_seconds_median": float(np.median(alt)), "tags": {}}
+    for name, (read, wrong, facing, secs) in tags.items():
+        if secs:
+            out["tags"][name] = {"facing": facing, "read_share": read / max(facing, 1), "wrong_reads": wrong,
+                                 "cpu_seconds_median": float(np.median(secs))}
+    return out
+
+
+def _table(result: dict) -> str:
+    """The Markdown table of the varied scenes (one row per scene, held-out first)."""
+    head = ("| scene | set | recall | radius err p90 | false / double circles per sphere | wrong ids | ids carried |"
+            " tags read: ours / AprilTag 3 | wrong reads: ours / AprilTag 3 | CPU ms: ours / AprilTag 3 / ALT |"
+            " fps (CPU / wall) |\n|---|---|---|---|---|---|---|---|---|---|---|\n")
+    rows = []
+    for r in result["scenes"]:
+        t, a = r["tags"].get("ours", {}), r["tags"].get("apriltag3")
+        def pct(x):
+            return "-" if x is None else f"{100 * x:.1f} %"
+        rows.append(
+            f"| {r['seed']} | {r['set']} | {r['recall']:.3f} | {pct(r['radius_rel_err_p90'])} | "
+            f"{r['false_circles_per_sphere']:.3f} / {r['double_circles_per_sphere']:.3f} | {pct(r['wrong_id_share'])} | "
+            f"{pct(r['carried_id_share'])} | {pct(t.get('read_share'))} / {pct(a['read_share']) if a else '-'} | "
+            f"{t.get('wrong_reads', '-')} / {a['wrong_reads'] if a else '-'} | "
+            f"{1000 * r['cpu_seconds_median']:.0f} / {1000 * a['cpu_seconds_median'] if a else float('nan'):.0f} / "
+            f"{1000 * r['reference_hough_alt_cpu_seconds_median']:.0f} | {r['fps_cpu']:.1f} / {r['fps_wall']:.1f} |")
+    return head + "\n".join(rows) + "\n"
+
+
+def run_varied(args) -> dict:
+    """The varied scenes: held-out seeds (and tuning ones with ``--tuning``)."""
+    from agents.perception import HoughCircleDetector
+    from sims.experiments.varied_scenes import HELD_OUT_SEEDS, TUNING_SEEDS
+
+    detector = _reference_apriltag()
+    HoughCircleDetector()  # sets the allocator up before anything is timed (agents.perception.heap)
+    result = {"benchmark": "perception_varied",
+              "parameters": {"held_out_seeds": list(HELD_OUT_SEEDS), "tuning_seeds": list(TUNING_SEEDS),
+                             "frames": args.frames, "image": [1024, 768], "threads": 1, "repeats": args.repeats,
+                             "timing": "per frame the minimum CPU (and wall) time over the repeats, then the median",
+                             "reference": "AprilTag 3 (pupil-apriltags) on the whole grey frame"
+                             if detector is not None else "pupil-apriltags not installed: no AprilTag 3 reference"},
+              "machine": machine(), "scenes": []}
+    sets = [("held-out", s) for s in HELD_OUT_SEEDS] + ([("tuning", s) for s in TUNING_SEEDS] if args.tuning else [])
+    for name, seed in sets:
+        r = _run_varied(seed, args.frames, args.repeats, detector)
+        r["set"] = name
+        result["scenes"].append(r)
+        print(f"scene {seed} ({name}): recall {r['recall']:.3f}, {1000 * r['cpu_seconds_median']:.0f} ms CPU", flush=True)
+    held = [r for r in result["scenes"] if r["set"] == "held-out"]
+    result["held_out"] = {
+        "min_recall": min(r["recall"] for r in held),
+        "false_circles_per_sphere": sum(r["false_circles_per_sphere"] * r["counted_spheres"] for r in held)
+        / max(sum(r["counted_spheres"] for r in held), 1),
+        "fps_cpu_median": float(np.median([r["fps_cpu"] for r in held])),
+        "fps_wall_median": float(np.median([r["fps_wall"] for r in held])),
+    }
+    return result
+
+
+def run_rendered(args) -> dict:
+    """The 3-D renderer's table1 and multi scenarios (seed 0), both configurations."""
     result = {"benchmark": "perception", "parameters": {"scenarios": ["table1", "multi"], "seed": 0, "steps": args.steps,
                                                          "image": [1024, 768], "threads": 1, "repeats": args.repeats,
                                                          "timing": "per frame the minimum CPU time over the repeats, "
@@ -208,8 +348,33 @@ def main() -> None:
             r = _run(sim, frames, "sphere" if mode == "sphere_model" else "opencv", args.repeats)
             entry[mode] = _summary(r, ref_med)
         result["scenarios"][name] = entry
-    save("perception", result)
-    plot(result, RESULTS / "perception.png")
+    return result
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scenes", nargs="+", choices=("varied", "rendered"), default=["varied"],
+                        help="which frames (default: varied)")
+    parser.add_argument("--frames", type=int, default=30, help="frames per varied scene (default 30)")
+    parser.add_argument("--tuning", action="store_true", help="also report the tuning seeds of the varied scenes")
+    parser.add_argument("--steps", type=int, default=60, help="steps of the rendered scenarios (default 60)")
+    parser.add_argument("--repeats", type=int, default=3,
+                        help="runs of each sequence; per frame the smallest time counts (default 3)")
+    parser.add_argument("--out", type=Path, default=Path("out/benchmarks"),
+                        help="directory of the results (default out/benchmarks)")
+    args = parser.parse_args(argv)
+    if args.frames < 1 or args.repeats < 1 or args.steps < 1:
+        parser.error("--frames, --repeats and --steps must be positive")
+    if "varied" in args.scenes:
+        result = run_varied(args)
+        save("perception_varied", result, args.out)
+        table = _table(result)
+        write_atomic(args.out / "perception_varied.md", lambda fh: fh.write(table))
+        print(table)
+    if "rendered" in args.scenes:
+        result = run_rendered(args)
+        save("perception", result, args.out)
+        plot(result, args.out / "perception.png")
 
 
 def plot(result: dict, path) -> None:
