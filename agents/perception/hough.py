@@ -65,6 +65,12 @@ class HoughConfig:
         Gaussian sigma (px) of the image the rim search runs on.
     min_score : float
         Circles whose refined rim support is below this are dropped.
+    outer_tie : float
+        Of the fine pass's variants of one circle, a larger one wins with at least this share of a
+        smaller one's score (the isophotes inside a shaded limb are circles with radial gradients too).
+    grow_multipliers : tuple of float
+        Every found circle is also refined at these multiples of its radius (same centre); a
+        larger rim found so outranks the nested circle in suppression.
     max_circles : int
         At most this many circles are returned (best score first).
     refine : RefineConfig
@@ -83,7 +89,9 @@ class HoughConfig:
     min_radius: int = 8
     max_radius: int = 160
     refine_blur: float = 1.0
-    min_score: float = 0.5
+    min_score: float = 0.55
+    outer_tie: float = 0.9
+    grow_multipliers: tuple[float, ...] = (1.4, 1.9, 2.5)
     max_circles: int = 64
     refine: RefineConfig = field(default_factory=RefineConfig)
 
@@ -176,11 +184,26 @@ class HoughCircleDetector:
             if start is None:
                 start = np.where(ok[:, None], circles, coarse[:, :3])
             again, again_scores, again_ok = refine_circles(fine_img, start, cfg.refine, nearest=nearest)
-            better = again_ok & (again_scores > scores)
+            # the rim is the outermost of nearly as well supported circles: inside a shaded limb the
+            # isophotes are circles with radial gradients too
+            wider = again[:, 2] > circles[:, 2]
+            better = again_ok & np.where(wider, again_scores >= cfg.outer_tie * scores,
+                                            again_scores * cfg.outer_tie > scores)
             circles, scores = np.where(better[:, None], again, circles), np.where(better, again_scores, scores)
             ok |= again_ok
         ok &= scores >= cfg.min_score
-        found = [Circle(*map(float, c), float(min(s, 1.0))) for c, s in zip(circles[ok], scores[ok])]
+        circles, scores = circles[ok], scores[ok]
+        # outward from every circle: a larger concentric rim, if one holds, is the node's (a circle
+        # on the tag's square of a node whose rim is weak on its shaded side); suppression below
+        # keeps the largest of nested strong circles
+        if len(circles) and cfg.grow_multipliers:
+            grown = np.concatenate([circles * np.array([1.0, 1.0, m]) for m in cfg.grow_multipliers])
+            keep = grown[:, 2] <= cfg.max_radius * 1.2
+            more, more_scores, more_ok = refine_circles(fine_img, grown[keep], cfg.refine)
+            more_ok &= more_scores >= cfg.min_score
+            circles = np.concatenate([circles, more[more_ok]])
+            scores = np.concatenate([scores, more_scores[more_ok]])
+        found = [Circle(*map(float, c), float(min(s, 1.0))) for c, s in zip(circles, scores)]
         return suppress(found)[: cfg.max_circles]
 
 

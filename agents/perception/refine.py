@@ -58,6 +58,12 @@ class RefineConfig:
     ellipse_gate : float
         Second pass: rim points within this fraction of the radius (plus ``tol``) of the circle
         seed the ellipse fit.
+    min_rim_step : float
+        Second pass: smallest median step (summed over the colour channels, per pixel) of the
+        rays supporting a circle.
+    ellipse_margin : float
+        Second pass: the ellipse replaces the circle only when it explains this share of the rays
+        more (a shaded limb or a partly hidden rim fits an ellipse a little better by chance).
     max_axis_turn_deg : float
         Second pass: an elongated ellipse is kept only if its major axis points within this angle
         of the image centre (a sphere's image is elongated radially from the principal point).
@@ -97,11 +103,13 @@ class RefineConfig:
     max_axis_ratio: float = 1.5
     ellipse_gate: float = 0.12
     max_axis_turn_deg: float = 20.0
+    ellipse_margin: float = 0.05
+    min_rim_step: float = 12.0
     min_focal_px: float = 500.0
     vote_band: tuple[float, float] = (0.5, 3.0)
-    search_candidates: int = 3
+    search_candidates: int = 4
     search_below: float = 0.7
-    search_hypotheses: int = 24
+    search_hypotheses: int = 32
     vote_samples: int = 40
     vote_floor: float = 0.05
     vote_width: int = 2
@@ -575,6 +583,11 @@ def refine_circles(image: np.ndarray, rough: np.ndarray, cfg: RefineConfig, *, n
     shift = np.hypot(circles[:, 0] - rough[:, 0], circles[:, 1] - rough[:, 1])
     ok &= (inl.sum(axis=1) >= 5) & (shift <= 0.25 * r0) & (circles[:, 2] > 0)
     ok &= np.all(np.isfinite(circles), axis=1)
+    # a rim is an edge: the median step of its supporting rays must reach ``min_rim_step`` (a
+    # smooth bright patch of floor can be round, with radial gradients of a grey level per pixel)
+    ranked = -np.sort(-np.where(inl, strength, 0.0), axis=1)  # supporting steps first, largest first
+    median = ranked[np.arange(len(ranked)), np.maximum(inl.sum(axis=1) // 2, 0)]
+    ok &= median >= cfg.min_rim_step
     scores = np.where(ok, inl.sum(axis=1) / cfg.rays, 0.0)
     return circles, scores, ok
 
@@ -602,6 +615,6 @@ def _ellipse_stage(pts, strength, circles, inl, tol, cfg: RefineConfig, image_ce
     # image centre); partly hidden rims otherwise pass for ellipses
     d = np.hypot(ec[:, 0] - image_centre[0], ec[:, 1] - image_centre[1])
     possible = np.minimum(cfg.max_axis_ratio, np.sqrt(1.0 + (d / cfg.min_focal_px) ** 2) + 0.03)
-    better = (eok & cok & (ratio <= possible) & aligned & (einl.sum(axis=1) > inl.sum(axis=1))
+    better = (eok & cok & (ratio <= possible) & aligned & (einl.sum(axis=1) > inl.sum(axis=1) + cfg.ellipse_margin * pts.shape[1])
               & (moved <= 0.2 * scale) & (np.abs(ec[:, 2] / scale - 1.0) <= 0.2))
     return np.where(better[:, None], ec, circles), np.where(better[:, None], einl, inl)
