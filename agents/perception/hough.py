@@ -65,6 +65,9 @@ class HoughConfig:
         Gaussian sigma (px) of the image the rim search runs on.
     min_score : float
         Circles whose refined rim support is below this are dropped.
+    coarse_min_score : float
+        First-pass circles below this score do not reach the fine pass (its 32 rays are few: a
+        partly hidden node scores low there).
     outer_tie : float
         Of the fine pass's variants of one circle, a larger one wins with at least this share of a
         smaller one's score (the isophotes inside a shaded limb are circles with radial gradients too).
@@ -90,6 +93,7 @@ class HoughConfig:
     max_radius: int = 160
     refine_blur: float = 1.0
     min_score: float = 0.55
+    coarse_min_score: float = 0.3
     outer_tie: float = 0.9
     grow_multipliers: tuple[float, ...] = (1.4, 1.9, 2.5)
     max_circles: int = 64
@@ -167,7 +171,7 @@ class HoughCircleDetector:
         hyp = hyp[hyp[:, 2] <= cfg.max_radius * 1.2]
         # coarse pass on every proposal, suppression, then the fine pass on the survivors
         circles, scores, ok = coarse_fit(fine_img, hyp, cfg.refine)
-        ok &= (scores >= cfg.min_score) & (circles[:, 2] >= 0.8 * cfg.min_radius) & (circles[:, 2] <= 1.2 * cfg.max_radius)
+        ok &= (scores >= cfg.coarse_min_score) & (circles[:, 2] >= 0.8 * cfg.min_radius) & (circles[:, 2] <= 1.2 * cfg.max_radius)
         cand = np.column_stack([circles[ok], scores[ok]])
         # only repeats of one circle are merged here (best score first); nested circles all go on
         # to the fine pass, which decides between a rim and what lies inside or around it
