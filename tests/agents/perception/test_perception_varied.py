@@ -27,14 +27,14 @@ def _matches(c, s):
     return np.hypot(c.u - s.u, c.v - s.v) <= max(2.0, 0.1 * s.r) and abs(c.r - s.r) <= 0.1 * s.r
 
 
-@pytest.mark.parametrize("paper", [True, False])
-def test_large_sphere_coloured_like_the_floor_gets_its_rim_not_its_tag(paper):
-    """An 80 px sphere within 3 % of the floor's colour gets one circle on its rim, not on its tag."""
-    probe, floor = _frame([])
+@pytest.mark.parametrize("radius,delta", [(60.0, 0.0), (85.0, 0.02), (85.0, -0.03)])
+def test_large_sphere_coloured_like_the_floor_gets_its_rim_not_its_tag(radius, delta):
+    """A 60-85 px sphere within 3 % of a carpet's colour gets one circle on its rim, not on its tag."""
+    _, floor = _frame([], kind="carpet")
     grey = floor[H // 3:].reshape(-1, 3).mean(axis=0)
-    s = Sphere(11, 320.0, 250.0, 80.0, tuple(float(c) for c in grey + 0.03), tag_normal=(0.15, -0.2, 0.97),
-               tag_half_angle=0.45, paper=paper, specular=0.2)
-    fr, _ = _frame([s])
+    s = Sphere(11, 320.0, 250.0, radius, tuple(float(c) for c in np.clip(grey + delta, 0, 1)),
+               tag_normal=(0.15, -0.2, 0.97), tag_half_angle=0.45, paper=True, specular=0.2)
+    fr, _ = _frame([s], kind="carpet")
     circles = _on(HoughCircleDetector().detect(fr.image), s)
     assert len(circles) == 1, circles
     assert _matches(circles[0], s), circles[0]
