@@ -36,10 +36,8 @@ class RefineConfig:
     ----------
     rays, samples : int
         Rays cast from each centre, and samples along each ray within the band (second pass).
-    coarse_rays, coarse_samples : int
-        The same for the first pass (run on every proposal, so kept cheap).
-    band : (float, float)
-        First pass: the search band as fractions of the rough radius.
+    coarse_rays : int
+        Rays of the first pass (run on every proposal, so kept cheap).
     fine_band : (float, float)
         Second pass, around the first fit.
     min_step : float
@@ -92,8 +90,6 @@ class RefineConfig:
     rays: int = 64
     samples: int = 24
     coarse_rays: int = 32
-    coarse_samples: int = 20
-    band: tuple[float, float] = (0.6, 1.5)
     fine_band: tuple[float, float] = (0.85, 1.15)
     min_step: float = 3.0
     tol: float = 0.7

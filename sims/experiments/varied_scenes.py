@@ -19,6 +19,7 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
+from sims.experiments.synthetic_scene import disc_patch
 from sims.render.effects import motion_kernel
 from sims.render.surfaces import SURFACES, lighting_gradient, surface
 from sims.render.textures import TAG_IDS, tag_cells
@@ -145,16 +146,11 @@ def _draw_sphere(img: np.ndarray, label: np.ndarray, index: int, sp: Sphere, loo
     """Composite one sphere (shaded, tagged, smeared along its velocity) onto ``img`` and ``label``."""
     h, w = label.shape
     smear = float(np.hypot(*sp.velocity))
-    pad = int(np.ceil(smear / 2.0)) + 3
-    x0, x1 = max(int(np.floor(sp.u - sp.r)) - pad, 0), min(int(np.ceil(sp.u + sp.r)) + pad + 1, w)
-    y0, y1 = max(int(np.floor(sp.v - sp.r)) - pad, 0), min(int(np.ceil(sp.v + sp.r)) + pad + 1, h)
-    if x0 >= x1 or y0 >= y1:
+    patch = disc_patch(sp.u, sp.v, sp.r, int(np.ceil(smear / 2.0)) + 3, w, h)
+    if patch is None:
         return
-    ys, xs = np.mgrid[y0:y1, x0:x1].astype(np.float32)
-    dx, dy = (xs - sp.u) / sp.r, (ys - sp.v) / sp.r
-    d = np.hypot(xs - sp.u, ys - sp.v)
-    alpha = np.clip(sp.r - d + 0.5, 0.0, 1.0)
-    nz = np.sqrt(np.clip(1.0 - dx * dx - dy * dy, 0.0, 1.0))
+    x0, y0, dx, dy, alpha, nz = patch
+    x1, y1 = x0 + dx.shape[1], y0 + dx.shape[0]
     ndl = np.clip(dx * light[0] + dy * light[1] + nz * light[2], 0.0, 1.0)
     reflect = 2.0 * ndl * nz - light[2]  # z of the mirrored light direction: the view is +z
     spec = sp.specular * np.clip(reflect, 0.0, 1.0) ** 30
