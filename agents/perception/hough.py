@@ -191,8 +191,9 @@ class HoughCircleDetector:
             # the rim is the outermost of nearly as well supported circles: inside a shaded limb the
             # isophotes are circles with radial gradients too
             wider = again[:, 2] > circles[:, 2]
-            better = again_ok & np.where(wider, again_scores >= cfg.outer_tie * scores,
-                                            again_scores * cfg.outer_tie > scores)
+            better = again_ok & np.where(wider, (again_scores >= cfg.outer_tie * scores)
+                                         & ((again_scores >= cfg.min_score) | (again_scores > scores)),
+                                         again_scores * cfg.outer_tie > scores)
             circles, scores = np.where(better[:, None], again, circles), np.where(better, again_scores, scores)
             ok |= again_ok
         ok &= scores >= cfg.min_score
