@@ -65,6 +65,13 @@ class HoughConfig:
         Gaussian sigma (px) of the image the rim search runs on.
     min_score : float
         Circles whose refined rim support is below this are dropped.
+    weak_scores : (float, float)
+        Circles scoring in this range (below ``min_score``) are kept when the image inside 0.7 of
+        their radius spreads by at least ``weak_contrast`` grey levels (summed over the channels):
+        a node's print (rendered table1 nodes, half their rim lost to neighbours, struts and a
+        dark floor, score 0.3-0.6). The range ends at 0.5 so that no such circle reaches a log
+        (``perceive --log-min-score`` 0.5): one was 7 px off a node's centre.
+    weak_contrast : float
     coarse_min_score : float
         First-pass circles below this score do not reach the fine pass (its 32 rays are few: a
         partly hidden node scores low there).
@@ -94,6 +101,8 @@ class HoughConfig:
     refine_blur: float = 1.0
     min_score: float = 0.55
     coarse_min_score: float = 0.3
+    weak_scores: tuple[float, float] = (0.35, 0.5)
+    weak_contrast: float = 130.0
     outer_tie: float = 0.9
     grow_multipliers: tuple[float, ...] = (1.4, 1.9, 2.5)
     max_circles: int = 64
@@ -196,7 +205,13 @@ class HoughCircleDetector:
                                          again_scores * cfg.outer_tie > scores)
             circles, scores = np.where(better[:, None], again, circles), np.where(better, again_scores, scores)
             ok |= again_ok
-        ok &= scores >= cfg.min_score
+        # a weakly supported circle (a node whose rim is half hidden by its neighbours, struts and
+        # dark floor) is kept only with a print inside it: floor tiles and carpet give round rims of
+        # that support, but a uniform inside
+        weak = ok & (scores >= cfg.weak_scores[0]) & (scores < cfg.weak_scores[1])
+        if weak.any():
+            weak[weak] = _inner_contrast(fine_img, circles[weak]) >= cfg.weak_contrast
+        ok &= (scores >= cfg.min_score) | weak
         circles, scores = circles[ok], scores[ok]
         # outward from every circle: a larger concentric rim, if one holds, is the node's (a circle
         # on the tag's square of a node whose rim is weak on its shaded side); suppression below
@@ -210,6 +225,22 @@ class HoughCircleDetector:
             scores = np.concatenate([scores, more_scores[more_ok]])
         found = [Circle(*map(float, c), float(min(s, 1.0))) for c, s in zip(circles, scores)]
         return suppress(found)[: cfg.max_circles]
+
+
+def _inner_contrast(image: np.ndarray, circles: np.ndarray, grid: int = 9) -> np.ndarray:
+    """Spread (grey levels, summed over channels) of the image on a grid inside 0.7 r of each circle, shape (N,).
+
+    A node carries its tag (or stickers): high contrast inside; a round patch of floor does not.
+    """
+    t = np.linspace(-0.7, 0.7, grid, dtype=np.float32)
+    gx, gy = np.meshgrid(t, t)
+    inside = gx * gx + gy * gy <= 0.49
+    ox, oy = gx[inside], gy[inside]
+    mx = (circles[:, 0, None] + circles[:, 2, None] * ox[None, :]).astype(np.float32)
+    my = (circles[:, 1, None] + circles[:, 2, None] * oy[None, :]).astype(np.float32)
+    vals = cv2.remap(image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    vals = vals.reshape(len(circles), mx.shape[1], -1)
+    return vals.std(axis=1).sum(axis=1)
 
 
 def _blur_float(image: np.ndarray, sigma: float, out: np.ndarray | None = None) -> np.ndarray:
