@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from agents.perception import HoughCircleDetector
+from agents.perception import RimCircleDetector
 from agents.perception.types import Circle, TagRead, TrackedCircle
 from sims.experiments.perception_scores import SequenceScore, score_frame
 from sims.experiments.varied_scenes import HELD_OUT_SEEDS, TUNING_SEEDS, Look, Sphere, Strut, render, sequence
@@ -35,7 +35,7 @@ def test_large_sphere_coloured_like_the_floor_gets_its_rim_not_its_tag(radius, d
     s = Sphere(11, 320.0, 250.0, radius, tuple(float(c) for c in np.clip(grey + delta, 0, 1)),
                tag_normal=(0.15, -0.2, 0.97), tag_half_angle=0.45, paper=True, specular=0.2)
     fr, _ = _frame([s], kind="carpet")
-    circles = _on(HoughCircleDetector().detect(fr.image), s)
+    circles = _on(RimCircleDetector().detect(fr.image), s)
     assert len(circles) == 1, circles
     assert _matches(circles[0], s), circles[0]
 
@@ -46,7 +46,7 @@ def test_tag_squeezed_at_the_limb_gives_no_second_circle():
     s = Sphere(42, 300.0, 240.0, 70.0, (0.45, 0.5, 0.55), tag_normal=tuple(normal / np.linalg.norm(normal)),
                tag_half_angle=0.45, paper=True, specular=0.4)
     fr, _ = _frame([s], kind="tiles", seed=5)
-    circles = [c for c in HoughCircleDetector().detect(fr.image) if np.hypot(c.u - s.u, c.v - s.v) < s.r]
+    circles = [c for c in RimCircleDetector().detect(fr.image) if np.hypot(c.u - s.u, c.v - s.v) < s.r]
     assert len(circles) == 1, circles
     assert _matches(circles[0], s), circles[0]
 
@@ -58,7 +58,7 @@ def test_partly_hidden_sphere_radius_comes_from_its_visible_rim():
     strut = Strut((180.0, 150.0), (300.0, 330.0), 9.0, (0.15, 0.15, 0.15))
     fr, _ = _frame([far, near], [strut], kind="wood", seed=7)
     assert 0.5 < fr.visible[0] < 0.8  # the farther (smaller) sphere is drawn first
-    circles = HoughCircleDetector().detect(fr.image)
+    circles = RimCircleDetector().detect(fr.image)
     for s in (far, near):
         found = _on(circles, s, tol=0.3)
         assert found and _matches(found[0], s), (s, found)
