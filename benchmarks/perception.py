@@ -5,9 +5,10 @@ Two sets of frames:
 - ``varied`` (default): image-plane sequences of :mod:`sims.experiments.varied_scenes` at 1024 x 768
   with 5-10 spheres (floors of several kinds, colours close to the floor's, 15-90 px radius,
   highlights, lighting gradients, tags on the cap, occlusion by spheres and struts, smear), on the
-  held-out scene seeds (no parameter was tuned on them; ``--tuning`` adds the tuning seeds). Per
-  scene: recall (a detection within max(2 px, 0.1 r) of a sphere's centre and 10 % of its radius;
-  spheres at least half visible), false and double circles per sphere, wrong ids, ids carried
+  held-out scene seeds (no parameter was tuned on them; ``--tuning`` adds the tuning seeds), each
+  circle detector of ``--detectors`` side by side (default both: ``hough``, the default, and the
+  opt-in ``rim``). Per scene and detector: recall (a detection within max(2 px, 0.1 r) of a
+  sphere's centre and 10 % of its radius; spheres at least half visible), radius error, false and double circles per sphere, wrong ids, ids carried
   through frames without a tag read (:mod:`sims.experiments.perception_scores`). Tag reads, ours
   (OpenCV's quads inside our circles, no tracking) against the AprilTag 3 C library on the whole
   grey frame (``pupil-apriltags``, the ``bench`` extra; skipped with a note when not installed):
@@ -23,7 +24,7 @@ AprilTag 3 on the same frames, and OpenCV's ``HoughCircles(HOUGH_GRADIENT_ALT)``
 detector).
 
 Usage: ``python benchmarks/perception.py [--scenes varied rendered] [--frames 30] [--repeats 3]
-[--out DIR]``; writes ``perception_varied.{json,md}`` and/or ``perception.{json,png}`` under ``--out``
+[--detectors hough rim] [--scenes-max N] [--out DIR]``; writes ``perception_varied.{json,md}`` and/or ``perception.{json,png}`` under ``--out``
 (default ``out/benchmarks``; pass ``--out benchmarks/results`` to replace the committed results).
 """
 
@@ -206,6 +207,18 @@ def _reference_apriltag():
     return Detector(families="tag36h11", nthreads=1, quad_decimate=1.0, refine_edges=1)
 
 
+def _close_apriltag(detector) -> None:
+    """Unregister the tag families before ``detector`` is destroyed.
+
+    pupil-apriltags 1.0.4's ``Detector.__del__`` frees the families first and then the C detector,
+    whose destructor reads them again: a use after free that crashed the benchmark (segfault in
+    libapriltag) after the last scene, before anything was saved.
+    """
+    if detector is not None and detector.tag_detector_ptr is not None:
+        detector.libc.apriltag_detector_clear_families.restype = None
+        detector.libc.apriltag_detector_clear_families(detector.tag_detector_ptr)
+
+
 def _tags_facing(frame) -> np.ndarray:
     """Spheres whose tag faces the camera (normal within 60 deg of the view) and that show wholly."""
     return np.array([s.tag and s.tag_normal[2] >= 0.5 for s in frame.spheres]) & (frame.visible >= 0.9)
@@ -225,14 +238,12 @@ def _score_reads(frame, reads) -> tuple[int, int, int]:
     return len(hit), wrong, int(facing.sum())
 
 
-def _run_varied(seed: int, frames: int, repeats: int, detector) -> dict:
-    """One held-out or tuning scene: our front end (timed, scored) and the references."""
+def _ours(seq, name: str, repeats: int) -> dict:
+    """Our front end with the detector ``name`` on one varied sequence: scores, tag reads and times."""
     from agents.perception import Perception
     from sims.experiments.perception_scores import SequenceScore, score_frame
-    from sims.experiments.varied_scenes import sequence
 
-    seq = sequence(seed, frames)
-    ours = Perception()
+    ours = Perception(name)
     cpu = np.full((repeats, len(seq)), np.inf)
     wall = np.full((repeats, len(seq)), np.inf)
     stages: dict[str, np.ndarray] = {}
@@ -243,93 +254,133 @@ def _run_varied(seed: int, frames: int, repeats: int, detector) -> dict:
             start, c0 = time.perf_counter(), time.process_time()
             dets, secs = ours.process(fr.image)
             cpu[rep, k], wall[rep, k] = time.process_time() - c0, time.perf_counter() - start
-            for name, v in secs.items():
-                stages.setdefault(name, np.full((repeats, len(seq)), np.inf))[rep, k] = v
+            for stage, v in secs.items():
+                stages.setdefault(stage, np.full((repeats, len(seq)), np.inf))[rep, k] = v
             if rep == 0:
                 score_frame(score, fr, dets)
-    # tag reads: ours inside our circles (every circle read, no tracking) against AprilTag 3
-    plain = Perception(track=False)
-    tags = {"ours": [0, 0, 0, []], "apriltag3": [0, 0, 0, []]}
+    # tag reads inside our circles (every circle read, no tracking), comparable with AprilTag 3's
+    plain = Perception(name, track=False)
+    read = wrong = facing = 0
     for fr in seq:
-        c0 = time.process_time()
         dets, _ = plain.process(fr.image)
-        t_ours = time.process_time() - c0
         got = [(d.read.node, (float(np.mean(d.read.corners[:, 0])), float(np.mean(d.read.corners[:, 1]))))
                for d in dets if d.read is not None and d.read.node is not None]
-        for i, v in enumerate(_score_reads(fr, got)):
-            tags["ours"][i] += v
-        tags["ours"][3].append(t_ours)
-        if detector is not None:
-            grey = cv2.cvtColor(fr.image, cv2.COLOR_BGR2GRAY)
-            c0 = time.process_time()
-            found = detector.detect(grey)
-            tags["apriltag3"][3].append(time.process_time() - c0)
-            got = [(int(r.tag_id), (float(r.center[0]), float(r.center[1]))) for r in found]
-            for i, v in enumerate(_score_reads(fr, got)):
-                tags["apriltag3"][i] += v
+        r, w, f = _score_reads(fr, got)
+        read, wrong, facing = read + r, wrong + w, facing + f
+    best_cpu, best_wall = np.median(cpu.min(axis=0)), np.median(wall.min(axis=0))
+    return {**score.summary(),
+            "cpu_seconds_median": float(best_cpu), "wall_seconds_median": float(best_wall),
+            "fps_cpu": 1.0 / float(best_cpu), "fps_wall": 1.0 / float(best_wall),
+            "stage_cpu_seconds_median": {k: float(np.median(v.min(axis=0))) for k, v in stages.items()},
+            "tags": {"facing": facing, "read_share": read / max(facing, 1), "wrong_reads": wrong}}
+
+
+def _apriltag3(seq, detector) -> dict:
+    """The AprilTag 3 C library on the whole grey frames of one sequence: tag reads and CPU time."""
+    read = wrong = facing = 0
+    secs = []
+    for fr in seq:
+        grey = cv2.cvtColor(fr.image, cv2.COLOR_BGR2GRAY)
+        c0 = time.process_time()
+        found = detector.detect(grey)
+        secs.append(time.process_time() - c0)
+        got = [(int(r.tag_id), (float(r.center[0]), float(r.center[1]))) for r in found]
+        r, w, f = _score_reads(fr, got)
+        read, wrong, facing = read + r, wrong + w, facing + f
+    return {"facing": facing, "read_share": read / max(facing, 1), "wrong_reads": wrong,
+            "cpu_seconds_median": float(np.median(secs))}
+
+
+def _run_varied(seed: int, frames: int, repeats: int, detectors, apriltag) -> dict:
+    """One held-out or tuning scene: our front end with each detector, and the references."""
+    from sims.experiments.varied_scenes import sequence
+
+    seq = sequence(seed, frames)
     alt = _hough_alt_seconds({"all": [(k, fr) for k, fr in enumerate(seq)]}, 1)
-    best_cpu, best_wall = cpu.min(axis=0), wall.min(axis=0)
-    out = {"seed": seed, "frames": len(seq), "spheres": len(seq[0].spheres), **score.summary(),
-           "cpu_seconds_median": float(np.median(best_cpu)), "wall_seconds_median": float(np.median(best_wall)),
-           "fps_cpu": 1.0 / float(np.median(best_cpu)), "fps_wall": 1.0 / float(np.median(best_wall)),
-           "stage_cpu_seconds_median": {k: float(np.median(v.min(axis=0))) for k, v in stages.items()},
-           "reference_hough_alt_cpu_seconds_median": float(np.median(alt)), "tags": {}}
-    for name, (read, wrong, facing, secs) in tags.items():
-        if secs:
-            out["tags"][name] = {"facing": facing, "read_share": read / max(facing, 1), "wrong_reads": wrong,
-                                 "cpu_seconds_median": float(np.median(secs))}
-    return out
+    return {"seed": seed, "frames": len(seq), "spheres": len(seq[0].spheres),
+            "detectors": {name: _ours(seq, name, repeats) for name in detectors},
+            "apriltag3": None if apriltag is None else _apriltag3(seq, apriltag),
+            "reference_hough_alt_cpu_seconds_median": float(np.median(alt))}
 
 
 def _table(result: dict) -> str:
-    """The Markdown table of the varied scenes (one row per scene, held-out first)."""
-    head = ("| scene | set | recall | radius err p90 | false / double circles per sphere | wrong ids | ids carried |"
-            " tags read: ours / AprilTag 3 | wrong reads: ours / AprilTag 3 | CPU ms: ours / AprilTag 3 / ALT |"
-            " fps (CPU / wall) |\n|---|---|---|---|---|---|---|---|---|---|---|\n")
+    """The Markdown table of the varied scenes (one row per scene and detector, held-out first)."""
+    head = ("| scene | set | detector | recall | radius err median / p90 | false / double circles per sphere | wrong ids |"
+            " ids carried | tags read: ours / AprilTag 3 | wrong reads: ours / AprilTag 3 |"
+            " CPU ms: ours / AprilTag 3 / ALT | wall ms | fps (CPU) |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
+
+    def pct(x):
+        return "-" if x is None else f"{100 * x:.1f} %"
+
+    def num(x, fmt):
+        return "-" if x is None else format(x, fmt)
+
     rows = []
     for r in result["scenes"]:
-        t, a = r["tags"].get("ours", {}), r["tags"].get("apriltag3")
-        def pct(x):
-            return "-" if x is None else f"{100 * x:.1f} %"
-        rows.append(
-            f"| {r['seed']} | {r['set']} | {r['recall']:.3f} | {pct(r['radius_rel_err_p90'])} | "
-            f"{r['false_circles_per_sphere']:.3f} / {r['double_circles_per_sphere']:.3f} | {pct(r['wrong_id_share'])} | "
-            f"{pct(r['carried_id_share'])} | {pct(t.get('read_share'))} / {pct(a['read_share']) if a else '-'} | "
-            f"{t.get('wrong_reads', '-')} / {a['wrong_reads'] if a else '-'} | "
-            f"{1000 * r['cpu_seconds_median']:.0f} / {1000 * a['cpu_seconds_median'] if a else float('nan'):.0f} / "
-            f"{1000 * r['reference_hough_alt_cpu_seconds_median']:.0f} | {r['fps_cpu']:.1f} / {r['fps_wall']:.1f} |")
+        a = r["apriltag3"] or {}
+        for name, d in r["detectors"].items():
+            t = d["tags"]
+            rows.append(
+                f"| {r['seed']} | {r['set']} | {name} | {num(d['recall'], '.3f')} | "
+                f"{pct(d['radius_rel_err_median'])} / {pct(d['radius_rel_err_p90'])} | "
+                f"{num(d['false_circles_per_sphere'], '.3f')} / {num(d['double_circles_per_sphere'], '.3f')} | "
+                f"{pct(d['wrong_id_share'])} | {pct(d['carried_id_share'])} | "
+                f"{pct(t['read_share'])} / {pct(a.get('read_share'))} | {t['wrong_reads']} / {a.get('wrong_reads', '-')} | "
+                f"{1000 * d['cpu_seconds_median']:.0f} / {num(1000 * a['cpu_seconds_median'] if a else None, '.0f')} / "
+                f"{1000 * r['reference_hough_alt_cpu_seconds_median']:.0f} | {1000 * d['wall_seconds_median']:.0f} | "
+                f"{d['fps_cpu']:.1f} |")
     return head + "\n".join(rows) + "\n"
 
 
+def _held_out_summary(scenes: list[dict], name: str) -> dict:
+    """Worst and pooled figures of detector ``name`` over the held-out scenes."""
+    ds = [r["detectors"][name] for r in scenes if r["set"] == "held-out"]
+    counted = max(sum(d["counted_spheres"] for d in ds), 1)
+    return {"min_recall": min((d["recall"] for d in ds if d["recall"] is not None), default=None),
+            "recall_pooled": sum(d["recall"] * d["counted_spheres"] for d in ds if d["recall"] is not None) / counted,
+            "false_circles_per_sphere": sum(d["false_circles_per_sphere"] * d["counted_spheres"] for d in ds
+                                            if d["false_circles_per_sphere"] is not None) / counted,
+            "double_circles_per_sphere": sum(d["double_circles_per_sphere"] * d["counted_spheres"] for d in ds
+                                             if d["double_circles_per_sphere"] is not None) / counted,
+            "cpu_ms_median": 1000 * float(np.median([d["cpu_seconds_median"] for d in ds])),
+            "wall_ms_median": 1000 * float(np.median([d["wall_seconds_median"] for d in ds])),
+            "fps_cpu_median": float(np.median([d["fps_cpu"] for d in ds]))}
+
+
 def run_varied(args) -> dict:
-    """The varied scenes: held-out seeds (and tuning ones with ``--tuning``)."""
-    from agents.perception import HoughCircleDetector
+    """The varied scenes: held-out seeds (and tuning ones with ``--tuning``), each detector side by side."""
+    from agents.perception import make_detector
     from sims.experiments.varied_scenes import HELD_OUT_SEEDS, TUNING_SEEDS
 
-    detector = _reference_apriltag()
-    HoughCircleDetector()  # sets the allocator up before anything is timed (agents.perception.heap)
+    apriltag = _reference_apriltag()
+    make_detector()  # sets the allocator up before anything is timed (agents.perception.heap)
+    seeds = list(HELD_OUT_SEEDS[: args.scenes_max] if args.scenes_max else HELD_OUT_SEEDS)
     result = {"benchmark": "perception_varied",
-              "parameters": {"held_out_seeds": list(HELD_OUT_SEEDS), "tuning_seeds": list(TUNING_SEEDS),
+              "parameters": {"held_out_seeds": seeds, "tuning_seeds": list(TUNING_SEEDS) if args.tuning else [],
+                             "detectors": list(args.detectors),
                              "frames": args.frames, "image": [1024, 768], "threads": 1, "repeats": args.repeats,
                              "timing": "per frame the minimum CPU (and wall) time over the repeats, then the median",
                              "reference": "AprilTag 3 (pupil-apriltags) on the whole grey frame"
-                             if detector is not None else "pupil-apriltags not installed: no AprilTag 3 reference"},
+                             if apriltag is not None else "pupil-apriltags not installed: no AprilTag 3 reference"},
               "machine": machine(), "scenes": []}
-    sets = [("held-out", s) for s in HELD_OUT_SEEDS] + ([("tuning", s) for s in TUNING_SEEDS] if args.tuning else [])
-    for name, seed in sets:
-        r = _run_varied(seed, args.frames, args.repeats, detector)
-        r["set"] = name
-        result["scenes"].append(r)
-        print(f"scene {seed} ({name}): recall {r['recall']:.3f}, {1000 * r['cpu_seconds_median']:.0f} ms CPU", flush=True)
-    held = [r for r in result["scenes"] if r["set"] == "held-out"]
-    result["held_out"] = {
-        "min_recall": min(r["recall"] for r in held),
-        "false_circles_per_sphere": sum(r["false_circles_per_sphere"] * r["counted_spheres"] for r in held)
-        / max(sum(r["counted_spheres"] for r in held), 1),
-        "fps_cpu_median": float(np.median([r["fps_cpu"] for r in held])),
-        "fps_wall_median": float(np.median([r["fps_wall"] for r in held])),
-    }
+    sets = [("held-out", s) for s in seeds] + ([("tuning", s) for s in TUNING_SEEDS] if args.tuning else [])
+    try:
+        for name, seed in sets:
+            r = _run_varied(seed, args.frames, args.repeats, args.detectors, apriltag)
+            r["set"] = name
+            result["scenes"].append(r)
+            _print_scene(r)
+    finally:
+        _close_apriltag(apriltag)
+    result["held_out"] = {name: _held_out_summary(result["scenes"], name) for name in args.detectors}
     return result
+
+
+def _print_scene(r: dict) -> None:
+    """One progress line per scene."""
+    print(f"scene {r['seed']} ({r['set']}): " + ", ".join(
+        f"{d}: recall {v['recall'] if v['recall'] is None else round(v['recall'], 3)}, "
+        f"{1000 * v['cpu_seconds_median']:.0f} ms CPU" for d, v in r["detectors"].items()), flush=True)
 
 
 def run_rendered(args) -> dict:
@@ -357,13 +408,17 @@ def main(argv=None) -> None:
                         help="which frames (default: varied)")
     parser.add_argument("--frames", type=int, default=30, help="frames per varied scene (default 30)")
     parser.add_argument("--tuning", action="store_true", help="also report the tuning seeds of the varied scenes")
+    parser.add_argument("--detectors", nargs="+", choices=("hough", "rim"), default=["hough", "rim"],
+                        help="circle detectors compared on the varied scenes (default: both)")
+    parser.add_argument("--scenes-max", type=int, default=0,
+                        help="only the first N held-out varied scenes (default 0: all)")
     parser.add_argument("--steps", type=int, default=60, help="steps of the rendered scenarios (default 60)")
     parser.add_argument("--repeats", type=int, default=3,
                         help="runs of each sequence; per frame the smallest time counts (default 3)")
     parser.add_argument("--out", type=Path, default=Path("out/benchmarks"),
                         help="directory of the results (default out/benchmarks)")
     args = parser.parse_args(argv)
-    if args.frames < 1 or args.repeats < 1 or args.steps < 1:
+    if args.frames < 1 or args.repeats < 1 or args.steps < 1 or args.scenes_max < 0:
         parser.error("--frames, --repeats and --steps must be positive")
     if "varied" in args.scenes:
         result = run_varied(args)

@@ -27,7 +27,7 @@ from agents.perception.circle_fit import (
     fit_ellipses_direct,
     sampson_distances,
 )
-from agents.perception.refine import _nearest, _robust_fit
+from agents.perception.refine import _ellipse_stage, _nearest, _robust_fit
 
 __all__ = ["RimRefineConfig", "coarse_fit", "radial_edges", "refine_circles", "rim_points", "rim_votes"]
 
@@ -570,7 +570,8 @@ def refine_circles(image: np.ndarray, rough: np.ndarray, cfg: RimRefineConfig, *
     inl = valid & (np.abs(circle_residuals(pts, circles)) < tol[:, None])
     if cfg.max_axis_ratio > 1.0:
         h, w = image.shape[:2]
-        circles, inl = _ellipse_stage(pts, strength, circles, inl, tol, cfg, ((w - 1) / 2.0, (h - 1) / 2.0))
+        circles, inl = _ellipse_stage(pts, strength, circles, inl, tol, cfg, ((w - 1) / 2.0, (h - 1) / 2.0),
+                                      cfg.ellipse_margin)
     inl &= radial_edges(image, pts, circles)
     shift = np.hypot(circles[:, 0] - rough[:, 0], circles[:, 1] - rough[:, 1])
     ok &= (inl.sum(axis=1) >= 5) & (shift <= 0.25 * r0) & (circles[:, 2] > 0)
@@ -582,31 +583,3 @@ def refine_circles(image: np.ndarray, rough: np.ndarray, cfg: RimRefineConfig, *
     ok &= median >= cfg.min_rim_step
     scores = np.where(ok, inl.sum(axis=1) / cfg.rays, 0.0)
     return circles, scores, ok
-
-
-def _ellipse_stage(pts, strength, circles, inl, tol, cfg: RimRefineConfig, image_centre):
-    """Replace circles by ellipse centres / equal-area radii where an ellipse fits more rays."""
-    valid = strength > 0
-    w2 = strength * strength
-    centre, scale = circles[:, :2].copy(), np.maximum(circles[:, 2], 1.0)
-    near = valid & (np.abs(circle_residuals(pts, circles)) < (cfg.ellipse_gate * scale + tol)[:, None])
-    conics, eok = fit_ellipses_direct(pts, np.where(near, w2, 0.0), centre, scale)
-    for gate in (2.0 * tol, tol):
-        einl = valid & (sampson_distances(pts, conics, centre, scale) < gate[:, None])
-        again, aok = fit_ellipses_direct(pts, np.where(einl, w2, 0.0), centre, scale)
-        conics, eok = np.where(aok[:, None], again, conics), eok & aok
-    ec, ratio, major, cok = ellipse_circles(conics, centre, scale)
-    einl = valid & (sampson_distances(pts, conics, centre, scale) < tol[:, None])
-    moved = np.hypot(ec[:, 0] - circles[:, 0], ec[:, 1] - circles[:, 1])
-    # a sphere's ellipse points its major axis at the principal point (taken as the image centre)
-    radial = ec[:, :2] - np.asarray(image_centre, dtype=float)[None]
-    radial /= np.maximum(np.hypot(radial[:, 0], radial[:, 1]), 1e-9)[:, None]
-    aligned = (ratio <= 1.03) | (np.abs(np.einsum("ni,ni->n", major, radial)) >= np.cos(np.radians(cfg.max_axis_turn_deg)))
-    # and no more elongated than a sphere can look there: ratio ~ 1 / cos(off-axis angle), the angle
-    # at most atan(d / f) for a focal length f of at least ``min_focal_px`` (the distance d from the
-    # image centre); partly hidden rims otherwise pass for ellipses
-    d = np.hypot(ec[:, 0] - image_centre[0], ec[:, 1] - image_centre[1])
-    possible = np.minimum(cfg.max_axis_ratio, np.sqrt(1.0 + (d / cfg.min_focal_px) ** 2) + 0.03)
-    better = (eok & cok & (ratio <= possible) & aligned & (einl.sum(axis=1) > inl.sum(axis=1) + cfg.ellipse_margin * pts.shape[1])
-              & (moved <= 0.2 * scale) & (np.abs(ec[:, 2] / scale - 1.0) <= 0.2))
-    return np.where(better[:, None], ec, circles), np.where(better[:, None], einl, inl)
