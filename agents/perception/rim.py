@@ -17,8 +17,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from agents.perception.heap import keep_freed_memory
-from agents.perception.hough import _blur_float, _dedupe, suppress, to_grey
+from agents.perception.hough import HoughCircleDetector, HoughConfig, _blur_float, _dedupe, suppress, to_grey
 from agents.perception.rim_refine import RimRefineConfig, coarse_fit, refine_circles
 from agents.perception.types import Circle
 
@@ -26,36 +25,16 @@ __all__ = ["RimConfig", "RimCircleDetector"]
 
 
 @dataclass(frozen=True)
-class RimConfig:
-    """Parameters of :class:`RimCircleDetector`.
+class RimConfig(HoughConfig):
+    """Parameters of :class:`RimCircleDetector`: those of :class:`~agents.perception.hough.HoughConfig`
+    (with other defaults: a 1/8 level for the largest nodes, Canny threshold 80, one radius
+    multiplier, 60 proposals per level and channel, min score 0.55) and these.
 
     Attributes
     ----------
-    method : int
-        ``cv2.HOUGH_GRADIENT`` (default: fast, many proposals) or ``cv2.HOUGH_GRADIENT_ALT``.
-    levels : tuple of (scale, r_lo, r_hi)
-        Pyramid levels of the proposal stage: circles of full-resolution radius in [r_lo, r_hi] are
-        sought on the image resized by ``scale`` (proposals are only rough; the refinement runs at
-        full resolution). The Hough cost grows with the radius range in pixels, so large circles are
-        sought on coarser levels, and coarse levels blur the stickers' squares away.
-    blur : float
-        Gaussian sigma (px, at each level's scale) before the Hough transform.
-    dp, param1, param2 : float
-        ``cv2.HoughCircles`` accumulator resolution, Canny high threshold and accumulator threshold
-        (``HOUGH_GRADIENT``; for ``HOUGH_GRADIENT_ALT`` param2 is the circle "perfectness" in (0, 1)).
     chroma_param1 : float
         Canny high threshold of the proposals on the Lab chroma channels of a colour image (0: grey
         proposals only).
-    max_proposals : int
-        At most this many proposals (strongest accumulator first) are refined.
-    radius_multipliers : tuple of float
-        Each proposal is refined from these multiples of its radius (the best survives suppression).
-    min_radius, max_radius : int
-        Radius range in pixels of the returned circles (the levels should cover it).
-    refine_blur : float
-        Gaussian sigma (px) of the image the rim search runs on.
-    min_score : float
-        Circles whose refined rim support is below this are dropped.
     weak_scores : (float, float)
         Circles scoring in this range (below ``min_score``) are kept when the image inside 0.7 of
         their radius spreads by at least ``weak_contrast`` grey levels (summed over the channels):
@@ -72,44 +51,29 @@ class RimConfig:
     grow_multipliers : tuple of float
         Every found circle is also refined at these multiples of its radius (same centre); a
         larger rim found so outranks the nested circle in suppression.
-    max_circles : int
-        At most this many circles are returned (best score first).
     refine : RimRefineConfig
         Rim search and fit parameters.
     """
 
     levels: tuple[tuple[float, float, float], ...] = ((0.5, 8.0, 36.0), (0.25, 32.0, 80.0), (0.125, 72.0, 160.0))
-    method: int = cv2.HOUGH_GRADIENT
-    blur: float = 1.0
-    dp: float = 1.5
     param1: float = 80.0
-    param2: float = 15.0
     chroma_param1: float = 30.0
     radius_multipliers: tuple[float, ...] = (1.0,)
     max_proposals: int = 60
-    min_radius: int = 8
-    max_radius: int = 160
-    refine_blur: float = 1.0
     min_score: float = 0.55
     coarse_min_score: float = 0.3
     weak_scores: tuple[float, float] = (0.35, 0.5)
     weak_contrast: float = 130.0
     outer_tie: float = 0.9
     grow_multipliers: tuple[float, ...] = (1.4, 1.9, 2.5)
-    max_circles: int = 64
     refine: RimRefineConfig = field(default_factory=RimRefineConfig)
 
 
-class RimCircleDetector:
-    """Hough proposals + sub-pixel rim refinement; implements :class:`~agents.perception.types.CircleDetector`."""
+class RimCircleDetector(HoughCircleDetector):
+    """Hough proposals on grey and chroma + the rim search; implements :class:`~agents.perception.types.CircleDetector`."""
 
     def __init__(self, config: RimConfig | None = None):
-        self.config = config or RimConfig()
-        # the blurred frame (9.4 MB at 1024 x 768 x 3 float32) is written into the same buffer
-        # every frame: a fresh one is a fresh mmap whose pages fault in again, which cost ~7 ms of
-        # CPU per frame once the allocator began returning memory to the system between frames
-        self._fine: np.ndarray | None = None
-        keep_freed_memory()  # the same for the many per-frame arrays (see agents.perception.heap)
+        super().__init__(config or RimConfig())
 
     def proposals(self, image: np.ndarray) -> np.ndarray:
         """Rough Hough circles of a uint8 image over all levels, shape (N, 3) as (u, v, r).

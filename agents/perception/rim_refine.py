@@ -1,15 +1,11 @@
 """The rim search of the opt-in rim detector (:mod:`agents.perception.rim`): rim votes, radial edges, a robust fit.
 
 The default detector's refinement is :mod:`agents.perception.refine`; this module is its variant
-that finds a sphere's rim rather than its tag (the circle fit helpers are shared).
-
-Each rough circle (a Hough proposal) is refined by casting rays from its centre and taking, on each
-ray, the sub-pixel position of the strongest radial intensity step within a band around the rough
-radius. A circle is fitted to those rim points by iteratively re-weighted algebraic fits with a
-shrinking inlier gate, then a few geometric Gauss-Newton steps on the inliers. Rays that hit an
-occluder (a strut, a nearer node) or the sticker give outliers that the gate removes, which is what
-keeps partially occluded and blurred spheres accurate. The fraction of rays that support the final
-circle is its score. Everything is vectorised over all proposals of a frame.
+that finds a sphere's rim rather than its tag (the circle fit helpers are shared). Differences:
+the first pass votes on the rim radius along rays (:func:`rim_votes`) and, where that rim is weak,
+searches three-edge circles (:func:`rim_search`); only edges whose gradient is radial support a
+circle (:func:`radial_edges`); the fine pass can take the edge nearest the rough circle; a rim needs
+a median step of ``min_rim_step``; the ellipse needs ``ellipse_margin`` more rays than the circle.
 """
 
 from __future__ import annotations
