@@ -77,8 +77,8 @@ def _match(dets, nodes, w, h):
     return pairs, counted
 
 
-def _run(sim, frames, mode: str, repeats: int = 1) -> dict:
-    from agents.perception import AprilTagIdentifier, HoughCircleDetector, Perception
+def _run(sim, frames, mode: str, repeats: int = 1, detector: str = "hough") -> dict:
+    from agents.perception import AprilTagIdentifier, Perception, make_detector
     from agents.perception.motion import odometry_homography
     from agents.perception.sphere_tags import SphereTagIdentifier
 
@@ -90,10 +90,10 @@ def _run(sim, frames, mode: str, repeats: int = 1) -> dict:
         cam = log.cameras[key]
         if mode == "sphere":  # with the log: camera model, and the observer's odometry for the tracker
             ident = SphereTagIdentifier(cam.K, log.node_radius)
-            p = Perception(HoughCircleDetector(), ident, motion=None)
+            p = Perception(make_detector(detector), ident, motion=None)
         else:  # images only: image registration for the tracker
             ident = AprilTagIdentifier()
-            p = Perception(HoughCircleDetector(), ident)
+            p = Perception(make_detector(detector), ident)
         cpu_t = np.full((repeats, len(seq)), np.inf)
         wall_t = np.full((repeats, len(seq)), np.inf)
         stage_t: dict[str, np.ndarray] = {}
@@ -384,8 +384,9 @@ def _print_scene(r: dict) -> None:
 
 
 def run_rendered(args) -> dict:
-    """The 3-D renderer's table1 and multi scenarios (seed 0), both configurations."""
+    """The 3-D renderer's table1 and multi scenarios (seed 0), both configurations, one detector."""
     result = {"benchmark": "perception", "parameters": {"scenarios": ["table1", "multi"], "seed": 0, "steps": args.steps,
+                                                         "detector": args.rendered_detector,
                                                          "image": [1024, 768], "threads": 1, "repeats": args.repeats,
                                                          "timing": "per frame the minimum CPU time over the repeats, "
                                                                    "then the median over frames"},
@@ -396,7 +397,7 @@ def run_rendered(args) -> dict:
         ref_med = float(np.median(ref))
         entry = {"reference_hough_alt_cpu_seconds_median": ref_med}
         for mode in ("opencv_apriltag", "sphere_model"):
-            r = _run(sim, frames, "sphere" if mode == "sphere_model" else "opencv", args.repeats)
+            r = _run(sim, frames, "sphere" if mode == "sphere_model" else "opencv", args.repeats, args.rendered_detector)
             entry[mode] = _summary(r, ref_med)
         result["scenarios"][name] = entry
     return result
@@ -410,6 +411,8 @@ def main(argv=None) -> None:
     parser.add_argument("--tuning", action="store_true", help="also report the tuning seeds of the varied scenes")
     parser.add_argument("--detectors", nargs="+", choices=("hough", "rim"), default=["hough", "rim"],
                         help="circle detectors compared on the varied scenes (default: both)")
+    parser.add_argument("--rendered-detector", choices=("hough", "rim"), default="hough",
+                        help="circle detector of the rendered scenarios (default hough)")
     parser.add_argument("--scenes-max", type=int, default=0,
                         help="only the first N held-out varied scenes (default 0: all)")
     parser.add_argument("--steps", type=int, default=60, help="steps of the rendered scenarios (default 60)")

@@ -1,4 +1,4 @@
-"""The detector on fixed varied frames: the rim, not the tag, of the failure cases seen on other renderers."""
+"""The rim detector (`detector="rim"`) on fixed varied frames: the rim, not the tag, where the default fails."""
 
 import numpy as np
 import pytest
