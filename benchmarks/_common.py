@@ -51,7 +51,8 @@ def output(out: Path, name: str, suffix: str = ".json") -> Path:
 def machine() -> dict:
     """Machine, versions and load at the time of the run."""
     versions = {}
-    for pkg in ("numpy", "scipy", "cvxpy", "clarabel", "networkx", "opencv-python-headless", "pettingzoo"):
+    for pkg in ("numpy", "scipy", "cvxpy", "clarabel", "networkx", "opencv-python-headless", "pettingzoo",
+                "pupil-apriltags"):
         try:
             versions[pkg] = metadata.version(pkg)
         except metadata.PackageNotFoundError:

@@ -1,25 +1,31 @@
-"""Perception front end on rendered frames: frames per second on one core, and detection/id quality.
+"""Perception front end: frames per second on one core, detection and id quality, and AprilTag 3 beside it.
 
-Fixed inputs: the ``table1`` and ``multi`` scenarios (seed 0), rendered at 1024 x 768 with the
-renderer's default degradations (sensor noise, blur, motion blur, exposure drift; struts and nearer
-nodes occlude). For each frame the front end runs detection + identification + tracking; two
-configurations are timed: images only (OpenCV's AprilTag detector restricted to the circles, camera
-motion from image registration), and with the log (the sphere-model reader with the log's camera
-model, camera motion from the observer's odometry: what ``decentral perceive --log-template`` does).
-The reference measured in the same run is OpenCV's ``HoughCircles(HOUGH_GRADIENT_ALT)`` alone on the
-same frames (FINDINGS' detector). Times are CPU seconds of the process (threads pinned to one, so
-this is one core's work; wall time, inflated when the shared machine is loaded, is kept beside it).
+Two sets of frames:
 
-Quality against the renderer's truth (every node with visible pixels, its silhouette circle):
-precision and recall of circles (a detection matches the nearest unmatched node within half its
-radius; nodes count if at least half visible and wholly inside the image), radius error, id
-accuracy (identified detections naming the matched node), id switches (a node's track number
-changing between frames where it is matched to a tracked detection), node-id changes (the node id
-shown on a true node changing), and matched detections left untracked (low score, no track).
+- ``varied`` (default): image-plane sequences of :mod:`sims.experiments.varied_scenes` at 1024 x 768
+  with 5-10 spheres (floors of several kinds, colours close to the floor's, 15-90 px radius,
+  highlights, lighting gradients, tags on the cap, occlusion by spheres and struts, smear), on the
+  held-out scene seeds (no parameter was tuned on them; ``--tuning`` adds the tuning seeds), each
+  circle detector of ``--detectors`` side by side (default both: ``hough``, the default, and the
+  opt-in ``rim``). Per scene and detector: recall (a detection within max(2 px, 0.1 r) of a
+  sphere's centre and 10 % of its radius; spheres at least half visible), radius error, false and double circles per sphere, wrong ids, ids carried
+  through frames without a tag read (:mod:`sims.experiments.perception_scores`). Tag reads, ours
+  (OpenCV's quads inside our circles, no tracking) against the AprilTag 3 C library on the whole
+  grey frame (``pupil-apriltags``, the ``bench`` extra; skipped with a note when not installed):
+  share of facing tags read, wrong ids, CPU time per frame.
+- ``rendered``: the 3-D renderer's ``table1`` and ``multi`` scenarios (seed 0), images only and with
+  the log's camera model (see docs/perception.md).
 
-Usage: ``python benchmarks/perception.py [--steps 60] [--repeats 3]`` (each sequence runs ``repeats`` times and
-per frame the smallest CPU time counts: the machine is shared, and interference only adds time); writes ``OUT/perception.json``
-and ``perception.png``.
+Times: CPU seconds of this process (``time.process_time``; BLAS and OpenCV pinned to one thread, so
+one core's work) and wall seconds; each sequence runs ``--repeats`` times and per frame the smallest
+time counts (other processes on a shared machine only add time), then the median over frames. The
+load average at start and end is saved with the results. The reference measured in the same run:
+AprilTag 3 on the same frames, and OpenCV's ``HoughCircles(HOUGH_GRADIENT_ALT)`` (FINDINGS'
+detector).
+
+Usage: ``python benchmarks/perception.py [--scenes varied rendered] [--frames 30] [--repeats 3]
+[--detectors hough rim] [--scenes-max N] [--out DIR]``; writes ``perception_varied.{json,md}`` and/or ``perception.{json,png}`` under ``--out``
+(default ``out/benchmarks``; pass ``--out benchmarks/results`` to replace the committed results).
 """
 
 from __future__ import annotations
@@ -27,6 +33,8 @@ from __future__ import annotations
 import time
 
 from _common import machine, output, parser, save, save_figure  # noqa: I001  (pins threads before numpy)
+
+from sims.io.atomic import write_atomic
 
 import cv2
 import numpy as np
@@ -66,8 +74,8 @@ def _match(dets, nodes, w, h):
     return pairs, counted
 
 
-def _run(sim, frames, mode: str, repeats: int = 1) -> dict:
-    from agents.perception import AprilTagIdentifier, HoughCircleDetector, Perception
+def _run(sim, frames, mode: str, repeats: int = 1, detector: str = "hough") -> dict:
+    from agents.perception import AprilTagIdentifier, Perception, make_detector
     from agents.perception.motion import odometry_homography
     from agents.perception.sphere_tags import SphereTagIdentifier
 
@@ -79,10 +87,10 @@ def _run(sim, frames, mode: str, repeats: int = 1) -> dict:
         cam = log.cameras[key]
         if mode == "sphere":  # with the log: camera model, and the observer's odometry for the tracker
             ident = SphereTagIdentifier(cam.K, log.node_radius)
-            p = Perception(HoughCircleDetector(), ident, motion=None)
+            p = Perception(make_detector(detector), ident, motion=None)
         else:  # images only: image registration for the tracker
             ident = AprilTagIdentifier()
-            p = Perception(HoughCircleDetector(), ident)
+            p = Perception(make_detector(detector), ident)
         cpu_t = np.full((repeats, len(seq)), np.inf)
         wall_t = np.full((repeats, len(seq)), np.inf)
         stage_t: dict[str, np.ndarray] = {}
@@ -187,13 +195,195 @@ def _summary(r: dict, ref_median: float) -> dict:
     }
 
 
-def main(argv=None) -> None:
-    ap = parser(__doc__)
-    ap.add_argument("--steps", type=int, default=60)
-    ap.add_argument("--repeats", type=int, default=3,
-                    help="runs of each sequence; per frame the smallest CPU time counts (default 3)")
-    args = ap.parse_args(argv)
+def _reference_apriltag():
+    """The AprilTag 3 C library's detector (tag36h11, one thread), or None when not installed."""
+    try:
+        from pupil_apriltags import Detector
+    except ImportError:
+        return None
+    return Detector(families="tag36h11", nthreads=1, quad_decimate=1.0, refine_edges=1)
+
+
+def _close_apriltag(detector) -> None:
+    """Unregister the tag families before ``detector`` is destroyed.
+
+    pupil-apriltags 1.0.4's ``Detector.__del__`` frees the families first and then the C detector,
+    whose destructor reads them again: a use after free that crashed the benchmark (segfault in
+    libapriltag) after the last scene, before anything was saved.
+    """
+    if detector is not None and detector.tag_detector_ptr is not None:
+        detector.libc.apriltag_detector_clear_families.restype = None
+        detector.libc.apriltag_detector_clear_families(detector.tag_detector_ptr)
+
+
+def _tags_facing(frame) -> np.ndarray:
+    """Spheres whose tag faces the camera (normal within 60 deg of the view) and that show wholly."""
+    return np.array([s.tag and s.tag_normal[2] >= 0.5 for s in frame.spheres]) & (frame.visible >= 0.9)
+
+
+def _score_reads(frame, reads) -> tuple[int, int, int]:
+    """(facing tags read, wrong reads, facing tags) of tag reads [(id, (u, v))] on one frame."""
+    facing = _tags_facing(frame)
+    hit, wrong = set(), 0
+    for tag, (u, v) in reads:
+        under = [j for j, s in enumerate(frame.spheres) if np.hypot(u - s.u, v - s.v) <= s.r]
+        j = min(under, key=lambda j: -frame.spheres[j].r) if under else None  # the nearest sphere
+        if j is None or frame.spheres[j].id != tag:
+            wrong += 1
+        elif facing[j]:
+            hit.add(j)
+    return len(hit), wrong, int(facing.sum())
+
+
+def _ours(seq, name: str, repeats: int) -> dict:
+    """Our front end with the detector ``name`` on one varied sequence: scores, tag reads and times."""
+    from agents.perception import Perception
+    from sims.experiments.perception_scores import SequenceScore, score_frame
+
+    ours = Perception(name)
+    cpu = np.full((repeats, len(seq)), np.inf)
+    wall = np.full((repeats, len(seq)), np.inf)
+    stages: dict[str, np.ndarray] = {}
+    score = SequenceScore()
+    for rep in range(repeats):
+        ours.reset()
+        for k, fr in enumerate(seq):
+            start, c0 = time.perf_counter(), time.process_time()
+            dets, secs = ours.process(fr.image)
+            cpu[rep, k], wall[rep, k] = time.process_time() - c0, time.perf_counter() - start
+            for stage, v in secs.items():
+                stages.setdefault(stage, np.full((repeats, len(seq)), np.inf))[rep, k] = v
+            if rep == 0:
+                score_frame(score, fr, dets)
+    # tag reads inside our circles (every circle read, no tracking), comparable with AprilTag 3's
+    plain = Perception(name, track=False)
+    read = wrong = facing = 0
+    for fr in seq:
+        dets, _ = plain.process(fr.image)
+        got = [(d.read.node, (float(np.mean(d.read.corners[:, 0])), float(np.mean(d.read.corners[:, 1]))))
+               for d in dets if d.read is not None and d.read.node is not None]
+        r, w, f = _score_reads(fr, got)
+        read, wrong, facing = read + r, wrong + w, facing + f
+    best_cpu, best_wall = np.median(cpu.min(axis=0)), np.median(wall.min(axis=0))
+    return {**score.summary(),
+            "cpu_seconds_median": float(best_cpu), "wall_seconds_median": float(best_wall),
+            "fps_cpu": 1.0 / float(best_cpu), "fps_wall": 1.0 / float(best_wall),
+            "stage_cpu_seconds_median": {k: float(np.median(v.min(axis=0))) for k, v in stages.items()},
+            "tags": {"facing": facing, "read_share": read / max(facing, 1), "wrong_reads": wrong}}
+
+
+def _apriltag3(seq, detector) -> dict:
+    """The AprilTag 3 C library on the whole grey frames of one sequence: tag reads and CPU time."""
+    read = wrong = facing = 0
+    secs = []
+    for fr in seq:
+        grey = cv2.cvtColor(fr.image, cv2.COLOR_BGR2GRAY)
+        c0 = time.process_time()
+        found = detector.detect(grey)
+        secs.append(time.process_time() - c0)
+        got = [(int(r.tag_id), (float(r.center[0]), float(r.center[1]))) for r in found]
+        r, w, f = _score_reads(fr, got)
+        read, wrong, facing = read + r, wrong + w, facing + f
+    return {"facing": facing, "read_share": read / max(facing, 1), "wrong_reads": wrong,
+            "cpu_seconds_median": float(np.median(secs))}
+
+
+def _run_varied(seed: int, frames: int, repeats: int, detectors, apriltag) -> dict:
+    """One held-out or tuning scene: our front end with each detector, and the references."""
+    from sims.experiments.varied_scenes import sequence
+
+    seq = sequence(seed, frames)
+    alt = _hough_alt_seconds({"all": [(k, fr) for k, fr in enumerate(seq)]}, 1)
+    return {"seed": seed, "frames": len(seq), "spheres": len(seq[0].spheres),
+            "detectors": {name: _ours(seq, name, repeats) for name in detectors},
+            "apriltag3": None if apriltag is None else _apriltag3(seq, apriltag),
+            "reference_hough_alt_cpu_seconds_median": float(np.median(alt))}
+
+
+def _table(result: dict) -> str:
+    """The Markdown table of the varied scenes (one row per scene and detector, held-out first)."""
+    head = ("| scene | set | detector | recall | radius err median / p90 | false / double circles per sphere | wrong ids |"
+            " ids carried | tags read: ours / AprilTag 3 | wrong reads: ours / AprilTag 3 |"
+            " CPU ms: ours / AprilTag 3 / ALT | wall ms | fps (CPU) |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
+
+    def pct(x):
+        return "-" if x is None else f"{100 * x:.1f} %"
+
+    def num(x, fmt):
+        return "-" if x is None else format(x, fmt)
+
+    rows = []
+    for r in result["scenes"]:
+        a = r["apriltag3"] or {}
+        for name, d in r["detectors"].items():
+            t = d["tags"]
+            rows.append(
+                f"| {r['seed']} | {r['set']} | {name} | {num(d['recall'], '.3f')} | "
+                f"{pct(d['radius_rel_err_median'])} / {pct(d['radius_rel_err_p90'])} | "
+                f"{num(d['false_circles_per_sphere'], '.3f')} / {num(d['double_circles_per_sphere'], '.3f')} | "
+                f"{pct(d['wrong_id_share'])} | {pct(d['carried_id_share'])} | "
+                f"{pct(t['read_share'])} / {pct(a.get('read_share'))} | {t['wrong_reads']} / {a.get('wrong_reads', '-')} | "
+                f"{1000 * d['cpu_seconds_median']:.0f} / {num(1000 * a['cpu_seconds_median'] if a else None, '.0f')} / "
+                f"{1000 * r['reference_hough_alt_cpu_seconds_median']:.0f} | {1000 * d['wall_seconds_median']:.0f} | "
+                f"{d['fps_cpu']:.1f} |")
+    return head + "\n".join(rows) + "\n"
+
+
+def _held_out_summary(scenes: list[dict], name: str) -> dict:
+    """Worst and pooled figures of detector ``name`` over the held-out scenes."""
+    ds = [r["detectors"][name] for r in scenes if r["set"] == "held-out"]
+    counted = max(sum(d["counted_spheres"] for d in ds), 1)
+    return {"min_recall": min((d["recall"] for d in ds if d["recall"] is not None), default=None),
+            "recall_pooled": sum(d["recall"] * d["counted_spheres"] for d in ds if d["recall"] is not None) / counted,
+            "false_circles_per_sphere": sum(d["false_circles_per_sphere"] * d["counted_spheres"] for d in ds
+                                            if d["false_circles_per_sphere"] is not None) / counted,
+            "double_circles_per_sphere": sum(d["double_circles_per_sphere"] * d["counted_spheres"] for d in ds
+                                             if d["double_circles_per_sphere"] is not None) / counted,
+            "cpu_ms_median": 1000 * float(np.median([d["cpu_seconds_median"] for d in ds])),
+            "wall_ms_median": 1000 * float(np.median([d["wall_seconds_median"] for d in ds])),
+            "fps_cpu_median": float(np.median([d["fps_cpu"] for d in ds]))}
+
+
+def run_varied(args) -> dict:
+    """The varied scenes: held-out seeds (and tuning ones with ``--tuning``), each detector side by side."""
+    from agents.perception import make_detector
+    from sims.experiments.varied_scenes import HELD_OUT_SEEDS, TUNING_SEEDS
+
+    apriltag = _reference_apriltag()
+    make_detector()  # sets the allocator up before anything is timed (agents.perception.heap)
+    seeds = list(HELD_OUT_SEEDS[: args.scenes_max] if args.scenes_max else HELD_OUT_SEEDS)
+    result = {"benchmark": "perception_varied",
+              "parameters": {"held_out_seeds": seeds, "tuning_seeds": list(TUNING_SEEDS) if args.tuning else [],
+                             "detectors": list(args.detectors),
+                             "frames": args.frames, "image": [1024, 768], "threads": 1, "repeats": args.repeats,
+                             "timing": "per frame the minimum CPU (and wall) time over the repeats, then the median",
+                             "reference": "AprilTag 3 (pupil-apriltags) on the whole grey frame"
+                             if apriltag is not None else "pupil-apriltags not installed: no AprilTag 3 reference"},
+              "machine": machine(), "scenes": []}
+    sets = [("held-out", s) for s in seeds] + ([("tuning", s) for s in TUNING_SEEDS] if args.tuning else [])
+    try:
+        for name, seed in sets:
+            r = _run_varied(seed, args.frames, args.repeats, args.detectors, apriltag)
+            r["set"] = name
+            result["scenes"].append(r)
+            _print_scene(r)
+    finally:
+        _close_apriltag(apriltag)
+    result["held_out"] = {name: _held_out_summary(result["scenes"], name) for name in args.detectors}
+    return result
+
+
+def _print_scene(r: dict) -> None:
+    """One progress line per scene."""
+    print(f"scene {r['seed']} ({r['set']}): " + ", ".join(
+        f"{d}: recall {v['recall'] if v['recall'] is None else round(v['recall'], 3)}, "
+        f"{1000 * v['cpu_seconds_median']:.0f} ms CPU" for d, v in r["detectors"].items()), flush=True)
+
+
+def run_rendered(args) -> dict:
+    """The 3-D renderer's table1 and multi scenarios (seed 0), both configurations, one detector."""
     result = {"benchmark": "perception", "parameters": {"scenarios": ["table1", "multi"], "seed": 0, "steps": args.steps,
+                                                         "detector": args.rendered_detector,
                                                          "image": [1024, 768], "threads": 1, "repeats": args.repeats,
                                                          "timing": "per frame the minimum CPU time over the repeats, "
                                                                    "then the median over frames"},
@@ -204,11 +394,40 @@ def main(argv=None) -> None:
         ref_med = float(np.median(ref))
         entry = {"reference_hough_alt_cpu_seconds_median": ref_med}
         for mode in ("opencv_apriltag", "sphere_model"):
-            r = _run(sim, frames, "sphere" if mode == "sphere_model" else "opencv", args.repeats)
+            r = _run(sim, frames, "sphere" if mode == "sphere_model" else "opencv", args.repeats, args.rendered_detector)
             entry[mode] = _summary(r, ref_med)
         result["scenarios"][name] = entry
-    save("perception", result, args.out)
-    plot(result, output(args.out, "perception", ".png"))
+    return result
+
+
+def main(argv=None) -> None:
+    ap = parser(__doc__)
+    ap.add_argument("--scenes", nargs="+", choices=("varied", "rendered"), default=["varied"],
+                    help="which frames (default: varied)")
+    ap.add_argument("--frames", type=int, default=30, help="frames per varied scene (default 30)")
+    ap.add_argument("--tuning", action="store_true", help="also report the tuning seeds of the varied scenes")
+    ap.add_argument("--detectors", nargs="+", choices=("hough", "rim"), default=["hough", "rim"],
+                    help="circle detectors compared on the varied scenes (default: both)")
+    ap.add_argument("--rendered-detector", choices=("hough", "rim"), default="hough",
+                    help="circle detector of the rendered scenarios (default hough)")
+    ap.add_argument("--scenes-max", type=int, default=0,
+                    help="only the first N held-out varied scenes (default 0: all)")
+    ap.add_argument("--steps", type=int, default=60, help="steps of the rendered scenarios (default 60)")
+    ap.add_argument("--repeats", type=int, default=3,
+                    help="runs of each sequence; per frame the smallest time counts (default 3)")
+    args = ap.parse_args(argv)
+    if args.frames < 1 or args.repeats < 1 or args.steps < 1 or args.scenes_max < 0:
+        ap.error("--frames, --repeats and --steps must be positive")
+    if "varied" in args.scenes:
+        result = run_varied(args)
+        save("perception_varied", result, args.out)
+        table = _table(result)
+        write_atomic(output(args.out, "perception_varied", ".md"), lambda fh: fh.write(table))
+        print(table)
+    if "rendered" in args.scenes:
+        result = run_rendered(args)
+        save("perception", result, args.out)
+        plot(result, output(args.out, "perception", ".png"))
 
 
 def plot(result: dict, path) -> None:

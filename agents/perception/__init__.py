@@ -6,11 +6,13 @@ Each stage sits behind a small protocol (:class:`CircleDetector`, :class:`Identi
 """
 
 from agents.perception.apriltag import AprilTagConfig, AprilTagIdentifier
+from agents.perception.detectors import DETECTORS, make_detector
 from agents.perception.hough import HoughCircleDetector, HoughConfig
 from agents.perception.motion import FlowRegistration, odometry_homography
 from agents.perception.onnx_head import OnnxCircleDetector, OnnxHeadConfig
 from agents.perception.pipeline import FrameResult, Perception, perceive_frames
 from agents.perception.refine import RefineConfig
+from agents.perception.rim import RimCircleDetector, RimConfig
 from agents.perception.tracking import CircleTracker, TrackerConfig
 from agents.perception.types import Circle, CircleDetector, Identifier, TagRead, TrackedCircle, Tracker
 
@@ -20,6 +22,7 @@ __all__ = [
     "Circle",
     "CircleDetector",
     "CircleTracker",
+    "DETECTORS",
     "FlowRegistration",
     "FrameResult",
     "HoughCircleDetector",
@@ -29,10 +32,13 @@ __all__ = [
     "OnnxHeadConfig",
     "Perception",
     "RefineConfig",
+    "RimCircleDetector",
+    "RimConfig",
     "TagRead",
     "TrackedCircle",
     "Tracker",
     "TrackerConfig",
+    "make_detector",
     "odometry_homography",
     "perceive_frames",
 ]

@@ -14,7 +14,7 @@ from typing import Callable, Iterable, Sequence
 import numpy as np
 
 from agents.perception.apriltag import AprilTagConfig, AprilTagIdentifier
-from agents.perception.hough import HoughCircleDetector
+from agents.perception.detectors import make_detector
 from agents.perception.motion import FlowRegistration
 from agents.perception.tracking import CircleTracker
 from agents.perception.types import Circle, CircleDetector, Identifier, TrackedCircle, Tracker
@@ -38,8 +38,10 @@ class Perception:
 
     Parameters
     ----------
-    detector : CircleDetector, optional
-        Default :class:`~agents.perception.hough.HoughCircleDetector`.
+    detector : CircleDetector or str, optional
+        A detector, or its name for :func:`~agents.perception.detectors.make_detector`: ``"hough"``
+        (the default, :class:`~agents.perception.hough.HoughCircleDetector`) or ``"rim"``
+        (:class:`~agents.perception.rim.RimCircleDetector`).
     identifier : Identifier, optional
         Default :class:`~agents.perception.apriltag.AprilTagIdentifier` (tag36h11).
     tracker : Tracker or None
@@ -52,14 +54,14 @@ class Perception:
 
     def __init__(
         self,
-        detector: CircleDetector | None = None,
+        detector: CircleDetector | str | None = None,
         identifier: Identifier | None = None,
         tracker: Tracker | None = None,
         *,
         track: bool = True,
         motion: MotionSource | None | str = "flow",
     ):
-        self.detector = detector or HoughCircleDetector()
+        self.detector = make_detector(detector) if isinstance(detector, str) else detector or make_detector()
         self.identifier = identifier or AprilTagIdentifier(AprilTagConfig())
         self.tracker = (tracker or CircleTracker()) if track else None
         if motion == "flow":

@@ -276,8 +276,10 @@ def refine_circles(image: np.ndarray, rough: np.ndarray, cfg: RefineConfig) -> t
     return circles, scores, ok
 
 
-def _ellipse_stage(pts, strength, circles, inl, tol, cfg: RefineConfig, image_centre):
-    """Replace circles by ellipse centres / equal-area radii where an ellipse fits more rays."""
+def _ellipse_stage(pts, strength, circles, inl, tol, cfg: RefineConfig, image_centre, margin: float = 0.0):
+    """Replace circles by ellipse centres / equal-area radii where an ellipse fits more rays
+    (more by at least ``margin`` of the rays: 0 for the default detector, see
+    :class:`agents.perception.rim_refine.RimRefineConfig` ``ellipse_margin``)."""
     valid = strength > 0
     w2 = strength * strength
     centre, scale = circles[:, :2].copy(), np.maximum(circles[:, 2], 1.0)
@@ -299,6 +301,6 @@ def _ellipse_stage(pts, strength, circles, inl, tol, cfg: RefineConfig, image_ce
     # image centre); partly hidden rims otherwise pass for ellipses
     d = np.hypot(ec[:, 0] - image_centre[0], ec[:, 1] - image_centre[1])
     possible = np.minimum(cfg.max_axis_ratio, np.sqrt(1.0 + (d / cfg.min_focal_px) ** 2) + 0.03)
-    better = (eok & cok & (ratio <= possible) & aligned & (einl.sum(axis=1) > inl.sum(axis=1))
+    better = (eok & cok & (ratio <= possible) & aligned & (einl.sum(axis=1) > inl.sum(axis=1) + margin * pts.shape[1])
               & (moved <= 0.2 * scale) & (np.abs(ec[:, 2] / scale - 1.0) <= 0.2))
     return np.where(better[:, None], ec, circles), np.where(better[:, None], einl, inl)

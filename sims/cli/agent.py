@@ -27,19 +27,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="write this agent's estimate (poses relative to itself) when it ends")
     parser.add_argument("--reference", default=None,
                         help="assembly that pins the gauge (default: the first listed); the same for every agent")
-    parser.add_argument("--window", type=int, default=5, help="steps per sliding window K (default 5)")
+    parser.add_argument("--window", type=int, default=5, help="steps per sliding window K (default: 5)")
     parser.add_argument("--start", default=None, metavar="UNIX_TIME",
                         help="wall time (seconds since the Unix epoch) of the log's first step, the same for every "
                              "agent (default: now); '-' prints 'ready' once listening and reads it from stdin")
     parser.add_argument("--rate", type=float, default=1.0,
-                        help="log seconds per wall second (default 1: the log's timestamps; 4: four times faster)")
+                        help="log seconds per wall second (default: 1: the log's timestamps; 4: four times faster)")
     parser.add_argument("--round-period", type=float, default=0.01,
-                        help="wall seconds per consensus round (default 0.01); the same for every agent")
+                        help="wall seconds per consensus round (default: 0.01); the same for every agent")
     parser.add_argument("--linger", type=float, default=1.0,
-                        help="seconds to keep answering peers after the last step (default 1)")
+                        help="seconds to keep answering peers after the last step (default: 1)")
     parser.add_argument("--loss", type=float, default=0.0,
                         help="drop each arriving frame with this probability (testing; default 0)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the receive-side losses (default 0)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the receive-side losses (default: 0)")
     parser.add_argument("--stream", metavar="FILE",
                         help="append each finished step to FILE as one JSON line at once (survives a kill)")
 

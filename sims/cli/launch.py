@@ -15,20 +15,20 @@ HELP = "run a log as one agent process per assembly over authenticated loopback 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("log", metavar="LOG.json", help="observation log (decentral.log/1)")
     parser.add_argument("-o", "--output", required=True, metavar="EST.json", help="the reference agent's estimate")
-    parser.add_argument("--window", type=int, default=5, help="steps per sliding window K (default 5)")
+    parser.add_argument("--window", type=int, default=5, help="steps per sliding window K (default: 5)")
     parser.add_argument("--reference", default=None, help="reference assembly (default: the first listed)")
     parser.add_argument("--loss", type=float, default=0.0,
-                        help="probability that a frame is dropped at the receiving side (default 0)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the losses (default 0)")
+                        help="probability that a frame is dropped at the receiving side (default: 0)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the losses (default: 0)")
     parser.add_argument("--crash", action="append", default=[], metavar="NAME@STEP[+DOWN]",
                         help="SIGKILL NAME's process when the log reaches STEP and start a fresh one DOWN steps "
                              "later (repeatable; without +DOWN it stays down)")
     parser.add_argument("--timeout", type=float, default=None, metavar="SECONDS",
                         help="kill every process after this many seconds and write what was gathered")
     parser.add_argument("--rate", type=float, default=1.0,
-                        help="log seconds per wall second (default 1: the log's timestamps)")
+                        help="log seconds per wall second (default: 1: the log's timestamps)")
     parser.add_argument("--round-period", type=float, default=0.01,
-                        help="wall seconds per consensus round (default 0.01)")
+                        help="wall seconds per consensus round (default: 0.01)")
     parser.add_argument("--absent", action="append", default=[], metavar="NAME",
                         help="never start NAME's agent (a peer that never comes up; repeatable)")
     parser.add_argument("--workdir", default=None,

@@ -43,6 +43,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--tag-table", metavar="TABLE.json", help='JSON object tag id -> node id (default: node id = tag id)')
     parser.add_argument("--min-radius", type=float, default=8.0, help="smallest node radius in pixels (default: 8)")
     parser.add_argument("--max-radius", type=float, default=160.0, help="largest node radius in pixels (default: 160)")
+    parser.add_argument("--detector", choices=("hough", "rim"), default="hough",
+                        help="circle detector: hough (fast; default: hough) or rim (finds the rim where hough fits "
+                             "the tag on large low-contrast or partly hidden spheres; about 3x slower)")
     parser.add_argument("--motion", choices=("auto", "flow", "odometry", "none"), default="auto",
                         help="camera-motion compensation for tracking: auto (default: the observer's "
                              "odometry when --log-template has it, else image registration), flow (image "
@@ -135,6 +138,7 @@ def perceive_paths(
     min_radius: float = 8.0,
     max_radius: float = 160.0,
     motion: str = "auto",
+    detector: str = "hough",
     log=None,
     camera: str | None = None,
     max_pixels: int | None = None,
@@ -146,14 +150,14 @@ def perceive_paths(
     has odometry for the camera's assembly), the observer's rotation per step; without a log,
     ``"auto"`` is image registration. Frames over ``max_pixels`` pixels are refused before decoding.
     """
-    from agents.perception import AprilTagConfig, AprilTagIdentifier, HoughCircleDetector, HoughConfig, Perception
+    from agents.perception import AprilTagConfig, AprilTagIdentifier, Perception, make_detector
     from agents.perception.pipeline import perceive_frames
 
     require_range(min_radius, "--min-radius", *RADIUS_RANGE)
     require_range(max_radius, "--max-radius", *RADIUS_RANGE)
     if max_radius <= min_radius:
         raise InputError("need --min-radius < --max-radius", field="--min-radius")
-    detector = HoughCircleDetector(HoughConfig(min_radius=int(np.floor(min_radius)), max_radius=int(np.ceil(max_radius))))
+    circles = make_detector(detector, min_radius, max_radius)
     try:
         identifier = AprilTagIdentifier(AprilTagConfig(family=family, tag_table=tag_table))
     except ValueError as err:
@@ -161,12 +165,13 @@ def perceive_paths(
     if log is None:
         if motion == "odometry":
             raise InputError("--motion odometry needs --log-template and --camera", field="--motion")
-        perception = Perception(detector, identifier, track=track, motion="flow" if motion in ("flow", "auto") else None)
+        perception = Perception(circles, identifier, track=track, motion="flow" if motion in ("flow", "auto") else None)
         return to_records(perceive_frames(_frames(paths, max_pixels), perception))
     from sims.experiments.perception_run import perceive_with_log
 
     return list(perceive_with_log(_frames(paths, max_pixels), log, camera, family=family, tag_table=tag_table,
-                                  track=track, motion=motion, min_radius=min_radius, max_radius=max_radius).frames)
+                                  track=track, motion=motion, min_radius=min_radius, max_radius=max_radius,
+                                  detector=detector).frames)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -199,6 +204,7 @@ def run(args: argparse.Namespace) -> int:
         tag_table=_tag_table(args.tag_table),
         min_radius=args.min_radius,
         max_radius=args.max_radius,
+        detector=args.detector,
         motion=args.motion,
         log=log,
         camera=args.camera,

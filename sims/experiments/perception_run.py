@@ -40,15 +40,17 @@ def perceive_with_log(
     min_radius: float = 8.0,
     max_radius: float = 160.0,
     layout=None,
+    detector: str = "hough",
 ) -> PerceivedCamera:
     """Run perception over ``(name, image)`` pairs, frame k being step k of ``log`` seen by ``camera``.
 
     ``motion`` is ``"flow"`` (image registration), ``"odometry"`` (the observer's yaw odometry),
     ``"auto"`` (odometry when the log has any for the camera's assembly, else flow: odometry is
     free, registration costs about 2 ms per frame) or ``"none"``; ``layout`` the
-    :class:`~agents.perception.sphere_tags.StickerLayout` (default: the renderer's).
+    :class:`~agents.perception.sphere_tags.StickerLayout` (default: the renderer's); ``detector`` the
+    circle detector's name (``"hough"``, the default, or ``"rim"``; :func:`agents.perception.make_detector`).
     """
-    from agents.perception import HoughCircleDetector, HoughConfig, Perception
+    from agents.perception import Perception, make_detector
     from agents.perception.motion import odometry_homography
     from agents.perception.sphere_tags import SphereTagConfig, SphereTagIdentifier, StickerLayout
     from sims.cli.perceive import to_records
@@ -58,10 +60,10 @@ def perceive_with_log(
     cam = log.cameras[camera]
     if motion == "auto":
         motion = "odometry" if any(cam.assembly in step.odometry for step in log.steps[1:]) else "flow"
-    detector = HoughCircleDetector(HoughConfig(min_radius=int(np.floor(min_radius)), max_radius=int(np.ceil(max_radius))))
+    circles = make_detector(detector, min_radius, max_radius)
     cfg = SphereTagConfig(layout=layout or StickerLayout.around(), family=family, tag_table=tag_table)
     identifier = SphereTagIdentifier(cam.K, log.node_radius, cfg)
-    perception = Perception(detector, identifier, track=track, motion="flow" if motion == "flow" else None)
+    perception = Perception(circles, identifier, track=track, motion="flow" if motion == "flow" else None)
     inverse = None if tag_table is None else {n: t for t, n in tag_table.items()}
     results, seconds = [], []
     from agents.perception.pipeline import FrameResult

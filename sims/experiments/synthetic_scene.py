@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-__all__ = ["SceneNode", "Bar", "SceneConfig", "draw_scene", "floor_texture", "visible_fraction"]
+__all__ = ["SceneNode", "Bar", "SceneConfig", "disc_patch", "draw_scene", "floor_texture", "visible_fraction"]
 
 _DICT = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11)
 
@@ -81,19 +81,32 @@ def _tag_bits(tag: int, cells_px: int) -> np.ndarray:
     return cv2.copyMakeBorder(inner, cells_px, cells_px, cells_px, cells_px, cv2.BORDER_CONSTANT, value=255)
 
 
+def disc_patch(u: float, v: float, r: float, pad: int, width: int, height: int):
+    """The pixels around a disc of centre (u, v) and radius r (px), padded by ``pad``, clipped to the image.
+
+    Returns None when nothing of it is in the image, else ``(x0, y0, dx, dy, alpha, nz)``: the
+    patch's top-left pixel, the offsets from the centre in radii, the disc's anti-aliased coverage
+    and the z of a unit sphere's normal, each (h, w) float32 (pixel centres at integer coordinates,
+    OpenCV's convention).
+    """
+    x0, x1 = max(int(np.floor(u - r)) - pad, 0), min(int(np.ceil(u + r)) + pad + 1, width)
+    y0, y1 = max(int(np.floor(v - r)) - pad, 0), min(int(np.ceil(v + r)) + pad + 1, height)
+    if x0 >= x1 or y0 >= y1:
+        return None
+    ys, xs = np.mgrid[y0:y1, x0:x1].astype(np.float32)
+    dx, dy = (xs - u) / r, (ys - v) / r
+    alpha = np.clip(r - np.hypot(xs - u, ys - v) + 0.5, 0.0, 1.0)
+    nz = np.sqrt(np.clip(1.0 - dx * dx - dy * dy, 0.0, 1.0))
+    return x0, y0, dx, dy, alpha, nz
+
+
 def _draw_disc(img: np.ndarray, node: SceneNode, light: np.ndarray) -> None:
     h, w = img.shape
-    pad = 2
-    x0, x1 = max(int(np.floor(node.u - node.r)) - pad, 0), min(int(np.ceil(node.u + node.r)) + pad + 1, w)
-    y0, y1 = max(int(np.floor(node.v - node.r)) - pad, 0), min(int(np.ceil(node.v + node.r)) + pad + 1, h)
-    if x0 >= x1 or y0 >= y1:
+    patch = disc_patch(node.u, node.v, node.r, 2, w, h)
+    if patch is None:
         return
-    ys, xs = np.mgrid[y0:y1, x0:x1].astype(np.float32)
-    # pixel centres sit at integer coordinates (OpenCV convention)
-    dx, dy = (xs - node.u) / node.r, (ys - node.v) / node.r
-    d = np.hypot(xs - node.u, ys - node.v)
-    alpha = np.clip(node.r - d + 0.5, 0.0, 1.0)
-    nz = np.sqrt(np.clip(1.0 - dx * dx - dy * dy, 0.0, 1.0))
+    x0, y0, dx, dy, alpha, nz = patch
+    x1, y1 = x0 + dx.shape[1], y0 + dx.shape[0]
     lambert = np.clip(dx * light[0] + dy * light[1] - nz * light[2], 0.0, 1.0)
     shade = node.albedo * (0.35 + 0.65 * lambert)
     if node.tag is not None:

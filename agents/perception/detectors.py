@@ -1,0 +1,36 @@
+"""The circle detectors by name: ``"hough"`` (the default) and ``"rim"`` (opt-in).
+
+``"hough"`` is :class:`~agents.perception.hough.HoughCircleDetector`: fast (about 30 ms of CPU per
+1024 x 768 frame) and the better one on the rendered frames. ``"rim"`` is
+:class:`~agents.perception.rim.RimCircleDetector`: it reports the sphere's outline where the default
+fits the tag (large spheres coloured like the floor, a tag near the limb, partly hidden spheres),
+at about three times the cost. docs/perception.md gives the measured figures.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from agents.perception.hough import HoughCircleDetector, HoughConfig
+from agents.perception.rim import RimCircleDetector, RimConfig
+from agents.perception.types import CircleDetector
+
+__all__ = ["DETECTORS", "make_detector"]
+
+DETECTORS = ("hough", "rim")
+
+
+def make_detector(name: str = "hough", min_radius: float = 8.0, max_radius: float = 160.0) -> CircleDetector:
+    """The detector called ``name`` (one of :data:`DETECTORS`) for circle radii in [min_radius, max_radius] px.
+
+    Raises
+    ------
+    ValueError
+        For an unknown name.
+    """
+    lo, hi = int(np.floor(min_radius)), int(np.ceil(max_radius))
+    if name == "hough":
+        return HoughCircleDetector(HoughConfig(min_radius=lo, max_radius=hi))
+    if name == "rim":
+        return RimCircleDetector(RimConfig(min_radius=lo, max_radius=hi))
+    raise ValueError(f"unknown detector {name!r} (expected one of {', '.join(DETECTORS)})")

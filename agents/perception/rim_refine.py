@@ -1,0 +1,581 @@
+"""The rim search of the opt-in rim detector (:mod:`agents.perception.rim`): rim votes, radial edges, a robust fit.
+
+The default detector's refinement is :mod:`agents.perception.refine`; this module is its variant
+that finds a sphere's rim rather than its tag (the circle fit helpers are shared). Differences:
+the first pass votes on the rim radius along rays (:func:`rim_votes`) and, where that rim is weak,
+searches three-edge circles (:func:`rim_search`); only edges whose gradient is radial support a
+circle (:func:`radial_edges`); the fine pass can take the edge nearest the rough circle; a rim needs
+a median step of ``min_rim_step``; the ellipse needs ``ellipse_margin`` more rays than the circle.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from agents.perception.circle_fit import (
+    circle_residuals,
+    ellipse_circles,
+    fit_circles_algebraic,
+    fit_circles_geometric,
+    fit_ellipses_direct,
+    sampson_distances,
+)
+from agents.perception.refine import _ellipse_stage, _nearest, _robust_fit
+
+__all__ = ["RimRefineConfig", "coarse_fit", "radial_edges", "refine_circles", "rim_points", "rim_votes"]
+
+
+@dataclass(frozen=True)
+class RimRefineConfig:
+    """Parameters of the rim search and fit.
+
+    Attributes
+    ----------
+    rays, samples : int
+        Rays cast from each centre, and samples along each ray within the band (second pass).
+    coarse_rays : int
+        Rays of the first pass (run on every proposal, so kept cheap).
+    fine_band : (float, float)
+        Second pass, around the first fit.
+    min_step : float
+        Weakest accepted edge: absolute radial derivative in grey levels per pixel.
+    tol : float
+        Final inlier distance in pixels (plus ``tol_rel`` times the radius).
+    tol_rel : float
+        Final inlier distance relative to the radius.
+    max_shift : float
+        A refined centre may move at most this fraction of the rough radius.
+    outer_frac : float
+        On each ray the rim is the outermost local maximum of the radial step that reaches this
+        fraction of the ray's strongest step.
+    max_axis_ratio : float
+        Second pass: largest major/minor axis ratio of the ellipse fit (1: circles only).
+    ellipse_gate : float
+        Second pass: rim points within this fraction of the radius (plus ``tol``) of the circle
+        seed the ellipse fit.
+    min_rim_step : float
+        Second pass: smallest median step (summed over the colour channels, per pixel) of the
+        rays supporting a circle.
+    ellipse_margin : float
+        Second pass: the ellipse replaces the circle only when it explains this share of the rays
+        more (a shaded limb or a partly hidden rim fits an ellipse a little better by chance).
+    max_axis_turn_deg : float
+        Second pass: an elongated ellipse is kept only if its major axis points within this angle
+        of the image centre (a sphere's image is elongated radially from the principal point).
+    min_focal_px : float
+        Second pass: the shortest focal length (px) assumed; an ellipse at distance d from the
+        image centre may be elongated at most ``sqrt(1 + (d / min_focal_px)^2)`` (+ 0.03). 500 px
+        allows a 92 deg horizontal field of view at 1024 px.
+    vote_band : (float, float)
+        First pass (:func:`rim_votes`): rim radii searched, as multiples of the proposal's radius
+        (a proposal on the tag inside a node is 0.3-0.6 of the node's radius).
+    search_candidates, search_hypotheses : int
+        First pass (:func:`rim_search`): candidate edges per ray, and three-point circles tried.
+    search_below : float
+        First pass: proposals whose voted rim scores below this are also searched.
+    vote_samples : int
+        Samples of the log-spaced radius grid of the vote.
+    vote_floor : float
+        An edge votes when its step is at least this fraction of its ray's strongest.
+    vote_width : int
+        Each vote spreads over +- this many grid samples (the relative tolerance of the rim radius
+        across rays, for a rough centre).
+    vote_keep : float
+        The rim is the outermost vote peak with at least this fraction of the best peak's votes.
+    """
+
+    rays: int = 64
+    samples: int = 24
+    coarse_rays: int = 32
+    fine_band: tuple[float, float] = (0.85, 1.15)
+    min_step: float = 3.0
+    tol: float = 0.7
+    tol_rel: float = 0.01
+    max_shift: float = 0.6
+    outer_frac: float = 0.1
+    max_axis_ratio: float = 1.5
+    ellipse_gate: float = 0.12
+    max_axis_turn_deg: float = 20.0
+    ellipse_margin: float = 0.05
+    min_rim_step: float = 12.0
+    min_focal_px: float = 500.0
+    vote_band: tuple[float, float] = (0.5, 3.0)
+    search_candidates: int = 4
+    search_below: float = 0.7
+    search_hypotheses: int = 32
+    vote_samples: int = 40
+    vote_floor: float = 0.05
+    vote_width: int = 2
+    vote_keep: float = 0.6
+
+
+def _sample(image: np.ndarray, mx: np.ndarray, my: np.ndarray) -> np.ndarray:
+    """Bilinear samples of ``image`` at float32 maps (P, S), shape (P, S) or (P, S, C); edges replicated.
+
+    ``cv2.remap`` takes maps of fewer than 2^15 rows, so long maps are sampled in blocks.
+    """
+    rows = 32000
+    if len(mx) <= rows:
+        return cv2.remap(image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return np.concatenate([cv2.remap(image, mx[i:i + rows], my[i:i + rows], cv2.INTER_LINEAR,
+                                     borderMode=cv2.BORDER_REPLICATE) for i in range(0, len(mx), rows)])
+
+
+def _radial_steps(image: np.ndarray, circles: np.ndarray, radii: np.ndarray, n_rays: int):
+    """Absolute radial intensity steps along rays from each circle's centre.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W) or (H, W, C), float32
+    circles : ndarray, shape (N, 3)
+        Centres (u, v) and radii (unused here) of the hypotheses.
+    radii : ndarray, shape (N, S)
+        Increasing sample distances from the centre along every ray (px).
+    n_rays : int
+        Rays per centre, at equally spaced angles from 0.
+
+    Returns
+    -------
+    deriv : ndarray, shape (N, n_rays, S - 1), float32
+        Step between samples i and i + 1 per pixel of distance (on a colour image the channels' steps
+        add: a grey sphere on a brown floor can have almost no step in brightness).
+    inside : ndarray of bool, shape (N, n_rays)
+        The whole ray lies inside the image.
+    cos, sin : ndarray, shape (n_rays,)
+    """
+    h, w = image.shape[:2]
+    n, n_samples = radii.shape
+    ang = np.linspace(0.0, 2.0 * np.pi, n_rays, endpoint=False)
+    cos, sin = np.cos(ang), np.sin(ang)
+    # sample positions in float32 (what remap takes); a ray lies inside the image iff both its ends do
+    c32, rad32 = circles.astype(np.float32), radii.astype(np.float32)
+    cos32, sin32 = cos.astype(np.float32), sin.astype(np.float32)
+    mx = c32[:, 0, None, None] + rad32[:, None, :] * cos32[None, :, None]  # (N, R, S)
+    my = c32[:, 1, None, None] + rad32[:, None, :] * sin32[None, :, None]
+    ends_x, ends_y = mx[:, :, [0, -1]], my[:, :, [0, -1]]
+    inside = ((ends_x >= 0) & (ends_x <= w - 1) & (ends_y >= 0) & (ends_y <= h - 1)).all(axis=2)
+    img = image if image.dtype == np.float32 else image.astype(np.float32)
+    ch = 1 if img.ndim == 2 else img.shape[2]
+    prof = _sample(img, mx.reshape(n * n_rays, n_samples), my.reshape(n * n_rays, n_samples)).reshape(
+        n * n_rays, n_samples * ch)
+    deriv = cv2.absdiff(prof[:, ch:], prof[:, :-ch])
+    if ch > 1:
+        deriv = cv2.transform(deriv.reshape(n * n_rays, n_samples - 1, ch), np.ones((1, ch), np.float32))
+    step = np.diff(radii, axis=1).astype(np.float32)  # (N, S - 1)
+    deriv = deriv.reshape(n, n_rays, n_samples - 1) / step[:, None, :]
+    return deriv, inside, cos, sin
+
+
+def _local_maxima(deriv: np.ndarray) -> np.ndarray:
+    """Bool mask of the local maxima of ``deriv`` along its last axis (plateaus: their first sample)."""
+    lm = np.ones(deriv.shape, dtype=bool)
+    lm[..., 1:] &= deriv[..., 1:] >= deriv[..., :-1]
+    lm[..., :-1] &= deriv[..., :-1] > deriv[..., 1:]
+    return lm
+
+
+def _subsample(deriv: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Peak value and sub-sample offset (-0.5..0.5, a parabola through 3 samples) at indices ``k`` (..., C)."""
+    last = deriv.shape[-1] - 1
+    kk = np.clip(k, 0, last)
+    peak = np.take_along_axis(deriv, kk, axis=-1)
+    ym = np.take_along_axis(deriv, np.clip(kk - 1, 0, last), axis=-1)
+    yp = np.take_along_axis(deriv, np.clip(kk + 1, 0, last), axis=-1)
+    denom = ym - 2.0 * peak + yp
+    interior = (kk > 0) & (kk < last) & (denom < 0)
+    off = np.where(interior, 0.5 * (ym - yp) / np.where(interior, denom, -1.0), 0.0)
+    return peak, np.clip(off, -0.5, 0.5)
+
+
+def _ray_points(circles, cos, sin, dist):
+    """Points (N, R, C, 2) at distances ``dist`` (N, R, C) along the rays of each circle."""
+    return np.stack([circles[:, 0, None, None] + dist * cos[None, :, None],
+                     circles[:, 1, None, None] + dist * sin[None, :, None]], axis=3)
+
+
+def _edge_nearest(deriv: np.ndarray, cand: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per ray, the qualifying edge (``cand``) nearest the sample index ``target`` (N,).
+
+    Returns its index (N, R, 1) and its distance from ``target`` in samples (N, R); rays without a
+    qualifying edge get a distance larger than any index.
+    """
+    last = deriv.shape[2] - 1
+    idx = np.arange(last + 1)
+    gap = np.where(cand, np.abs(idx[None, None, :] - np.asarray(target)[:, None, None]), last + 1)
+    k = np.argmin(gap, axis=2)[..., None]
+    return k, np.take_along_axis(gap, k, axis=2)[..., 0]
+
+
+def rim_points(
+    image: np.ndarray,
+    circles: np.ndarray,
+    band: tuple[float, float],
+    cfg: RimRefineConfig,
+    *,
+    rays: int | None = None,
+    samples: int | None = None,
+    candidates: int = 1,
+    nearest: bool = False,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Rim point on each ray of each circle, between ``band[0] * r`` and ``band[1] * r``.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W) or (H, W, C), float32
+        Grey or colour image (lightly smoothed).
+    circles : ndarray, shape (N, 3)
+        Rough circles (u, v, r).
+    rays, samples : int, optional
+        Override ``cfg.rays`` and ``cfg.samples``.
+    candidates : int
+        With 1, the rim is the outermost qualifying edge of each ray; with C > 1, the C outermost
+        qualifying edges are returned (outermost first) and the fit chooses among them.
+    nearest : bool
+        Take the qualifying edge nearest the circle ``r`` instead of the outermost (for circles
+        whose radius is already known to a few per cent: floor texture or a shadow just outside a
+        node's rim would otherwise win over the rim).
+
+    Returns
+    -------
+    points : ndarray, shape (N, rays, 2), or (N, rays, C, 2)
+        Sub-pixel rim point on each ray (rays in increasing angle).
+    strength : ndarray, shape (N, rays) or (N, rays, C)
+        Edge strength (absolute radial derivative) at each rim point; 0 where not valid.
+    """
+    n_rays = rays or cfg.rays
+    n_samples = samples or cfg.samples
+    frac = np.linspace(band[0], band[1], n_samples)
+    rad = circles[:, 2, None] * frac[None, :]  # (N, S)
+    step = rad[:, 1] - rad[:, 0]  # (N,)
+    deriv, inside, cos, sin = _radial_steps(image, circles, rad, n_rays)
+    last = deriv.shape[2] - 1
+    # the outermost local maximum with at least ``outer_frac`` of the ray's strongest step: a node's
+    # rim is the outermost edge of the node, while its sticker's edges (often stronger) lie inside
+    strongest = deriv.max(axis=2, keepdims=True)
+    cand = _local_maxima(deriv) & (deriv >= np.maximum(cfg.outer_frac * strongest, cfg.min_step))
+    if nearest:
+        target = (1.0 - band[0]) / (band[1] - band[0]) * (n_samples - 1) - 0.5  # the step index at r
+        k, _ = _edge_nearest(deriv, cand, np.full(len(circles), target))
+        none = ~cand.any(axis=2)
+        k[..., 0] = np.where(none, np.argmax(deriv, axis=2), k[..., 0])
+    elif candidates == 1:
+        # the last qualifying index as the maximum of (index + 1) over the qualifying samples (0: none;
+        # one uint8 pass instead of an argmax over a reversed view); rays with none fall back to
+        # their strongest step
+        kk1 = (cand.view(np.uint8) * np.arange(1, last + 2, dtype=np.uint8 if last < 255 else np.intp)).max(axis=2)
+        k = kk1.astype(np.intp) - 1
+        none = kk1 == 0
+        if none.any():
+            k[none] = np.argmax(deriv[none], axis=1)
+        k = k[..., None]
+    else:
+        # the ``candidates`` outermost qualifying maxima, outermost first (-1: none)
+        count = np.cumsum(cand[..., ::-1], axis=2)[..., ::-1]  # qualifying maxima at or beyond each sample
+        ks = [np.where((m := cand & (count == j + 1)).any(axis=2), np.argmax(m, axis=2), -1) for j in range(candidates)]
+        k = np.stack(ks, axis=2)
+        k[..., 0] = np.where(k[..., 0] < 0, np.argmax(deriv, axis=2), k[..., 0])
+    peak, off = _subsample(deriv, k)
+    dist = rad[:, :1, None] + (np.clip(k, 0, last) + 0.5 + off) * step[:, None, None]  # (N, R, C)
+    pts = _ray_points(circles, cos, sin, dist)
+    valid = inside[..., None] & (peak >= cfg.min_step) & (k >= 0)
+    strength = np.where(valid, peak, 0.0)
+    if candidates == 1 or nearest:
+        return pts[:, :, 0], strength[:, :, 0]
+    return pts, strength
+
+
+def rim_votes(image: np.ndarray, centres: np.ndarray, cfg: RimRefineConfig, band: tuple[float, float] | None = None,
+              width: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The sphere's rim around each rough centre, by a vote of all rays on its radius.
+
+    A node's rim is the one edge that every ray from (near) its centre crosses at about the same
+    distance; its tag's edges, the floor's texture and neighbouring nodes give edges at distances
+    that vary from ray to ray. So along each ray the edges (local maxima of the radial step, at
+    least ``min_step`` and ``vote_floor`` of the ray's strongest) vote for their distance, weighted by
+    their share of the ray's strongest step and spread over +-``vote_width`` samples of a
+    log-spaced radius grid (a fixed relative tolerance, for a centre a little off); the rim is the
+    outermost peak of the votes with at least ``vote_keep`` of the best peak's votes (the rim
+    encloses the tag; an outer edge with as many votes as the tag's is the rim). On each ray the edge
+    nearest that radius is then the rim point. This finds the rim of a large node whose colour is
+    close to the floor's (weak rim steps, strong tag edges) where taking each ray's outermost strong
+    edge found the tag.
+
+    Parameters
+    ----------
+    centres : ndarray, shape (N, 3)
+        Rough circles (u, v, r): the radius only sets the searched range ``cfg.vote_band`` times r.
+
+    Returns
+    -------
+    points : ndarray, shape (N, coarse_rays, 2)
+    strength : ndarray, shape (N, coarse_rays)
+        0 where a ray has no edge within ``vote_width`` samples of the chosen radius.
+    radius : ndarray, shape (N,)
+        The chosen rim radius (px).
+    """
+    lo, hi = band or cfg.vote_band
+    width = width or cfg.vote_width
+    samples = cfg.vote_samples if band is None else max(int(round(cfg.vote_samples * np.log(hi / lo) / np.log(cfg.vote_band[1] / cfg.vote_band[0]))), 8)
+    grid = np.exp(np.linspace(np.log(lo), np.log(hi), samples))
+    rad = centres[:, 2, None] * grid[None, :]
+    deriv, inside, cos, sin = _radial_steps(image, centres, rad, cfg.coarse_rays)
+    strongest = deriv.max(axis=2, keepdims=True)
+    cand = _local_maxima(deriv) & (deriv >= np.maximum(cfg.vote_floor * strongest, cfg.min_step)) & inside[..., None]
+    weight = np.where(cand, deriv / np.maximum(strongest, 1e-6), 0.0).astype(np.float32)
+    spread = weight.copy()
+    for s in range(1, width + 1):  # a ray votes once per radius: the max over the window
+        np.maximum(spread[..., s:], weight[..., :-s], out=spread[..., s:])
+        np.maximum(spread[..., :-s], weight[..., s:], out=spread[..., :-s])
+    votes = spread.sum(axis=1)  # (N, S - 1)
+    peaks = _local_maxima(votes) & (votes >= cfg.vote_keep * votes.max(axis=1, keepdims=True)) & (votes > 0)
+    last = votes.shape[1] - 1
+    kstar = last - np.argmax(peaks[:, ::-1], axis=1)  # the outermost qualifying peak
+    # on each ray, the edge nearest the chosen radius (within the vote window)
+    k, gap = _edge_nearest(deriv, cand, kstar)
+    near = gap <= width
+    peak, off = _subsample(deriv, k)
+    pos = np.clip(k[..., 0] + 0.5 + off[..., 0], 0, last + 1)  # fractional sample index of the edge
+    dist = np.exp(np.log(lo) + pos * (np.log(hi) - np.log(lo)) / (samples - 1)) * centres[:, 2, None]
+    pts = _ray_points(centres, cos, sin, dist[..., None])[:, :, 0]
+    strength = np.where(near, peak[..., 0], 0.0)
+    radius = centres[:, 2] * np.exp(np.log(lo) + (kstar + 0.5) * (np.log(hi) - np.log(lo)) / (samples - 1))
+    return pts, strength, radius
+
+
+def _robust_fit(pts: np.ndarray, strength: np.ndarray, start: np.ndarray, gates: list[np.ndarray]):
+    """Re-weighted algebraic fits with shrinking gates (each (N,) in pixels), from ``start``.
+
+    Inliers are weighted by their squared edge strength: a shaded sphere's dark limb gives weak steps that
+    sit inside the true rim (the shading falls off towards it), the lit limb strong, exact ones.
+    """
+    circles, ok = start.copy(), np.ones(len(start), dtype=bool)
+    for gate in gates:
+        inl = (strength > 0) & (np.abs(circle_residuals(pts, circles)) < gate[:, None])
+        fit, fit_ok = fit_circles_algebraic(pts, np.where(inl, strength * strength, 0.0))
+        circles = np.where(fit_ok[:, None], fit, circles)
+        ok &= fit_ok
+    return circles, ok
+
+
+def radial_edges(image: np.ndarray, points: np.ndarray, circles: np.ndarray, max_turn: float = 0.5) -> np.ndarray:
+    """Whether the image gradient at each rim point points along its ray (across the circle).
+
+    A sphere's rim is perpendicular to every ray from its centre, so the intensity gradient there is
+    radial; the edges a textured floor, a straight strut or a tag's square offer at the right
+    distance mostly are not. The gradient is taken by central differences (1 px) of the lightly
+    smoothed image at the points themselves, per channel; a point is radial when the channels'
+    summed absolute tangential component is at most ``max_turn`` times the radial one (about 27 deg).
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W) or (H, W, C), float32
+    points : ndarray, shape (N, R, 2)
+    circles : ndarray, shape (N, 3)
+
+    Returns
+    -------
+    ndarray of bool, shape (N, R)
+    """
+    n, r = points.shape[:2]
+    px = points[..., 0].astype(np.float32).reshape(n * r, 1)
+    py = points[..., 1].astype(np.float32).reshape(n * r, 1)
+    # the four neighbours of every point in one remap: columns (x+1, x-1, y+1, y-1)
+    mx = np.concatenate([px + 1, px - 1, px, px], axis=1)
+    my = np.concatenate([py, py, py + 1, py - 1], axis=1)
+    img = image if image.dtype == np.float32 else image.astype(np.float32)
+    vals = _sample(img, mx, my)
+    vals = vals.reshape(n * r, 4, -1)
+    gx, gy = vals[:, 0] - vals[:, 1], vals[:, 2] - vals[:, 3]  # (P, C)
+    d = points - circles[:, None, :2]
+    norm = np.maximum(np.hypot(d[..., 0], d[..., 1]), 1e-9)
+    cos, sin = (d[..., 0] / norm).reshape(-1, 1), (d[..., 1] / norm).reshape(-1, 1)
+    radial = np.abs(gx * cos + gy * sin).sum(axis=1)
+    tangential = np.abs(gy * cos - gx * sin).sum(axis=1)
+    return (tangential <= max_turn * radial).reshape(n, r)
+
+
+def _circles_through(p1: np.ndarray, p2: np.ndarray, p3: np.ndarray) -> np.ndarray:
+    """Circles (..., 3) through three points (..., 2) each; NaN where they are collinear."""
+    ax, ay = p1[..., 0], p1[..., 1]
+    bx, by = p2[..., 0] - ax, p2[..., 1] - ay
+    cx, cy = p3[..., 0] - ax, p3[..., 1] - ay
+    d = 2.0 * (bx * cy - by * cx)
+    safe = np.where(np.abs(d) > 1e-9, d, np.nan)
+    b2, c2 = bx * bx + by * by, cx * cx + cy * cy
+    ux, uy = (cy * b2 - by * c2) / safe, (bx * c2 - cx * b2) / safe
+    return np.stack([ax + ux, ay + uy, np.hypot(ux, uy)], axis=-1)
+
+
+def _triples(rays: int, candidates: int, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """A fixed set of ``count`` ray triples about 120 deg apart, and which candidate edge each uses."""
+    gen = np.random.default_rng(12345)  # a fixed design, the same for every frame
+    a = gen.integers(0, rays, count)
+    third = rays / 3.0
+    jitter = gen.integers(-int(third // 4), int(third // 4) + 1, (count, 2))
+    idx = np.stack([a, (a + np.round(third).astype(int) + jitter[:, 0]) % rays,
+                    (a + np.round(2 * third).astype(int) + jitter[:, 1]) % rays], axis=1)
+    pick = np.zeros((count, 3), dtype=int)
+    pick[candidates:] = gen.integers(0, candidates, (count - candidates, 3))
+    pick[:candidates] = np.arange(candidates)[:, None]  # all-outermost, all-second, ... first
+    return idx, pick
+
+
+def rim_search(image: np.ndarray, rough: np.ndarray, cfg: RimRefineConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The circle best supported by the rays' edges around each rough circle, wherever its centre.
+
+    Along every ray from the rough centre the outermost edge with at least ``outer_frac`` of the
+    ray's strongest step and the ``cfg.search_candidates - 1`` strongest edges between
+    ``vote_band[0]`` and ``vote_band[1]`` times the rough radius are candidates. Circles through
+    three candidates on rays about 120 deg apart (a fixed design of ``cfg.search_hypotheses``
+    triples) are scored by the rays that have a candidate within 6 % (+1 px) of them, each weighted
+    by its step's share of its ray's strongest; the best circle wins. Unlike a vote on the distance
+    from the rough centre this finds the rim from a centre far off it: a proposal on a node's tag,
+    which may sit near the node's limb.
+
+    Returns
+    -------
+    circles : ndarray, shape (N, 3)
+    support : ndarray, shape (N,)
+        Weighted share of rays supporting each circle (0-1).
+    """
+    n = len(rough)
+    c = cfg.search_candidates
+    lo, hi = cfg.vote_band
+    rad = rough[:, 2, None] * np.exp(np.linspace(np.log(lo), np.log(hi), cfg.vote_samples))[None, :]
+    deriv, inside, cos, sin = _radial_steps(image, rough, rad, cfg.coarse_rays)
+    edges = np.where(_local_maxima(deriv) & (deriv >= cfg.min_step) & inside[..., None], deriv, 0.0)
+    # the ray's strongest edges, and its outermost with a tenth of the strongest's step (a node's
+    # rim is its outermost edge, while its tag's edges are often the strongest)
+    strongest = np.argsort(-edges, axis=2, kind="stable")[..., :c - 1]
+    qualify = edges >= cfg.outer_frac * edges.max(axis=2, keepdims=True)
+    last = edges.shape[2] - 1
+    outermost = last - np.argmax(qualify[..., ::-1], axis=2)
+    k = np.concatenate([outermost[..., None], strongest], axis=2)
+    strength, off = _subsample(edges, k)
+    pos = k + 0.5 + off  # fractional sample index: between samples k and k + 1
+    dist = np.exp(np.log(lo) + pos * (np.log(hi) - np.log(lo)) / (cfg.vote_samples - 1)) * rough[:, 2, None, None]
+    pts = _ray_points(rough, cos, sin, dist)  # (N, R, C, 2)
+    weight = strength / np.maximum(strength.max(axis=2, keepdims=True), 1e-6)
+    idx, pick = _triples(cfg.coarse_rays, c, cfg.search_hypotheses)
+    tri = pts[:, idx, pick]  # (N, T, 3, 2)
+    ok_tri = (strength[:, idx, pick] > 0).all(axis=2)
+    hyp = _circles_through(tri[:, :, 0], tri[:, :, 1], tri[:, :, 2])  # (N, T, 3)
+    r0 = rough[:, 2, None]
+    shift = np.hypot(hyp[..., 0] - rough[:, 0, None], hyp[..., 1] - rough[:, 1, None])
+    ok_tri &= np.isfinite(hyp).all(axis=2) & (hyp[..., 2] >= cfg.vote_band[0] * r0) & (hyp[..., 2] <= cfg.vote_band[1] * r0)
+    ok_tri &= shift <= cfg.max_shift * hyp[..., 2]
+    d = np.hypot(pts[:, None, :, :, 0] - hyp[:, :, None, None, 0], pts[:, None, :, :, 1] - hyp[:, :, None, None, 1])
+    near = np.abs(d - hyp[:, :, None, None, 2]) <= (0.06 * hyp[:, :, None, None, 2] + 1.0)
+    support = np.where(near, weight[:, None], 0.0).max(axis=3).sum(axis=2) / cfg.coarse_rays  # (N, T)
+    support = np.where(ok_tri, support, -1.0)
+    best = np.argmax(support, axis=1)
+    circles = hyp[np.arange(n), best]
+    found = support[np.arange(n), best] > 0
+    return np.where(found[:, None], circles, rough), np.where(found, support[np.arange(n), best], 0.0)
+
+
+def coarse_fit(image: np.ndarray, rough: np.ndarray, cfg: RimRefineConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """First pass on every proposal: the rim voted from the proposal's centre (:func:`rim_votes`;
+    right when that centre is, even on a weak rim), and where that finds no good rim (score below
+    ``cfg.search_below``) also the best-supported three-edge circle (:func:`rim_search`; right from
+    a centre far off, such as a tag near the node's limb). Each start is re-voted from its own
+    centre over a narrow range and fitted robustly with shrinking gates.
+
+    Returns
+    -------
+    circles : ndarray, shape (M, 3)
+        One circle per proposal, then one per searched proposal (N <= M <= 2N).
+    scores : ndarray, shape (M,)
+        Share of the coarse rays whose rim point lies within the tolerance and whose gradient is
+        radial (:func:`radial_edges`).
+    ok : ndarray of bool, shape (M,)
+    """
+    rough = np.asarray(rough, dtype=float).reshape(-1, 3)
+    if len(rough) == 0:
+        return rough.copy(), np.zeros(0), np.zeros(0, dtype=bool)
+    pts, strength, r0 = rim_votes(image, rough, cfg)
+    voted, vok = _robust_fit(pts, strength, np.column_stack([rough[:, :2], r0]), [0.25 * r0, 0.12 * r0])
+    circles, scores, ok = _settle(image, np.where(vok[:, None], voted, rough), rough, cfg)
+    weak = scores < cfg.search_below
+    if not weak.any():
+        return circles, scores, ok
+    searched, _ = rim_search(image, rough[weak], cfg)
+    more, more_scores, more_ok = _settle(image, searched, rough[weak], cfg)
+    return (np.concatenate([circles, more]), np.concatenate([scores, more_scores]), np.concatenate([ok, more_ok]))
+
+
+def _settle(image: np.ndarray, found: np.ndarray, rough: np.ndarray, cfg: RimRefineConfig):
+    """Re-vote the rim of circles ``found`` (N, 3) from their own centres, fit robustly, score."""
+    pts, strength, r0 = rim_votes(image, found, cfg, band=(0.75, 1.35))
+    start = np.column_stack([found[:, :2], r0])
+    tol = cfg.tol + cfg.tol_rel * r0 + 0.02 * r0
+    circles, ok = _robust_fit(pts, strength, start, [0.12 * r0, 0.06 * r0, tol])
+    inl = (strength > 0) & (np.abs(circle_residuals(pts, circles)) < tol[:, None])
+    inl &= radial_edges(image, pts, circles)
+    shift = np.hypot(circles[:, 0] - rough[:, 0], circles[:, 1] - rough[:, 1])
+    ok &= (inl.sum(axis=1) >= 4) & (shift <= cfg.max_shift * r0) & np.all(np.isfinite(circles), axis=1)
+    ok &= circles[:, 2] > 0
+    return circles, np.where(ok, inl.sum(axis=1) / cfg.coarse_rays, 0.0), ok
+
+
+def refine_circles(image: np.ndarray, rough: np.ndarray, cfg: RimRefineConfig, *, nearest: bool = True
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Refine circles on ``image`` ((H, W) float32, lightly smoothed): a narrow band around each
+    (already roughly right) circle, gated algebraic fits, then geometric steps on the inliers.
+
+    A sphere off the optical axis images as an ellipse (axis ratio about ``1 / cos`` of the
+    off-axis angle: 1.17 at 31 deg), whose rim strays from any circle by more than the inlier
+    tolerance once the node is large; a circle fitted with a tight gate then holds to part of the
+    rim and comes out too large or too small. So an ellipse is also fitted (direct least squares on
+    the rim points near the circle, then re-gated on Sampson distances); where it explains more
+    rays than the circle, the circle returned is the ellipse's centre and equal-area radius
+    ``sqrt(a b)`` (the convention of a silhouette circle).
+
+    Parameters
+    ----------
+    rough : ndarray, shape (N, 3)
+        Circles within a few per cent of the rim (e.g. from :func:`coarse_fit`).
+    nearest : bool
+        On each ray the edge nearest the rough circle (default), else the outermost strong one
+        (see :func:`rim_points`).
+
+    Returns
+    -------
+    circles : ndarray, shape (N, 3)
+        Refined (u, v, r).
+    scores : ndarray, shape (N,)
+        Fraction of all rays whose rim point lies within the final tolerance of the circle (of the
+        ellipse, where that was kept).
+    ok : ndarray of bool, shape (N,)
+        False where no consistent rim was found (fewer than 5 inliers, a degenerate fit, or a
+        centre that moved more than a quarter radius).
+    """
+    rough = np.asarray(rough, dtype=float).reshape(-1, 3)
+    if len(rough) == 0:
+        return rough.copy(), np.zeros(0), np.zeros(0, dtype=bool)
+    pts, strength = rim_points(image, rough, cfg.fine_band, cfg, nearest=nearest)
+    r0 = rough[:, 2]
+    tol = cfg.tol + cfg.tol_rel * r0
+    circles, ok = _robust_fit(pts, strength, rough, [0.06 * r0 + cfg.tol, 2.0 * tol, tol, tol])
+    valid = strength > 0
+    inl = valid & (np.abs(circle_residuals(pts, circles)) < tol[:, None])
+    circles = fit_circles_geometric(pts, np.where(inl, strength * strength, 0.0), circles)
+    inl = valid & (np.abs(circle_residuals(pts, circles)) < tol[:, None])
+    if cfg.max_axis_ratio > 1.0:
+        h, w = image.shape[:2]
+        circles, inl = _ellipse_stage(pts, strength, circles, inl, tol, cfg, ((w - 1) / 2.0, (h - 1) / 2.0),
+                                      cfg.ellipse_margin)
+    inl &= radial_edges(image, pts, circles)
+    shift = np.hypot(circles[:, 0] - rough[:, 0], circles[:, 1] - rough[:, 1])
+    ok &= (inl.sum(axis=1) >= 5) & (shift <= 0.25 * r0) & (circles[:, 2] > 0)
+    ok &= np.all(np.isfinite(circles), axis=1)
+    # a rim is an edge: the median step of its supporting rays must reach ``min_rim_step`` (a
+    # smooth bright patch of floor can be round, with radial gradients of a grey level per pixel)
+    ranked = -np.sort(-np.where(inl, strength, 0.0), axis=1)  # supporting steps first, largest first
+    median = ranked[np.arange(len(ranked)), np.maximum(inl.sum(axis=1) // 2, 0)]
+    ok &= median >= cfg.min_rim_step
+    scores = np.where(ok, inl.sum(axis=1) / cfg.rays, 0.0)
+    return circles, scores, ok
