@@ -15,14 +15,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from agents.perception.circle_fit import (
-    circle_residuals,
-    ellipse_circles,
-    fit_circles_algebraic,
-    fit_circles_geometric,
-    fit_ellipses_direct,
-    sampson_distances,
-)
+from agents.perception.circle_fit import circle_residuals, fit_circles_geometric
 from agents.perception.refine import _ellipse_stage, _nearest, _robust_fit
 
 __all__ = ["RimRefineConfig", "coarse_fit", "radial_edges", "refine_circles", "rim_points", "rim_votes"]
@@ -343,21 +336,6 @@ def rim_votes(image: np.ndarray, centres: np.ndarray, cfg: RimRefineConfig, band
     strength = np.where(near, peak[..., 0], 0.0)
     radius = centres[:, 2] * np.exp(np.log(lo) + (kstar + 0.5) * (np.log(hi) - np.log(lo)) / (samples - 1))
     return pts, strength, radius
-
-
-def _robust_fit(pts: np.ndarray, strength: np.ndarray, start: np.ndarray, gates: list[np.ndarray]):
-    """Re-weighted algebraic fits with shrinking gates (each (N,) in pixels), from ``start``.
-
-    Inliers are weighted by their squared edge strength: a shaded sphere's dark limb gives weak steps that
-    sit inside the true rim (the shading falls off towards it), the lit limb strong, exact ones.
-    """
-    circles, ok = start.copy(), np.ones(len(start), dtype=bool)
-    for gate in gates:
-        inl = (strength > 0) & (np.abs(circle_residuals(pts, circles)) < gate[:, None])
-        fit, fit_ok = fit_circles_algebraic(pts, np.where(inl, strength * strength, 0.0))
-        circles = np.where(fit_ok[:, None], fit, circles)
-        ok &= fit_ok
-    return circles, ok
 
 
 def radial_edges(image: np.ndarray, points: np.ndarray, circles: np.ndarray, max_turn: float = 0.5) -> np.ndarray:
