@@ -94,8 +94,9 @@ def normalize(params: Mapping[str, Any]) -> dict[str, Any]:
             raise InputError(f"unknown key: neither scenario {scenario!r} nor the localize command knows it",
                              field=key)
     get_scenario(scenario, **_scenario_params(out))
-    # as with `decentral localize`, the network options (loss, share_forms, ...) are accepted in
-    # centralized mode and change nothing there: a grid may cross mode with loss
+    # unlike `decentral localize` (which refuses an option its mode ignores), a cell accepts the network
+    # options (loss, share_forms, ...) in centralized mode, where they change nothing: a grid may cross
+    # mode with loss, and its centralized cells are then repeated per loss value (docs/studies.md)
     if out.get("mode") == "admm" and out.get("estimator", "windowed") != "windowed":
         raise InputError("mode = \"admm\" runs the windowed estimator only", field="estimator")
     return out
