@@ -95,6 +95,7 @@ from protocols.messages import BROADCAST, AdmmDual, AdmmPrimal, Message
 from protocols.config_gossip import ConfigTable
 from protocols.delta_messages import DeltaBundle, JointPoses
 from protocols.form_cache import DeltaSender, FormCache
+from protocols.pose_gossip import PoseGossip, pose_row
 
 __all__ = ["AgentConfig", "OwnStep", "AssemblyAgent"]
 
@@ -250,7 +251,6 @@ class AssemblyAgent:
         self._consensus = ConsensusState(config.name, config.name == config.reference)
         self._targets_z: dict[str, _Inbound] = {}
         self._observers: dict[str, _Inbound] = {}
-        self._table: dict[int, np.ndarray] = {}
         self._outbox: list[Message] = []
         self._dirty = True
         self._phase = 0
@@ -276,7 +276,6 @@ class AssemblyAgent:
         self._why: dict[str, str] = {}  # assembly -> why the joint test does not place it (this step)
         self._boot: dict | None = None  # cold-start state while sharing the first step's pair forms
         self._own_forms: tuple | None = None  # (step, keys, forms, pin) last shared (answers late askers)
-        self._table_changed = 0  # last round the gossip table changed by more than the tolerances
         self._hold = 0  # the ADMM of this window starts at this round (after the forms are shared)
         self._tree: dict[str, tuple[int, int, int, int]] = {}  # neighbour -> (hop, parent index, round heard, step)
         self._hop: int | None = 0 if config.name == config.reference else None
@@ -287,9 +286,10 @@ class AssemblyAgent:
         self._late: dict | None = None  # a window's sharing that timed out without every agent's forms
         self._pair_sig: dict[str, int] = {}  # target -> detections used by its pair, at the last rebuild
         self._form_sig: dict[str, int] | None = None  # the same when this window's own forms were shared
-        self._table_version = 0  # bumped on every material change of the gossip table
+        # the gossip table of every assembly's newest consensus pose (sent on the ADMM messages)
+        self._gossip = PoseGossip(self._index[config.name], len(config.assemblies),
+                                  min(config.admm.eps_rot, config.admm.eps_pos), config.gossip_refresh)
         self._expected: set[str] = set()  # observers whose first values a seeded start waits for
-        self._table_sent: dict[str, tuple[int, int]] = {}  # neighbour -> (version, round) last sent
         #: set by the runtime's local rule (:class:`agents.runtime.LocalAgent`) once this agent's window is done:
         #: its ADMM values then carry a ``done`` block, so that quiet neighbours do not answer them
         self.window_done = False
@@ -433,7 +433,7 @@ class AssemblyAgent:
         elif isinstance(message, (AdmmPrimal, AdmmDual)):
             if "done" not in message.blocks and message.window == self._step:
                 self._busy_seen = self._round  # it runs the ADMM (late names, partial forms): take part
-            self._merge_table(message.blocks.get("table"))
+            self._gossip.merge(message.blocks.get("table"), self._round)
             b = message.blocks
             tree = b.get("tree")
             if tree is not None and tree.shape == (2,):
@@ -981,12 +981,9 @@ class AssemblyAgent:
     def _fill_table(self, poses: dict) -> None:
         """The joint solution's poses of the current step into the gossip table (its own row too: in an exact
         window no ADMM round comes to write it)."""
-        for (name, step), (R, p) in poses.items():
-            i = self._index.get(name)
-            if step == self._step and i is not None:
-                self._table[i] = np.array([i, step, self._round, *p, np.arctan2(R[1, 0], R[0, 0])])
-        self._table_version += 1
-        self._table_changed = self._round
+        rows = [pose_row(self._index[name], step, self._round, R, p) for (name, step), (R, p) in poses.items()
+                if step == self._step and name in self._index]
+        self._gossip.fill(rows, self._round)
 
     def _fresh_admm(self) -> None:
         """A fresh ADMM start at the new window's fixed point: earlier values belong to the old window."""
@@ -1168,13 +1165,7 @@ class AssemblyAgent:
             if cons.ready and cons.anchored(last, self._pair_steps | self._remote_steps()):
                 R, p = cons.z[last]
                 me = self._index[self.name]
-                row = np.array([me, last, self._round, p[0], p[1], p[2], np.arctan2(R[1, 0], R[0, 0])])
-                old = self._table.get(me)
-                if old is None or old[1] != row[1] or max(np.abs(row[3:6] - old[3:6]).max(),
-                                                          abs(wrap_angle(row[6] - old[6]))) > self._table_eps():
-                    self._table_version += 1
-                    self._table_changed = self._round
-                self._table[me] = row
+                self._gossip.set_own(pose_row(me, last, self._round, R, p), self._round)
             self._last_primal = self._blocks(sorted(cons.z.items()), cons.ready, self._iter)
         else:
             self._waiting[("cons", "")] = waited + 1
@@ -1193,7 +1184,7 @@ class AssemblyAgent:
                      and self._step_rounds >= cfg.patience)
             self._converged = alone or bool(
                 lowest >= self._iter_before + 1
-                and self._round - self._table_changed >= 2  # the gossip of the others' poses has settled
+                and self._gossip.settled(self._round)  # the gossip of the others' poses has settled
                 and cons.ready
                 and all(p.converged() for p in self._pairs.values())
                 and cons.change <= max(eps.eps_rot, eps.eps_pos)
@@ -1264,31 +1255,8 @@ class AssemblyAgent:
         if self.config.aggregation == "tree":
             blocks = dict(blocks, tree=np.array([-1 if self._hop is None else self._hop,
                                                  -1 if self._parent is None else self._parent], float))
-        if not self._table:
-            return blocks
-        version, when = self._table_sent.get(receiver, (-1, -(10**9)))
-        if version == self._table_version and self._round - when < self.config.gossip_refresh:
-            return blocks
-        self._table_sent[receiver] = (self._table_version, self._round)
-        return dict(blocks, table=np.array([self._table[i] for i in sorted(self._table)]))
-
-    def _table_eps(self) -> float:
-        return min(self.config.admm.eps_rot, self.config.admm.eps_pos)
-
-    def _merge_table(self, table) -> None:
-        if table is None:
-            return
-        for row in np.asarray(table).reshape(-1, 7):
-            i = int(row[0])
-            if not 0 <= i < len(self.config.assemblies) or i == self._index[self.name]:
-                continue
-            old = self._table.get(i)
-            if old is None or (row[1], row[2]) > (old[1], old[2]):
-                self._table[i] = np.array(row)
-                moved = max(np.abs(row[3:6] - old[3:6]).max(), abs(wrap_angle(row[6] - old[6]))) if old is not None else 0
-                if old is None or row[1] != old[1] or moved > self._table_eps():
-                    self._table_changed = self._round
-                    self._table_version += 1
+        table = self._gossip.attach(receiver, self._round)
+        return blocks if table is None else dict(blocks, table=table)
 
     # ------------------------------------------------------------------ results
     @property
@@ -1338,10 +1306,10 @@ class AssemblyAgent:
         """
         if self._step is None or not self._consensus.ready:
             return {}
-        me = self._table.get(self._index[self.name])
+        me = self._gossip.rows.get(self._index[self.name])
         if me is None or int(me[1]) != self._step:
             return {}
-        rows = {i: row for i, row in self._table.items() if int(row[1]) == self._step}
+        rows = {i: row for i, row in self._gossip.rows.items() if int(row[1]) == self._step}
         if self._seeds_complete:
             for (name, step), (R, p) in self._seeds.items():
                 i = self._index.get(name)
