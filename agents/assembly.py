@@ -81,7 +81,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from decentral.admm import (AdmmConfig, ConsensusState, LocalProblem, PairState, quadratic_form,
-                            scalar_metric, solve_joint)
+                            solve_joint)
 from decentral.estimator import EstimatorConfig
 from decentral.errors import InputError
 from decentral.factors import NoiseModel, detection_weights
@@ -96,6 +96,7 @@ from protocols.config_gossip import ConfigTable
 from protocols.delta_messages import DeltaBundle, JointPoses
 from protocols.form_cache import DeltaSender, FormCache
 from protocols.pose_gossip import PoseGossip, pose_row
+from protocols.admm_values import AdmmInbox, Inbound, packed_metric, value_blocks
 
 __all__ = ["AgentConfig", "OwnStep", "AssemblyAgent"]
 
@@ -213,19 +214,6 @@ class OwnStep:
     mounts: dict[str, Pose] = field(default_factory=dict)
 
 
-@dataclass
-class _Inbound:
-    """The newest ADMM values heard from one neighbour."""
-
-    round: int
-    values: dict  # step -> (R (2, 2), p (3,))
-    ready: bool
-    rho: tuple[float, float] = (0.0, 0.0)
-    iteration: int = 0
-    metrics: dict = field(default_factory=dict)  # step -> (P (3, 3), w_z): penalty metric of a dual copy
-    window: int = 0  # the sender's step when it sent the values
-
-
 class AssemblyAgent:
     """Config + private state + message handlers (house style 9).
 
@@ -249,8 +237,7 @@ class AssemblyAgent:
         self._pairs: dict[str, PairState] = {}
         self._pair_steps: set[int] = set()
         self._consensus = ConsensusState(config.name, config.name == config.reference)
-        self._targets_z: dict[str, _Inbound] = {}
-        self._observers: dict[str, _Inbound] = {}
+        self._inbox = AdmmInbox()  # the newest ADMM values of each target and observer
         self._outbox: list[Message] = []
         self._dirty = True
         self._phase = 0
@@ -439,27 +426,8 @@ class AssemblyAgent:
             if tree is not None and tree.shape == (2,):
                 self._tree[message.sender] = (int(tree[0]), int(tree[1]), self._round, self._step)
             self._ask(message.sender, int(message.window))
-            x, meta = b.get("x"), b.get("meta")
-            if x is None or meta is None or x.ndim != 2 or x.shape[1] != 8 or meta.shape != (4,):
+            if not self._inbox.receive(message):
                 self.counters["ignored"] += 1
-                return
-            store = self._targets_z if isinstance(message, AdmmPrimal) else self._observers
-            old = store.get(message.sender)
-            if old is not None and old.round >= message.round:
-                return  # a duplicate or an overtaken (reordered) copy
-            values = {int(row[0]): (row[1:5].reshape(2, 2).copy(), row[5:8].copy()) for row in x}
-            metrics = {}
-            if isinstance(message, AdmmDual):
-                w = b.get("w")
-                if w is not None and w.shape == (x.shape[0], 7):
-                    for row, wr in zip(x, w):
-                        P = np.array([[wr[0], wr[1], wr[2]], [wr[1], wr[3], wr[4]], [wr[2], wr[4], wr[5]]])
-                        metrics[int(row[0])] = (P, float(wr[6]))
-                else:  # scalar penalties only (meta: rho_R, rho_p)
-                    P, w_z = scalar_metric([float(meta[1])], [float(meta[2])])
-                    metrics = {k: (P[0], float(w_z[0])) for k in values}
-            store[message.sender] = _Inbound(message.round, values, bool(meta[0] > 0.5), (float(meta[1]), float(meta[2])),
-                                             int(meta[3]), metrics, int(message.window))
         else:
             self.counters["ignored"] += 1
 
@@ -555,8 +523,8 @@ class AssemblyAgent:
         as they are now, and no node is left to name: the estimate is final without ADMM rounds."""
         return self._seeds_complete and self._form_sig == self._pair_sig and not self._unresolved()
 
-    def _age(self, inbound: _Inbound | None) -> int:
-        return 10**9 if inbound is None else max(0, self._round - inbound.round)
+    def _age(self, inbound: Inbound | None) -> int:
+        return self._inbox.age(inbound, self._round)
 
     # ------------------------------------------------------------------ cold start
     def _request_unknown(self) -> None:
@@ -769,8 +737,7 @@ class AssemblyAgent:
             return
         for child, (last, tries) in sorted(down["pending"].items()):
             name = self.config.assemblies[child]
-            if any(store.get(name) is not None and store[name].window >= self._step
-                   for store in (self._targets_z, self._observers)):
+            if self._inbox.heard_in(name, self._step):
                 del down["pending"][child]
             elif self._round >= max(down["start"] + 2, last + 3) and tries < 4:
                 down["pending"][child] = (self._round, tries + 1)
@@ -987,8 +954,7 @@ class AssemblyAgent:
 
     def _fresh_admm(self) -> None:
         """A fresh ADMM start at the new window's fixed point: earlier values belong to the old window."""
-        self._targets_z = {a: v for a, v in self._targets_z.items() if v.window >= self._step}
-        self._observers = {a: v for a, v in self._observers.items() if v.window >= self._step}
+        self._inbox.keep_from(self._step)
         self._iter = 0
         self._pair_iter, self._waiting, self._pair_out, self._last_dual = {}, {}, {}, {}
         self._last_primal = None
@@ -1083,7 +1049,7 @@ class AssemblyAgent:
         self._request_unknown()
         self._fresh_pairs = True
         for target, pair in self._pairs.items():
-            inbound = self._targets_z.get(target)
+            inbound = self._inbox.targets.get(target)
             i = self._pair_iter.get(target, 0)
             waited = self._waiting.get(("pair", target), 0)
             # not heard from for `patience` rounds: gone (crashed, cut off, or no longer watching) - go on
@@ -1112,8 +1078,8 @@ class AssemblyAgent:
                 mine_m = {k[1]: v for k, v in metrics.items() if k[0] == me}
                 self._pair_out[target] = (mine, mine_m, cons.ready or ready[target], i)
                 theirs = sorted((k[1], v) for k, v in out.items() if k[0] == target)
-                w = np.array([_packed(metrics[(target, k)]) for k, _ in theirs], float).reshape(-1, 7)
-                self._last_dual[target] = self._blocks(theirs, cons.ready, i, rho=(pair.rho_R, pair.rho_p), w=w)
+                w = np.array([packed_metric(metrics[(target, k)]) for k, _ in theirs], float).reshape(-1, 7)
+                self._last_dual[target] = value_blocks(theirs, cons.ready, i, rho=(pair.rho_R, pair.rho_p), w=w)
             else:
                 self._waiting[("pair", target)] = waited + 1
                 self.counters["retransmits"] += 1
@@ -1129,11 +1095,11 @@ class AssemblyAgent:
         gone = cfg.window + 2 * cfg.patience + 10
         ages, inputs = {}, []
         for target in self._pairs:
-            ages[target] = self._age(self._targets_z.get(target))
+            ages[target] = self._age(self._inbox.targets.get(target))
             if target in self._pair_out:
                 mine, mine_m, usable, it = self._pair_out[target]
                 inputs.append((it, usable, (mine, mine_m)))
-        for sender, inbound in self._observers.items():
+        for sender, inbound in self._inbox.observers.items():
             age = self._age(inbound)
             if age > gone:
                 continue  # an observer gone for long: its copies no longer count
@@ -1147,7 +1113,7 @@ class AssemblyAgent:
         waited = self._waiting.get(("cons", ""), 0)
         lowest = min((it for it, _, _ in inputs), default=self._iter + 1)
         patience = cfg.patience
-        if any(a not in self._observers for a in self._expected):
+        if any(a not in self._inbox.observers for a in self._expected):
             lowest = -1  # a seeded start without an observer's contribution would leave the fixed point
             if self._seeds_complete:
                 # the observer is most likely still getting the window's forms (late under loss): leaving the
@@ -1162,16 +1128,16 @@ class AssemblyAgent:
             self._iter = max([self._iter + 1] + [it for it, _, _ in inputs if it < 10**12])
             self._waiting[("cons", "")] = 0
             last = self._steps[-1]
-            if cons.ready and cons.anchored(last, self._pair_steps | self._remote_steps()):
+            if cons.ready and cons.anchored(last, self._pair_steps | self._inbox.remote_steps()):
                 R, p = cons.z[last]
                 me = self._index[self.name]
                 self._gossip.set_own(pose_row(me, last, self._round, R, p), self._round)
-            self._last_primal = self._blocks(sorted(cons.z.items()), cons.ready, self._iter)
+            self._last_primal = value_blocks(sorted(cons.z.items()), cons.ready, self._iter)
         else:
             self._waiting[("cons", "")] = waited + 1
             self.counters["retransmits"] += 1
         if self._last_primal is not None:
-            for observer in self._observers:
+            for observer in self._inbox.observers:
                 if ages.get(observer, gone + 1) <= gone:
                     self._outbox.append(AdmmPrimal(sender=self.name, receiver=observer, round=self._round,
                                                    window=self._step,
@@ -1231,22 +1197,6 @@ class AssemblyAgent:
                 return False
         return True
 
-    def _remote_steps(self) -> set[int]:
-        """Steps at which an observer holds copies of this assembly (factors it cannot see itself)."""
-        return {k for inbound in self._observers.values() for k in inbound.values}
-
-    def _blocks(self, values: list, ready: bool, iteration: int, rho: tuple[float, float] | None = None,
-                w: np.ndarray | None = None) -> dict:
-        """Wire blocks: ``x`` rows ``(step, R00, R01, R10, R11, px, py, pz)``, ``meta`` = (ready, rho_R, rho_p,
-        ADMM iteration),
-        the gossip ``table`` is added per receiver by :meth:`_with_table`."""
-        x = np.array([[k, *v[0].ravel(), *v[1]] for k, v in values], float).reshape(-1, 8)
-        rho = rho or (0.0, 0.0)
-        blocks = {"x": x, "meta": np.array([1.0 if ready else 0.0, rho[0], rho[1], float(iteration)])}
-        if w is not None:
-            blocks["w"] = w
-        return blocks
-
     def _with_table(self, blocks: dict, receiver: str) -> dict:
         """``blocks`` plus the sender's place in the aggregation tree (``tree``: hop to the reference, parent;
         -1 for none) and the gossip table if it changed since it last went to ``receiver`` (or is due)."""
@@ -1273,7 +1223,7 @@ class AssemblyAgent:
     def observers(self) -> tuple[str, ...]:
         """Assemblies that observe this one: from their ADMM values, or from the last complete set of forms
         (its pairs name observer and target; an exact window sends no ADMM values)."""
-        return tuple(sorted(set(self._observers) | self._watchers))
+        return tuple(sorted(set(self._inbox.observers) | self._watchers))
 
     @property
     def neighbours(self) -> tuple[str, ...]:
@@ -1333,12 +1283,6 @@ _DONE = np.ones(1)
 
 def _yaw2(R: np.ndarray) -> float:
     return float(np.arctan2(R[1, 0], R[0, 0]))
-
-
-def _packed(metric: tuple[np.ndarray, float]) -> list[float]:
-    """``(P, w_z)`` as the wire row ``(P00, P01, P02, P11, P12, P22, w_z)``."""
-    P, w_z = metric
-    return [P[0, 0], P[0, 1], P[0, 2], P[1, 1], P[1, 2], P[2, 2], w_z]
 
 
 def _same_config(a: dict, b: dict) -> bool:
