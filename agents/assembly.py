@@ -90,7 +90,7 @@ from decentral.observations import Camera, Detection, Odometry, PlanarPose, Pose
 from decentral.placement import unplaced_reasons
 from protocols.admm_messages import (ConfigAnnounce, ConfigRequest, FactorShare, FormAck, FormBundle, pack_bundle,
                                      pack_forms)
-from protocols.aggregation import TreeAggregation, choose_parent, tree_from_edges
+from protocols.aggregation import DownRepair, TreeAggregation, choose_parent, tree_from_edges
 from protocols.messages import BROADCAST, AdmmDual, AdmmPrimal, Message
 from protocols.config_gossip import ConfigTable
 from protocols.delta_messages import DeltaBundle, JointPoses
@@ -410,7 +410,7 @@ class AssemblyAgent:
             if boot is not None and boot["step"] == message.step and self._index.get(message.sender) == boot["agg"].parent:
                 boot["agg"].acknowledge(message.have.tolist(), self._round)
             elif down is not None and down["step"] == message.step:
-                down["pending"].pop(self._index.get(message.sender), None)  # a child has the down bundle
+                down["repair"].have(self._index.get(message.sender))  # a child has the down bundle
         elif isinstance(message, ConfigRequest):
             # every agent answers with its own configuration, owner or not: a requester that holds every
             # assembly's configuration knows that the ids none of them lists are stray tags
@@ -657,7 +657,7 @@ class AssemblyAgent:
         targets = agg.down_targets(exclude)
         # kept by every agent, so that any neighbour still waiting can be answered (packed when first asked)
         self._down = {"step": boot["step"], "boot": boot, "bundle": None, "start": start,
-                      "pending": {c: (self._round, 0) for c in targets}}  # child -> (last sent, resends)
+                      "repair": DownRepair(targets, start, self._round)}  # children that may lack it
         for child in targets:
             self._outbox.append(self._down_bundle(self.config.assemblies[child]))
 
@@ -733,16 +733,12 @@ class AssemblyAgent:
         down = self._down
         if down is not None and (down["boot"].get("solution") or down["boot"].get("solution_out")):
             return  # an exact window sends no ADMM values to tell it by: the children ask themselves
-        if down is None or down["step"] != self._step or not down["pending"]:
+        if down is None or down["step"] != self._step or not down["repair"]:
             return
-        for child, (last, tries) in sorted(down["pending"].items()):
-            name = self.config.assemblies[child]
-            if self._inbox.heard_in(name, self._step):
-                del down["pending"][child]
-            elif self._round >= max(down["start"] + 2, last + 3) and tries < 4:
-                down["pending"][child] = (self._round, tries + 1)
-                self.counters["retransmits"] += 1
-                self._outbox.append(self._down_bundle(name))
+        names = self.config.assemblies
+        for child in down["repair"].due(self._round, lambda c: self._inbox.heard_in(names[c], self._step)):
+            self.counters["retransmits"] += 1
+            self._outbox.append(self._down_bundle(names[child]))
 
     def _readdressed(self, bundle: FormBundle, receiver: str) -> FormBundle:
         return FormBundle(sender=self.name, receiver=receiver, round=self._round, step=bundle.step, down=True,
