@@ -81,7 +81,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from decentral.admm import (AdmmConfig, ConsensusState, LocalProblem, PairState, quadratic_form,
-                            scalar_metric, solve_joint)
+                            solve_joint)
 from decentral.estimator import EstimatorConfig
 from decentral.errors import InputError
 from decentral.factors import NoiseModel, detection_weights
@@ -90,11 +90,13 @@ from decentral.observations import Camera, Detection, Odometry, PlanarPose, Pose
 from decentral.placement import unplaced_reasons
 from protocols.admm_messages import (ConfigAnnounce, ConfigRequest, FactorShare, FormAck, FormBundle, pack_bundle,
                                      pack_forms)
-from protocols.aggregation import TreeAggregation, choose_parent, tree_from_edges
+from protocols.aggregation import DownRepair, TreeAggregation, choose_parent, tree_from_edges
 from protocols.messages import BROADCAST, AdmmDual, AdmmPrimal, Message
 from protocols.config_gossip import ConfigTable
 from protocols.delta_messages import DeltaBundle, JointPoses
 from protocols.form_cache import DeltaSender, FormCache
+from protocols.pose_gossip import PoseGossip, pose_row
+from protocols.admm_values import AdmmInbox, Inbound, packed_metric, value_blocks
 
 __all__ = ["AgentConfig", "OwnStep", "AssemblyAgent"]
 
@@ -212,19 +214,6 @@ class OwnStep:
     mounts: dict[str, Pose] = field(default_factory=dict)
 
 
-@dataclass
-class _Inbound:
-    """The newest ADMM values heard from one neighbour."""
-
-    round: int
-    values: dict  # step -> (R (2, 2), p (3,))
-    ready: bool
-    rho: tuple[float, float] = (0.0, 0.0)
-    iteration: int = 0
-    metrics: dict = field(default_factory=dict)  # step -> (P (3, 3), w_z): penalty metric of a dual copy
-    window: int = 0  # the sender's step when it sent the values
-
-
 class AssemblyAgent:
     """Config + private state + message handlers (house style 9).
 
@@ -248,9 +237,7 @@ class AssemblyAgent:
         self._pairs: dict[str, PairState] = {}
         self._pair_steps: set[int] = set()
         self._consensus = ConsensusState(config.name, config.name == config.reference)
-        self._targets_z: dict[str, _Inbound] = {}
-        self._observers: dict[str, _Inbound] = {}
-        self._table: dict[int, np.ndarray] = {}
+        self._inbox = AdmmInbox()  # the newest ADMM values of each target and observer
         self._outbox: list[Message] = []
         self._dirty = True
         self._phase = 0
@@ -276,7 +263,6 @@ class AssemblyAgent:
         self._why: dict[str, str] = {}  # assembly -> why the joint test does not place it (this step)
         self._boot: dict | None = None  # cold-start state while sharing the first step's pair forms
         self._own_forms: tuple | None = None  # (step, keys, forms, pin) last shared (answers late askers)
-        self._table_changed = 0  # last round the gossip table changed by more than the tolerances
         self._hold = 0  # the ADMM of this window starts at this round (after the forms are shared)
         self._tree: dict[str, tuple[int, int, int, int]] = {}  # neighbour -> (hop, parent index, round heard, step)
         self._hop: int | None = 0 if config.name == config.reference else None
@@ -287,9 +273,10 @@ class AssemblyAgent:
         self._late: dict | None = None  # a window's sharing that timed out without every agent's forms
         self._pair_sig: dict[str, int] = {}  # target -> detections used by its pair, at the last rebuild
         self._form_sig: dict[str, int] | None = None  # the same when this window's own forms were shared
-        self._table_version = 0  # bumped on every material change of the gossip table
+        # the gossip table of every assembly's newest consensus pose (sent on the ADMM messages)
+        self._gossip = PoseGossip(self._index[config.name], len(config.assemblies),
+                                  min(config.admm.eps_rot, config.admm.eps_pos), config.gossip_refresh)
         self._expected: set[str] = set()  # observers whose first values a seeded start waits for
-        self._table_sent: dict[str, tuple[int, int]] = {}  # neighbour -> (version, round) last sent
         #: set by the runtime's local rule (:class:`agents.runtime.LocalAgent`) once this agent's window is done:
         #: its ADMM values then carry a ``done`` block, so that quiet neighbours do not answer them
         self.window_done = False
@@ -423,7 +410,7 @@ class AssemblyAgent:
             if boot is not None and boot["step"] == message.step and self._index.get(message.sender) == boot["agg"].parent:
                 boot["agg"].acknowledge(message.have.tolist(), self._round)
             elif down is not None and down["step"] == message.step:
-                down["pending"].pop(self._index.get(message.sender), None)  # a child has the down bundle
+                down["repair"].have(self._index.get(message.sender))  # a child has the down bundle
         elif isinstance(message, ConfigRequest):
             # every agent answers with its own configuration, owner or not: a requester that holds every
             # assembly's configuration knows that the ids none of them lists are stray tags
@@ -433,33 +420,14 @@ class AssemblyAgent:
         elif isinstance(message, (AdmmPrimal, AdmmDual)):
             if "done" not in message.blocks and message.window == self._step:
                 self._busy_seen = self._round  # it runs the ADMM (late names, partial forms): take part
-            self._merge_table(message.blocks.get("table"))
+            self._gossip.merge(message.blocks.get("table"), self._round)
             b = message.blocks
             tree = b.get("tree")
             if tree is not None and tree.shape == (2,):
                 self._tree[message.sender] = (int(tree[0]), int(tree[1]), self._round, self._step)
             self._ask(message.sender, int(message.window))
-            x, meta = b.get("x"), b.get("meta")
-            if x is None or meta is None or x.ndim != 2 or x.shape[1] != 8 or meta.shape != (4,):
+            if not self._inbox.receive(message):
                 self.counters["ignored"] += 1
-                return
-            store = self._targets_z if isinstance(message, AdmmPrimal) else self._observers
-            old = store.get(message.sender)
-            if old is not None and old.round >= message.round:
-                return  # a duplicate or an overtaken (reordered) copy
-            values = {int(row[0]): (row[1:5].reshape(2, 2).copy(), row[5:8].copy()) for row in x}
-            metrics = {}
-            if isinstance(message, AdmmDual):
-                w = b.get("w")
-                if w is not None and w.shape == (x.shape[0], 7):
-                    for row, wr in zip(x, w):
-                        P = np.array([[wr[0], wr[1], wr[2]], [wr[1], wr[3], wr[4]], [wr[2], wr[4], wr[5]]])
-                        metrics[int(row[0])] = (P, float(wr[6]))
-                else:  # scalar penalties only (meta: rho_R, rho_p)
-                    P, w_z = scalar_metric([float(meta[1])], [float(meta[2])])
-                    metrics = {k: (P[0], float(w_z[0])) for k in values}
-            store[message.sender] = _Inbound(message.round, values, bool(meta[0] > 0.5), (float(meta[1]), float(meta[2])),
-                                             int(meta[3]), metrics, int(message.window))
         else:
             self.counters["ignored"] += 1
 
@@ -555,8 +523,8 @@ class AssemblyAgent:
         as they are now, and no node is left to name: the estimate is final without ADMM rounds."""
         return self._seeds_complete and self._form_sig == self._pair_sig and not self._unresolved()
 
-    def _age(self, inbound: _Inbound | None) -> int:
-        return 10**9 if inbound is None else max(0, self._round - inbound.round)
+    def _age(self, inbound: Inbound | None) -> int:
+        return self._inbox.age(inbound, self._round)
 
     # ------------------------------------------------------------------ cold start
     def _request_unknown(self) -> None:
@@ -689,7 +657,7 @@ class AssemblyAgent:
         targets = agg.down_targets(exclude)
         # kept by every agent, so that any neighbour still waiting can be answered (packed when first asked)
         self._down = {"step": boot["step"], "boot": boot, "bundle": None, "start": start,
-                      "pending": {c: (self._round, 0) for c in targets}}  # child -> (last sent, resends)
+                      "repair": DownRepair(targets, start, self._round)}  # children that may lack it
         for child in targets:
             self._outbox.append(self._down_bundle(self.config.assemblies[child]))
 
@@ -765,17 +733,12 @@ class AssemblyAgent:
         down = self._down
         if down is not None and (down["boot"].get("solution") or down["boot"].get("solution_out")):
             return  # an exact window sends no ADMM values to tell it by: the children ask themselves
-        if down is None or down["step"] != self._step or not down["pending"]:
+        if down is None or down["step"] != self._step or not down["repair"]:
             return
-        for child, (last, tries) in sorted(down["pending"].items()):
-            name = self.config.assemblies[child]
-            if any(store.get(name) is not None and store[name].window >= self._step
-                   for store in (self._targets_z, self._observers)):
-                del down["pending"][child]
-            elif self._round >= max(down["start"] + 2, last + 3) and tries < 4:
-                down["pending"][child] = (self._round, tries + 1)
-                self.counters["retransmits"] += 1
-                self._outbox.append(self._down_bundle(name))
+        names = self.config.assemblies
+        for child in down["repair"].due(self._round, lambda c: self._inbox.heard_in(names[c], self._step)):
+            self.counters["retransmits"] += 1
+            self._outbox.append(self._down_bundle(names[child]))
 
     def _readdressed(self, bundle: FormBundle, receiver: str) -> FormBundle:
         return FormBundle(sender=self.name, receiver=receiver, round=self._round, step=bundle.step, down=True,
@@ -981,17 +944,13 @@ class AssemblyAgent:
     def _fill_table(self, poses: dict) -> None:
         """The joint solution's poses of the current step into the gossip table (its own row too: in an exact
         window no ADMM round comes to write it)."""
-        for (name, step), (R, p) in poses.items():
-            i = self._index.get(name)
-            if step == self._step and i is not None:
-                self._table[i] = np.array([i, step, self._round, *p, np.arctan2(R[1, 0], R[0, 0])])
-        self._table_version += 1
-        self._table_changed = self._round
+        rows = [pose_row(self._index[name], step, self._round, R, p) for (name, step), (R, p) in poses.items()
+                if step == self._step and name in self._index]
+        self._gossip.fill(rows, self._round)
 
     def _fresh_admm(self) -> None:
         """A fresh ADMM start at the new window's fixed point: earlier values belong to the old window."""
-        self._targets_z = {a: v for a, v in self._targets_z.items() if v.window >= self._step}
-        self._observers = {a: v for a, v in self._observers.items() if v.window >= self._step}
+        self._inbox.keep_from(self._step)
         self._iter = 0
         self._pair_iter, self._waiting, self._pair_out, self._last_dual = {}, {}, {}, {}
         self._last_primal = None
@@ -1086,7 +1045,7 @@ class AssemblyAgent:
         self._request_unknown()
         self._fresh_pairs = True
         for target, pair in self._pairs.items():
-            inbound = self._targets_z.get(target)
+            inbound = self._inbox.targets.get(target)
             i = self._pair_iter.get(target, 0)
             waited = self._waiting.get(("pair", target), 0)
             # not heard from for `patience` rounds: gone (crashed, cut off, or no longer watching) - go on
@@ -1115,8 +1074,8 @@ class AssemblyAgent:
                 mine_m = {k[1]: v for k, v in metrics.items() if k[0] == me}
                 self._pair_out[target] = (mine, mine_m, cons.ready or ready[target], i)
                 theirs = sorted((k[1], v) for k, v in out.items() if k[0] == target)
-                w = np.array([_packed(metrics[(target, k)]) for k, _ in theirs], float).reshape(-1, 7)
-                self._last_dual[target] = self._blocks(theirs, cons.ready, i, rho=(pair.rho_R, pair.rho_p), w=w)
+                w = np.array([packed_metric(metrics[(target, k)]) for k, _ in theirs], float).reshape(-1, 7)
+                self._last_dual[target] = value_blocks(theirs, cons.ready, i, rho=(pair.rho_R, pair.rho_p), w=w)
             else:
                 self._waiting[("pair", target)] = waited + 1
                 self.counters["retransmits"] += 1
@@ -1132,11 +1091,11 @@ class AssemblyAgent:
         gone = cfg.window + 2 * cfg.patience + 10
         ages, inputs = {}, []
         for target in self._pairs:
-            ages[target] = self._age(self._targets_z.get(target))
+            ages[target] = self._age(self._inbox.targets.get(target))
             if target in self._pair_out:
                 mine, mine_m, usable, it = self._pair_out[target]
                 inputs.append((it, usable, (mine, mine_m)))
-        for sender, inbound in self._observers.items():
+        for sender, inbound in self._inbox.observers.items():
             age = self._age(inbound)
             if age > gone:
                 continue  # an observer gone for long: its copies no longer count
@@ -1150,7 +1109,7 @@ class AssemblyAgent:
         waited = self._waiting.get(("cons", ""), 0)
         lowest = min((it for it, _, _ in inputs), default=self._iter + 1)
         patience = cfg.patience
-        if any(a not in self._observers for a in self._expected):
+        if any(a not in self._inbox.observers for a in self._expected):
             lowest = -1  # a seeded start without an observer's contribution would leave the fixed point
             if self._seeds_complete:
                 # the observer is most likely still getting the window's forms (late under loss): leaving the
@@ -1165,22 +1124,16 @@ class AssemblyAgent:
             self._iter = max([self._iter + 1] + [it for it, _, _ in inputs if it < 10**12])
             self._waiting[("cons", "")] = 0
             last = self._steps[-1]
-            if cons.ready and cons.anchored(last, self._pair_steps | self._remote_steps()):
+            if cons.ready and cons.anchored(last, self._pair_steps | self._inbox.remote_steps()):
                 R, p = cons.z[last]
                 me = self._index[self.name]
-                row = np.array([me, last, self._round, p[0], p[1], p[2], np.arctan2(R[1, 0], R[0, 0])])
-                old = self._table.get(me)
-                if old is None or old[1] != row[1] or max(np.abs(row[3:6] - old[3:6]).max(),
-                                                          abs(wrap_angle(row[6] - old[6]))) > self._table_eps():
-                    self._table_version += 1
-                    self._table_changed = self._round
-                self._table[me] = row
-            self._last_primal = self._blocks(sorted(cons.z.items()), cons.ready, self._iter)
+                self._gossip.set_own(pose_row(me, last, self._round, R, p), self._round)
+            self._last_primal = value_blocks(sorted(cons.z.items()), cons.ready, self._iter)
         else:
             self._waiting[("cons", "")] = waited + 1
             self.counters["retransmits"] += 1
         if self._last_primal is not None:
-            for observer in self._observers:
+            for observer in self._inbox.observers:
                 if ages.get(observer, gone + 1) <= gone:
                     self._outbox.append(AdmmPrimal(sender=self.name, receiver=observer, round=self._round,
                                                    window=self._step,
@@ -1193,7 +1146,7 @@ class AssemblyAgent:
                      and self._step_rounds >= cfg.patience)
             self._converged = alone or bool(
                 lowest >= self._iter_before + 1
-                and self._round - self._table_changed >= 2  # the gossip of the others' poses has settled
+                and self._gossip.settled(self._round)  # the gossip of the others' poses has settled
                 and cons.ready
                 and all(p.converged() for p in self._pairs.values())
                 and cons.change <= max(eps.eps_rot, eps.eps_pos)
@@ -1240,22 +1193,6 @@ class AssemblyAgent:
                 return False
         return True
 
-    def _remote_steps(self) -> set[int]:
-        """Steps at which an observer holds copies of this assembly (factors it cannot see itself)."""
-        return {k for inbound in self._observers.values() for k in inbound.values}
-
-    def _blocks(self, values: list, ready: bool, iteration: int, rho: tuple[float, float] | None = None,
-                w: np.ndarray | None = None) -> dict:
-        """Wire blocks: ``x`` rows ``(step, R00, R01, R10, R11, px, py, pz)``, ``meta`` = (ready, rho_R, rho_p,
-        ADMM iteration),
-        the gossip ``table`` is added per receiver by :meth:`_with_table`."""
-        x = np.array([[k, *v[0].ravel(), *v[1]] for k, v in values], float).reshape(-1, 8)
-        rho = rho or (0.0, 0.0)
-        blocks = {"x": x, "meta": np.array([1.0 if ready else 0.0, rho[0], rho[1], float(iteration)])}
-        if w is not None:
-            blocks["w"] = w
-        return blocks
-
     def _with_table(self, blocks: dict, receiver: str) -> dict:
         """``blocks`` plus the sender's place in the aggregation tree (``tree``: hop to the reference, parent;
         -1 for none) and the gossip table if it changed since it last went to ``receiver`` (or is due)."""
@@ -1264,31 +1201,8 @@ class AssemblyAgent:
         if self.config.aggregation == "tree":
             blocks = dict(blocks, tree=np.array([-1 if self._hop is None else self._hop,
                                                  -1 if self._parent is None else self._parent], float))
-        if not self._table:
-            return blocks
-        version, when = self._table_sent.get(receiver, (-1, -(10**9)))
-        if version == self._table_version and self._round - when < self.config.gossip_refresh:
-            return blocks
-        self._table_sent[receiver] = (self._table_version, self._round)
-        return dict(blocks, table=np.array([self._table[i] for i in sorted(self._table)]))
-
-    def _table_eps(self) -> float:
-        return min(self.config.admm.eps_rot, self.config.admm.eps_pos)
-
-    def _merge_table(self, table) -> None:
-        if table is None:
-            return
-        for row in np.asarray(table).reshape(-1, 7):
-            i = int(row[0])
-            if not 0 <= i < len(self.config.assemblies) or i == self._index[self.name]:
-                continue
-            old = self._table.get(i)
-            if old is None or (row[1], row[2]) > (old[1], old[2]):
-                self._table[i] = np.array(row)
-                moved = max(np.abs(row[3:6] - old[3:6]).max(), abs(wrap_angle(row[6] - old[6]))) if old is not None else 0
-                if old is None or row[1] != old[1] or moved > self._table_eps():
-                    self._table_changed = self._round
-                    self._table_version += 1
+        table = self._gossip.attach(receiver, self._round)
+        return blocks if table is None else dict(blocks, table=table)
 
     # ------------------------------------------------------------------ results
     @property
@@ -1305,7 +1219,7 @@ class AssemblyAgent:
     def observers(self) -> tuple[str, ...]:
         """Assemblies that observe this one: from their ADMM values, or from the last complete set of forms
         (its pairs name observer and target; an exact window sends no ADMM values)."""
-        return tuple(sorted(set(self._observers) | self._watchers))
+        return tuple(sorted(set(self._inbox.observers) | self._watchers))
 
     @property
     def neighbours(self) -> tuple[str, ...]:
@@ -1338,10 +1252,10 @@ class AssemblyAgent:
         """
         if self._step is None or not self._consensus.ready:
             return {}
-        me = self._table.get(self._index[self.name])
+        me = self._gossip.rows.get(self._index[self.name])
         if me is None or int(me[1]) != self._step:
             return {}
-        rows = {i: row for i, row in self._table.items() if int(row[1]) == self._step}
+        rows = {i: row for i, row in self._gossip.rows.items() if int(row[1]) == self._step}
         if self._seeds_complete:
             for (name, step), (R, p) in self._seeds.items():
                 i = self._index.get(name)
@@ -1365,12 +1279,6 @@ _DONE = np.ones(1)
 
 def _yaw2(R: np.ndarray) -> float:
     return float(np.arctan2(R[1, 0], R[0, 0]))
-
-
-def _packed(metric: tuple[np.ndarray, float]) -> list[float]:
-    """``(P, w_z)`` as the wire row ``(P00, P01, P02, P11, P12, P22, w_z)``."""
-    P, w_z = metric
-    return [P[0, 0], P[0, 1], P[0, 2], P[1, 1], P[1, 2], P[2, 2], w_z]
 
 
 def _same_config(a: dict, b: dict) -> bool:

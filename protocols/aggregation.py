@@ -37,9 +37,9 @@ most), and per child one acknowledgement and one bundle down, i.e. at most ``1 +
 
 from __future__ import annotations
 
-from typing import Any, Iterable, Mapping
+from typing import Any, Callable, Iterable, Mapping
 
-__all__ = ["choose_parent", "tree_from_edges", "TreeAggregation"]
+__all__ = ["choose_parent", "tree_from_edges", "TreeAggregation", "DownRepair"]
 
 
 def choose_parent(neighbour_hops: Mapping[int, int], limit: int) -> tuple[int | None, int | None]:
@@ -240,3 +240,46 @@ class TreeAggregation:
     def down_targets(self, exclude: Iterable[int] = ()) -> list[int]:
         """Children to send the down bundle to (expected ones and those that reported), sorted."""
         return sorted(self.children - set(exclude) - {self.me})
+
+
+class DownRepair:
+    """The children still owed a window's down bundle, and when to send it to them again.
+
+    A child that has the down bundle says so (an acknowledgement, :meth:`have`) or starts the ADMM at the
+    bundle's ``start`` round and is heard from about a round later; a child still silent ``grace`` rounds
+    after ``start`` gets the bundle again, every ``every`` rounds, at most ``tries`` times (it may no longer
+    be a neighbour; it also asks by itself). Rounds are passed in; nothing here sends.
+
+    Parameters
+    ----------
+    children : iterable of int
+        The children the down bundle went to at ``round_index``.
+    start : int
+        The round at which the ADMM of the window starts everywhere.
+    round_index : int
+        The round of the first sending.
+    """
+
+    def __init__(self, children: Iterable[int], start: int, round_index: int, *, every: int = 3, tries: int = 4,
+                 grace: int = 2):
+        self.start, self.every, self.tries, self.grace = start, every, tries, grace
+        self.pending: dict[int, tuple[int, int]] = {c: (round_index, 0) for c in children}  # -> (last sent, resends)
+
+    def __bool__(self) -> bool:
+        return bool(self.pending)
+
+    def have(self, child: int | None) -> None:
+        """``child`` has the down bundle (it acknowledged it): never resent."""
+        self.pending.pop(child, None)
+
+    def due(self, round_index: int, heard: Callable[[int], bool]) -> list[int]:
+        """Children to send the down bundle again now (sorted), counted as sent; those ``heard`` from in the
+        window's ADMM are dropped (they have it)."""
+        out = []
+        for child, (last, tries) in sorted(self.pending.items()):
+            if heard(child):
+                del self.pending[child]
+            elif round_index >= max(self.start + self.grace, last + self.every) and tries < self.tries:
+                self.pending[child] = (round_index, tries + 1)
+                out.append(child)
+        return out

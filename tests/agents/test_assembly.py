@@ -200,7 +200,7 @@ def test_older_or_duplicate_admm_values_do_not_replace_newer_ones(log):
     agent.handle(primal(5, 2.0))
     agent.handle(primal(3, 9.0))
     agent.handle(primal(5, 9.0))
-    assert agent._targets_z["A1"].values[0][1][0] == 2.0
+    assert agent._inbox.targets["A1"].values[0][1][0] == 2.0
 
 
 def test_agents_do_not_import_the_simulator_or_ground_truth():

@@ -4,7 +4,7 @@ import networkx as nx
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from protocols.aggregation import TreeAggregation, choose_parent, tree_from_edges
+from protocols.aggregation import DownRepair, TreeAggregation, choose_parent, tree_from_edges
 
 
 def test_parent_is_the_neighbour_with_the_smallest_hop_ties_to_the_smallest_index():
@@ -173,3 +173,20 @@ def test_a_convergecast_and_broadcast_over_a_tree_sends_at_most_one_up_and_one_d
                     sent[dst] += 1
     assert all(a.complete and a.final for a in aggs.values())
     assert all(sent[a] == (0 if a == 0 else 1) + len(kids[a]) for a in range(n))
+
+
+def test_down_repair_resends_to_a_silent_child_after_grace_then_every_few_rounds_at_most_tries_times():
+    """A child never heard from gets the down bundle again from start + grace, every `every` rounds, `tries` times."""
+    repair = DownRepair([4], start=10, round_index=8, every=3, tries=2, grace=2)
+    sent = [r for r in range(8, 30) if repair.due(r, lambda child: False)]
+    assert sent == [12, 15] and repair  # still pending, but no more resends
+
+
+def test_down_repair_drops_children_heard_from_or_acknowledging():
+    """A child heard in the window's ADMM or acknowledging the bundle is never resent to; order is by index."""
+    repair = DownRepair([7, 2, 5], start=0, round_index=0)
+    repair.have(5)
+    repair.have(None)  # an acknowledgement from an unknown sender changes nothing
+    assert repair.due(3, lambda child: child == 7) == [2]
+    assert sorted(repair.pending) == [2]
+    assert repair.due(6, lambda child: True) == [] and not repair
