@@ -16,52 +16,24 @@ import cv2
 import numpy as np
 
 from agents.perception.circle_fit import circle_residuals, fit_circles_geometric
-from agents.perception.refine import _ellipse_stage, _nearest, _robust_fit
+from agents.perception.refine import RefineConfig, _ellipse_stage, _nearest, _robust_fit
 
 __all__ = ["RimRefineConfig", "coarse_fit", "radial_edges", "refine_circles", "rim_points", "rim_votes"]
 
 
 @dataclass(frozen=True)
-class RimRefineConfig:
-    """Parameters of the rim search and fit.
+class RimRefineConfig(RefineConfig):
+    """Parameters of the rim search and fit: those of :class:`~agents.perception.refine.RefineConfig`
+    (the default detector's rim fit; ``band`` and ``coarse_samples`` unused here), and
 
     Attributes
     ----------
-    rays, samples : int
-        Rays cast from each centre, and samples along each ray within the band (second pass).
-    coarse_rays : int
-        Rays of the first pass (run on every proposal, so kept cheap).
-    fine_band : (float, float)
-        Second pass, around the first fit.
-    min_step : float
-        Weakest accepted edge: absolute radial derivative in grey levels per pixel.
-    tol : float
-        Final inlier distance in pixels (plus ``tol_rel`` times the radius).
-    tol_rel : float
-        Final inlier distance relative to the radius.
-    max_shift : float
-        A refined centre may move at most this fraction of the rough radius.
-    outer_frac : float
-        On each ray the rim is the outermost local maximum of the radial step that reaches this
-        fraction of the ray's strongest step.
-    max_axis_ratio : float
-        Second pass: largest major/minor axis ratio of the ellipse fit (1: circles only).
-    ellipse_gate : float
-        Second pass: rim points within this fraction of the radius (plus ``tol``) of the circle
-        seed the ellipse fit.
     min_rim_step : float
         Second pass: smallest median step (summed over the colour channels, per pixel) of the
         rays supporting a circle.
     ellipse_margin : float
         Second pass: the ellipse replaces the circle only when it explains this share of the rays
         more (a shaded limb or a partly hidden rim fits an ellipse a little better by chance).
-    max_axis_turn_deg : float
-        Second pass: an elongated ellipse is kept only if its major axis points within this angle
-        of the image centre (a sphere's image is elongated radially from the principal point).
-    min_focal_px : float
-        Second pass: the shortest focal length (px) assumed; an ellipse at distance d from the
-        image centre may be elongated at most ``sqrt(1 + (d / min_focal_px)^2)`` (+ 0.03). 500 px
-        allows a 92 deg horizontal field of view at 1024 px.
     vote_band : (float, float)
         First pass (:func:`rim_votes`): rim radii searched, as multiples of the proposal's radius
         (a proposal on the tag inside a node is 0.3-0.6 of the node's radius).
@@ -80,21 +52,8 @@ class RimRefineConfig:
         The rim is the outermost vote peak with at least this fraction of the best peak's votes.
     """
 
-    rays: int = 64
-    samples: int = 24
-    coarse_rays: int = 32
-    fine_band: tuple[float, float] = (0.85, 1.15)
-    min_step: float = 3.0
-    tol: float = 0.7
-    tol_rel: float = 0.01
-    max_shift: float = 0.6
-    outer_frac: float = 0.1
-    max_axis_ratio: float = 1.5
-    ellipse_gate: float = 0.12
-    max_axis_turn_deg: float = 20.0
     ellipse_margin: float = 0.05
     min_rim_step: float = 12.0
-    min_focal_px: float = 500.0
     vote_band: tuple[float, float] = (0.5, 3.0)
     search_candidates: int = 4
     search_below: float = 0.7
