@@ -20,7 +20,7 @@ from agents.perception.heap import keep_freed_memory
 from agents.perception.refine import RefineConfig, coarse_fit, refine_circles
 from agents.perception.types import Circle
 
-__all__ = ["HoughConfig", "HoughCircleDetector", "to_grey"]
+__all__ = ["HoughConfig", "HoughCircleDetector", "full_image_circles", "to_grey"]
 
 
 def to_grey(image: np.ndarray) -> np.ndarray:
@@ -84,6 +84,16 @@ class HoughConfig:
     refine: RefineConfig = field(default_factory=RefineConfig)
 
 
+def full_image_circles(found: np.ndarray, scale: float, max_proposals: int) -> np.ndarray:
+    """The first ``max_proposals`` circles of a ``cv2.HoughCircles`` result on an image resized by
+    ``scale``, as (N, 3) (u, v, r) in full-image pixels (a resized pixel centre k sits at
+    (k + 0.5) / scale - 0.5 in the full image)."""
+    rough = found[0, :max_proposals, :3].astype(float)
+    rough[:, :2] = (rough[:, :2] + 0.5) / scale - 0.5
+    rough[:, 2] /= scale
+    return rough
+
+
 class HoughCircleDetector:
     """Hough proposals + sub-pixel rim refinement; implements :class:`~agents.perception.types.CircleDetector`."""
 
@@ -112,12 +122,26 @@ class HoughCircleDetector:
             )
             if found is None:
                 continue
-            rough = found[0, : cfg.max_proposals, :3].astype(float)
-            # a resized pixel centre k sits at (k + 0.5) / s - 0.5 in the full image
-            rough[:, :2] = (rough[:, :2] + 0.5) / s - 0.5
-            rough[:, 2] /= s
-            out.append(rough)
+            out.append(full_image_circles(found, s, cfg.max_proposals))
         return np.concatenate(out) if out else np.zeros((0, 3))
+
+    def _hypotheses(self, image: np.ndarray, grey: np.ndarray, rough: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The blurred float image the rim search runs on, and the circles (M, 3) it tries for ``rough``.
+
+        The rim search runs on the colour image when there is one (chroma edges count too), blurred in
+        float: blurring the uint8 image is faster but its rounding to whole grey levels cost accuracy
+        downstream (table1 experiment: 0.039 -> 0.065 m with confident placement). Each proposal also
+        stands for larger circles (``radius_multipliers``): a proposal that locked onto the square
+        sticker inside a node (0.35-0.5 of its radius) or onto its lit side then still finds the rim.
+        """
+        cfg = self.config
+        src = image if image.ndim == 3 and image.shape[2] == 3 else grey
+        if self._fine is None or self._fine.shape != src.shape:
+            self._fine = np.empty(src.shape, np.float32)
+        fine_img = _blur_float(src, cfg.refine_blur, out=self._fine)
+        rough = _dedupe(rough)
+        hyp = np.concatenate([rough * np.array([1.0, 1.0, m]) for m in cfg.radius_multipliers])
+        return fine_img, hyp[hyp[:, 2] <= cfg.max_radius * 1.2]
 
     def detect(self, image: np.ndarray) -> list[Circle]:
         """Return the refined, suppressed circles of ``image``, best score first."""
@@ -129,18 +153,7 @@ class HoughCircleDetector:
         if len(rough) == 0:
             return []
         image = np.asarray(image)
-        # the rim search runs on the colour image when there is one (chroma edges count too),
-        # blurred in float: blurring the uint8 image is faster but its rounding to whole grey levels
-        # cost accuracy downstream (table1 experiment: 0.039 -> 0.065 m with confident placement)
-        src = image if image.ndim == 3 and image.shape[2] == 3 else grey
-        if self._fine is None or self._fine.shape != src.shape:
-            self._fine = np.empty(src.shape, np.float32)
-        fine_img = _blur_float(src, cfg.refine_blur, out=self._fine)
-        # each proposal also stands for larger circles: a proposal that locked onto the square
-        # sticker inside a node (0.35-0.5 of its radius) or onto its lit side then still finds the rim
-        rough = _dedupe(rough)
-        hyp = np.concatenate([rough * np.array([1.0, 1.0, m]) for m in cfg.radius_multipliers])
-        hyp = hyp[hyp[:, 2] <= cfg.max_radius * 1.2]
+        fine_img, hyp = self._hypotheses(image, grey, rough)
         # coarse pass on every proposal, suppression, then the fine pass on the survivors
         circles, scores, ok = coarse_fit(fine_img, hyp, cfg.refine)
         ok &= (scores >= cfg.min_score) & (circles[:, 2] >= 0.8 * cfg.min_radius) & (circles[:, 2] <= 1.2 * cfg.max_radius)

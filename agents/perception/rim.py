@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from agents.perception.hough import HoughCircleDetector, HoughConfig, _blur_float, _dedupe, suppress, to_grey
+from agents.perception.hough import HoughCircleDetector, HoughConfig, _dedupe, full_image_circles, suppress, to_grey
 from agents.perception.rim_refine import RimRefineConfig, coarse_fit, refine_circles
 from agents.perception.types import Circle
 
@@ -104,11 +104,7 @@ class RimCircleDetector(HoughCircleDetector):
                 )
                 if found is None:
                     continue
-                rough = found[0, : cfg.max_proposals, :3].astype(float)
-                # a resized pixel centre k sits at (k + 0.5) / s - 0.5 in the full image
-                rough[:, :2] = (rough[:, :2] + 0.5) / s - 0.5
-                rough[:, 2] /= s
-                out.append(rough)
+                out.append(full_image_circles(found, s, cfg.max_proposals))
         return np.concatenate(out) if out else np.zeros((0, 3))
 
     def detect(self, image: np.ndarray) -> list[Circle]:
@@ -121,18 +117,7 @@ class RimCircleDetector(HoughCircleDetector):
         rough = self.proposals(image)
         if len(rough) == 0:
             return []
-        # the rim search runs on the colour image when there is one (chroma edges count too),
-        # blurred in float: blurring the uint8 image is faster but its rounding to whole grey levels
-        # cost accuracy downstream (table1 experiment: 0.039 -> 0.065 m with confident placement)
-        src = image if image.ndim == 3 and image.shape[2] == 3 else grey
-        if self._fine is None or self._fine.shape != src.shape:
-            self._fine = np.empty(src.shape, np.float32)
-        fine_img = _blur_float(src, cfg.refine_blur, out=self._fine)
-        # each proposal also stands for larger circles: a proposal that locked onto the square
-        # sticker inside a node (0.35-0.5 of its radius) or onto its lit side then still finds the rim
-        rough = _dedupe(rough)
-        hyp = np.concatenate([rough * np.array([1.0, 1.0, m]) for m in cfg.radius_multipliers])
-        hyp = hyp[hyp[:, 2] <= cfg.max_radius * 1.2]
+        fine_img, hyp = self._hypotheses(image, grey, rough)
         # coarse pass on every proposal, suppression, then the fine pass on the survivors
         circles, scores, ok = coarse_fit(fine_img, hyp, cfg.refine)
         ok &= (scores >= cfg.coarse_min_score) & (circles[:, 2] >= 0.8 * cfg.min_radius) & (circles[:, 2] <= 1.2 * cfg.max_radius)
