@@ -57,9 +57,7 @@ def run(args: argparse.Namespace) -> int:
 
     if is_npz(args.estimate):
         return _run_ensemble(args)
-    from decentral.errors import SolverError
     from decentral.metrics import score_estimate
-    from sims.io.atomic import first_non_finite
     from sims.io.log_json import read_estimate
     from sims.world.truth import read_truth
 
@@ -71,12 +69,7 @@ def run(args: argparse.Namespace) -> int:
         raise err.located(args.estimate) from None
     _check_times_match(score.unmatched_steps, estimate, truth.poses.times, args)
     doc = score.to_dict()
-    bad = first_non_finite(doc)
-    if bad is not None:  # never print NaN/Infinity as a score
-        raise SolverError(f"{args.estimate}: the score's {bad} is not finite against {args.truth}")
-    if args.json:
-        print(json.dumps(doc, indent=1, allow_nan=False))
-    else:
+    if not _print_json(args, doc):
         per = {name: s.to_dict() for name, s in score.per_assembly.items()}
         print(format_table({**per, "overall": score.overall.to_dict()},
                            first=f"assembly (relative to {score.reference})"))
@@ -132,17 +125,25 @@ def ensemble_score(estimate_path: str, truth_path: str) -> dict:
             "pairs_from": source}
 
 
-def _run_ensemble(args: argparse.Namespace) -> int:
+def _print_json(args: argparse.Namespace, doc: dict) -> bool:
+    """Refuse a score that is not finite (never printed as NaN/Infinity); print it as JSON with ``--json``.
+
+    Returns whether it was printed (else the caller prints its table).
+    """
     from decentral.errors import SolverError
     from sims.io.atomic import first_non_finite
 
-    score = ensemble_score(args.estimate, args.truth)
-    bad = first_non_finite(score)
-    if bad is not None:  # never print NaN/Infinity as a score
+    bad = first_non_finite(doc)
+    if bad is not None:
         raise SolverError(f"{args.estimate}: the score's {bad} is not finite against {args.truth}")
     if args.json:
-        print(json.dumps(score, indent=1, allow_nan=False))
-    else:
+        print(json.dumps(doc, indent=1, allow_nan=False))
+    return bool(args.json)
+
+
+def _run_ensemble(args: argparse.Namespace) -> int:
+    score = ensemble_score(args.estimate, args.truth)
+    if not _print_json(args, score):
         print(f"{'modules':>8} {'global RMS [radii]':>19} {'local RMS [radii]':>18} {'scale':>7} {'regions':>8}")
         print(f"{score['modules']:>8} {score['global_rms']:>19.4f} {score['local_rms']:>18.4f} "
               f"{score['scale']:>7.4f} {score['regions']:>8}")
