@@ -80,23 +80,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from decentral.admm import (AdmmConfig, ConsensusState, LocalProblem, PairState, quadratic_form,
-                            solve_joint)
+from decentral.admm import AdmmConfig, ConsensusState, LocalProblem, PairState, quadratic_form
 from decentral.estimator import EstimatorConfig
 from decentral.errors import InputError
 from decentral.factors import NoiseModel, detection_weights
 from decentral.geometry import backproject, rot2, wrap_angle
 from decentral.observations import Camera, Detection, Odometry, PlanarPose, Pose
-from decentral.placement import unplaced_reasons
-from protocols.admm_messages import (ConfigAnnounce, ConfigRequest, FactorShare, FormAck, FormBundle, pack_bundle,
-                                     pack_forms)
-from protocols.aggregation import DownRepair, TreeAggregation, choose_parent, tree_from_edges
+from protocols.admm_messages import ConfigAnnounce, ConfigRequest, FactorShare, FormAck, FormBundle
 from protocols.messages import BROADCAST, AdmmDual, AdmmPrimal, Message
 from protocols.config_gossip import ConfigTable
 from protocols.delta_messages import DeltaBundle, JointPoses
-from protocols.form_cache import DeltaSender, FormCache
 from protocols.pose_gossip import PoseGossip, pose_row
 from protocols.admm_values import AdmmInbox, Inbound, packed_metric, value_blocks
+from protocols.window_aggregation import WindowAggregation
 
 __all__ = ["AgentConfig", "OwnStep", "AssemblyAgent"]
 
@@ -261,16 +257,10 @@ class AssemblyAgent:
         self._seeds_complete = False  # the seeds come from every agent's forms
         self._placeable: frozenset = frozenset()  # (assembly, step) keys the joint test places
         self._why: dict[str, str] = {}  # assembly -> why the joint test does not place it (this step)
-        self._boot: dict | None = None  # cold-start state while sharing the first step's pair forms
-        self._own_forms: tuple | None = None  # (step, keys, forms, pin) last shared (answers late askers)
         self._hold = 0  # the ADMM of this window starts at this round (after the forms are shared)
-        self._tree: dict[str, tuple[int, int, int, int]] = {}  # neighbour -> (hop, parent index, round heard, step)
         self._hop: int | None = 0 if config.name == config.reference else None
         self._parent: int | None = None
-        self._tree_depth = 1  # depth of the aggregation tree in the last down bundle
-        self._down: dict | None = None  # the final set of forms of the last window (answers lost down bundles)
         self._reannounced = -(10**9)  # step of the last re-announcement to the observers
-        self._late: dict | None = None  # a window's sharing that timed out without every agent's forms
         self._pair_sig: dict[str, int] = {}  # target -> detections used by its pair, at the last rebuild
         self._form_sig: dict[str, int] | None = None  # the same when this window's own forms were shared
         # the gossip table of every assembly's newest consensus pose (sent on the ADMM messages)
@@ -283,10 +273,12 @@ class AssemblyAgent:
         self._busy_seen = -(10**9)  # last round with ADMM values of this window from a neighbour still at work
         self._watchers: set[str] = set()  # observers named by the last complete set of forms
         self._shared: dict[str, list[LocalProblem]] = {}  # target -> its pair's forms, one per step
-        self._forms = FormCache()  # every agent's forms seen here for the window (rebuilds deltas from below)
-        self._edges_sent: set = set()  # the view graph in the last solution sent down (the reference)
-        self._delta_sender = DeltaSender()  # per parent, the forms already sent up to it
-        self._alive: dict[int, int] = {}  # agent index -> last step at which it (or its records) was heard
+        # the sharing of every window's cost forms (tree or broadcast), its records and the neighbours' tree places
+        limit = config.max_yaw_std if config.noise.weighting == "information" else np.inf
+        self._sharing = WindowAggregation(config.name, config.assemblies, config.reference,
+                                          aggregation=config.aggregation, window=config.window,
+                                          share_timeout=config.share_timeout, placement_limit=limit,
+                                          counters=self.counters, send=self._outbox.append)
 
     # ------------------------------------------------------------------ sensing
     @property
@@ -296,6 +288,7 @@ class AssemblyAgent:
     def advance(self, round_index: int) -> None:
         """The runtime's clock: the round under way, also while the agent runs no half rounds (quiet)."""
         self._round = max(self._round, int(round_index))
+        self._sharing.round = self._round
 
     def on_step(self, own: OwnStep, round_index: int | None = None) -> None:
         """Take the assembly's own observations of a new step (at round ``round_index``) and slide the window."""
@@ -310,17 +303,10 @@ class AssemblyAgent:
         self._expected = set()
         self._form_sig = None
         if cfg.share_forms == "every" or (cfg.share_forms == "first" and first):
-            self._parent, self._hop = self._tree_position()
-            me = self._index[self.name]
-            agg = TreeAggregation(me, len(cfg.assemblies), root=self.name == cfg.reference, parent=self._parent,
-                                  children={self._index[a] for a, entry in self._tree.items()
-                                            if entry[1] == me and self._fresh(entry)},
-                                  start=self._round + 1, wait=cfg.patience, hop=self._hop or 0,
-                                  expected=self._alive_members(own.step))
-            self._boot = {"records": agg.records, "agg": agg, "mode": None, "start": None, "sent": -(10**9),
-                          "waited": 0, "step": own.step, "pin": None, "start_at": 0}
-            self._own_forms = None
+            self._parent, self._hop = self._sharing.tree.position(self._round, self._step)
+            self._sharing.open(own.step, self._parent, self._hop, cfg.patience)
         self._step, self._t = own.step, own.t
+        self._sharing.step = own.step
         self._own_config = {int(k): np.asarray(v, float) for k, v in own.config.items()}
         if own.odometry is not None:
             w_p, w_R = cfg.noise.odometry_weights()
@@ -339,8 +325,7 @@ class AssemblyAgent:
         first = max(0, own.step - cfg.window + 1)
         self._steps = list(range(first, own.step + 1))
         # forms of steps that left the window are no longer part of any record
-        self._forms.slide(first)
-        self._delta_sender.slide(first)
+        self._sharing.slide(first)
         for store in (self._seen, self._odometry):
             for k in [k for k in store if k < first]:
                 del store[k]
@@ -392,25 +377,22 @@ class AssemblyAgent:
     def handle(self, message: Message) -> None:
         """Route one received message by its type (anything else is counted and ignored)."""
         sender = self._index.get(message.sender)
+        sharing = self._sharing
         if sender is not None and self._step is not None:
-            self._alive[sender] = self._step
+            sharing.heard(sender, self._step)
         if isinstance(message, ConfigAnnounce):
             if self._configs.learn(message):
                 self._dirty = True
         elif isinstance(message, FactorShare):
-            self._on_factors(message)
-        elif isinstance(message, FormBundle):
-            self._on_bundle(message)
-        elif isinstance(message, JointPoses):
-            self._on_solution(message)
-        elif isinstance(message, DeltaBundle):
-            self._on_delta(message)
+            sharing.on_factors(message)
+        elif isinstance(message, (FormBundle, JointPoses, DeltaBundle)):
+            finished = (sharing.on_bundle(message) if isinstance(message, FormBundle)
+                        else sharing.on_solution(message) if isinstance(message, JointPoses)
+                        else sharing.on_delta(message))
+            if finished:
+                self._finish_bootstrap()
         elif isinstance(message, FormAck):
-            boot, down = self._boot, self._down
-            if boot is not None and boot["step"] == message.step and self._index.get(message.sender) == boot["agg"].parent:
-                boot["agg"].acknowledge(message.have.tolist(), self._round)
-            elif down is not None and down["step"] == message.step:
-                down["repair"].have(self._index.get(message.sender))  # a child has the down bundle
+            sharing.on_ack(message)
         elif isinstance(message, ConfigRequest):
             # every agent answers with its own configuration, owner or not: a requester that holds every
             # assembly's configuration knows that the ids none of them lists are stray tags
@@ -424,8 +406,8 @@ class AssemblyAgent:
             b = message.blocks
             tree = b.get("tree")
             if tree is not None and tree.shape == (2,):
-                self._tree[message.sender] = (int(tree[0]), int(tree[1]), self._round, self._step)
-            self._ask(message.sender, int(message.window))
+                sharing.tree.heard(message.sender, int(tree[0]), int(tree[1]), self._round, self._step)
+            sharing.ask(message.sender, int(message.window))
             if not self._inbox.receive(message):
                 self.counters["ignored"] += 1
         else:
@@ -433,7 +415,8 @@ class AssemblyAgent:
 
     def outbox(self) -> list[Message]:
         """Messages queued since the last call (and forget them)."""
-        out, self._outbox = self._outbox, []
+        out = list(self._outbox)
+        self._outbox.clear()
         return out
 
     # ------------------------------------------------------------------ ADMM
@@ -496,13 +479,13 @@ class AssemblyAgent:
             self._phase = phase
         if self._step is None:
             return
-        self._round = round_index
-        self._parent, self._hop = self._tree_position()
-        if self._phase == 0 and self._boot is None:
-            self._repair_down()
-            self._ask_down()
-        if self._boot is not None or round_index < self._hold:
-            if self._phase == 0 and self._boot is not None:
+        self._round = self._sharing.round = round_index
+        self._parent, self._hop = self._sharing.tree.position(self._round, self._step)
+        if self._phase == 0 and self._sharing.share is None:
+            self._sharing.repair_down(lambda name: self._inbox.heard_in(name, self._step))
+            self._sharing.ask_down()
+        if self._sharing.share is not None or round_index < self._hold:
+            if self._phase == 0 and self._sharing.share is not None:
                 self._bootstrap_phase()  # when it finishes, the ADMM starts at round `_hold` (at least the next)
             self._phase = 1 - self._phase
             return
@@ -533,413 +516,32 @@ class AssemblyAgent:
                                               ids=np.array(sorted(self._unknown), dtype=np.int64)))
             self._requested = self._round
 
-    def _fresh(self, entry: tuple[int, int, int, int]) -> bool:
-        """Whether a neighbour's tree entry is recent: heard within :meth:`_tree_fresh` rounds, or in this
-        window or the one before (rounds between windows depend on the pace of the sensor steps, which
-        a process does not choose)."""
-        return self._round - entry[2] <= self._tree_fresh() or entry[3] is not None and entry[3] >= (self._step or 0) - 1
-
-    def _alive_members(self, step: int) -> set[int] | None:
-        """Agents heard from (directly or through their records) in this window or the one before: a set of
-        forms is complete once it holds theirs. ``None`` (every agent) without such a history (the first
-        two steps): an agent down for two windows, or one that never started, is then no longer waited
-        for, and the others' windows complete without it."""
-        if not self._alive or step < 2:
-            return None
-        return {i for i, seen in self._alive.items() if seen >= step - 1}
-
-    def _tree_fresh(self) -> int:
-        """Rounds for which a neighbour's place in the tree is trusted (a window's sharing and ADMM fit in)."""
-        return 2 * self.config.share_timeout
-
-    def _tree_position(self) -> tuple[int | None, int | None]:
-        """(parent index, hop count to the reference) from the neighbours' recent hops (distance vector)."""
-        if self.name == self.config.reference:
-            return None, 0
-        hops = {self._index[a]: entry[0] for a, entry in self._tree.items() if self._fresh(entry)}
-        return choose_parent(hops, len(self.config.assemblies))
-
     def _bootstrap_phase(self) -> None:
         """Share the window's cost forms (up and down the tree, or by broadcast); then solve and seed."""
-        boot, cfg = self._boot, self.config
-        agg = boot["agg"]
-        if boot["start"] is None:
-            boot["start"] = self._round
+        sharing, cfg = self._sharing, self.config
         if self._dirty:
             self._rebuild()
         self._request_unknown()
-        me = self._index[self.name]
-        if self._own_forms is None and (not self._unresolved() or boot["waited"] >= cfg.patience):
+        if sharing.own is None and (not self._unresolved() or sharing.share.waited >= cfg.patience):
             # one form per pair and step, and per odometry link: a window adds only its newest step's forms
             problems = [part for _, parts in sorted(self._shared.items()) for part in parts] \
                 + self._consensus.odometry_links()
-            forms = [tuple((self._index[a], k) for a, k in prob.keys) + (prob,) for prob in problems]
-            keys, flat = pack_forms([(f[:-1], f[-1].M, f[-1].b_z, f[-1].c_z) for f in forms])
+            forms = [(tuple((self._index[a], k) for a, k in prob.keys), prob.M, prob.b_z, prob.c_z) for prob in problems]
             pin = np.zeros(0)
             cons = self._consensus
             if cons.pinned and cons.pin is not None:
                 pin = np.array([cons.pin[0], *cons.pin[2], cons.pin[1]])
-            self._own_forms = (boot["step"], keys, flat, pin)
             self._form_sig = dict(self._pair_sig)
-            # the tree when this agent has a route to the reference (or, at the reference, children);
-            # otherwise (the cold start, a restarted agent, a side of a partition) the broadcast
-            tree = cfg.aggregation == "tree" and (agg.parent is not None or agg.root and bool(agg.children))
-            boot["mode"] = "tree" if tree else "broadcast"
-            self.counters["tree_windows" if tree else "broadcast_windows"] += 1
-            # own forms go through the same packing as everyone else's, so all agents sum identical numbers
-            self._on_factors(self._factor_share(self.name))
-        boot["waited"] += 1
-        elapsed = self._round - boot["start"]
-        if boot["mode"] == "tree":
-            self._tree_progress()
-            # the root finishes (partial) at the timeout; below it, agents wait longer: an agent that starts the ADMM
-            # without the set pulls its seeded neighbours off the fixed point (200+ rounds per window at 50 % loss)
-            limit = cfg.share_timeout * (1 if agg.root else 2) + (agg.hop or 0)
-        else:
-            if self._own_forms is not None and self._round - boot["sent"] >= 3:
-                self._outbox.append(self._factor_share(BROADCAST))
-                boot["sent"] = self._round
-            limit = cfg.share_timeout
-        if boot["mode"] == "broadcast" and agg.complete or agg.final or elapsed >= limit:
-            if not agg.final:
-                if boot["mode"] == "tree" and not agg.root and self._parent is not None:
-                    self._tree.pop(self.config.assemblies[self._parent], None)  # a silent parent: choose again
-                self._send_down()  # children that reported get what this agent ends with
+            sharing.share_own(forms, pin)
+        if sharing.progress(self._parent):
             self._finish_bootstrap()
-
-    def _tree_progress(self) -> None:
-        """Send what the tree protocol owes now: the bundle up (or a resend), or at the root the bundle down."""
-        boot = self._boot
-        agg = boot["agg"]
-        if boot["mode"] != "tree" or agg.final:
-            return
-        if agg.root:
-            if agg.complete:
-                self._send_down()
-            return
-        if agg.up_due(self._round):
-            self._send_up(agg.take_up(self._round))
-        elif agg.resend_due(self._round, 3, max(self._tree_depth, agg.hop) + 3):
-            # (a parent that stays silent is dropped at the window's timeout; switching to the broadcast after
-            # a few unanswered resends instead cost 180-300 rounds per window at 50 % loss: it fired on loss alone)
-            self.counters["retransmits"] += 1
-            self._send_up(agg.take_resend(self._round), whole=True)
-
-    def _bundle(self, receiver: str, indices, down: bool, start: int = 0, boot: dict | None = None) -> FormBundle:
-        boot = boot or self._boot
-        agg = boot["agg"]
-        records = {i: [(keys, prob.M, prob.b_z, prob.c_z) for keys, prob in agg.records[i]] for i in indices}
-        members, owners, keys, flat = pack_bundle(records)
-        ref = self._index[self.config.reference]
-        pin = boot["pin"] if boot["pin"] is not None and ref in records else np.zeros(0)
-        return FormBundle(sender=self.name, receiver=receiver, round=self._round, step=boot["step"], down=down,
-                          hop=agg.hop, parent=-1 if agg.parent is None else agg.parent, depth=agg.depth,
-                          start=start, members=members, owners=owners, keys=keys, forms=flat, pin=pin)
-
-    def _send_up(self, indices: list[int], whole: bool = False) -> None:
-        """Records ``indices`` to the parent: as a delta (what it lacks), or ``whole`` (a resend: it could not
-        rebuild them, or the bundle was lost)."""
-        agg = self._boot["agg"]
-        delta = None if whole else self._delta(agg.parent, indices)
-        self._outbox.append(delta or self._bundle(self.config.assemblies[agg.parent], indices, down=False))
-
-    def _send_down(self, exclude=(), start: int | None = None) -> None:
-        """The final set of this window to the children (the root: when complete or on timeout)."""
-        boot = self._boot
-        agg = boot["agg"]
-        agg.final = True
-        if start is None:  # the root: when the deepest agent will have it, everyone starts the ADMM at once
-            start = self._round + agg.depth // 2 + 2 if boot["mode"] == "tree" and agg.root else 0
-        boot["start_at"] = start
-        self._down = None
-        if self.config.aggregation != "tree":
-            return
-        targets = agg.down_targets(exclude)
-        # kept by every agent, so that any neighbour still waiting can be answered (packed when first asked)
-        self._down = {"step": boot["step"], "boot": boot, "bundle": None, "start": start,
-                      "repair": DownRepair(targets, start, self._round)}  # children that may lack it
-        for child in targets:
-            self._outbox.append(self._down_bundle(self.config.assemblies[child]))
-
-    def _down_bundle(self, receiver: str) -> FormBundle | JointPoses:
-        """What goes down to ``receiver``: the reference's joint solution when the set was complete there
-        (:class:`protocols.delta_messages.JointPoses`, a few bytes per assembly), else the forms."""
-        down = self._down
-        boot = down["boot"]
-        solution = boot.get("solution")
-        if solution is None and self.name == self.config.reference and boot["agg"].complete:
-            joint = self._joint(boot)
-            if joint is not None:
-                solution = boot["solution_out"] = boot.get("solution_out") or self._solution_message(boot, joint)
-        if solution is not None:
-            agg = boot["agg"]
-            return JointPoses(sender=self.name, receiver=receiver, round=self._round, step=solution.step,
-                              hop=agg.hop, parent=-1 if agg.parent is None else agg.parent, depth=solution.depth,
-                              start=down["start"], n=solution.n, members=solution.members, index=solution.index,
-                              poses=solution.poses, placeable=solution.placeable, edges=solution.edges)
-        if down["bundle"] is None:
-            down["bundle"] = self._bundle(BROADCAST, sorted(down["boot"]["records"]), down=True, start=down["start"],
-                                          boot=down["boot"])
-        return self._readdressed(down["bundle"], receiver)
-
-    def _solution_message(self, boot: dict, joint) -> JointPoses:
-        """The reference's joint solution of the window as it goes down: newest step, float32, bit masks."""
-        n, step = len(self.config.assemblies), boot["step"]
-        edges = self._edges(boot)  # sent when the view graph changed (an empty mask: as in the last solution)
-        message_edges, self._edges_sent = self._edges_sent, edges
-        rows = sorted((self._index[a], p, _yaw2(R)) for (a, k), (R, p) in joint.poses.items()
-                      if k == step and a in self._index)
-        placeable = {self._index[a] for a, k in self._placeable_of(boot, joint) if k == step}
-        return JointPoses(sender=self.name, receiver=BROADCAST, round=self._round, step=step, hop=0, parent=-1,
-                          depth=boot["agg"].depth, start=0, n=n, members=JointPoses.mask(boot["records"], n),
-                          index=JointPoses.mask([r[0] for r in rows], n),
-                          poses=np.array([[*r[1], r[2]] for r in rows], float).reshape(-1, 4),
-                          placeable=JointPoses.mask(placeable, n),
-                          edges=JointPoses.mask([a * n + b for a, b in edges], n * n) if edges != message_edges
-                          else np.zeros(0, np.uint8))
-
-    def _ask(self, neighbour: str, step: int) -> None:
-        """A neighbour sends ADMM values of this window, so it has finished the sharing: ask it for the set
-        (at most every other round) by sending it this agent's records, which it answers with the down bundle."""
-        wait = self._boot if self._boot is not None else self._late
-        if (wait is None or wait["step"] != step or wait["mode"] != "tree" or wait["agg"].parent is None
-                or self._round - wait.get("asked_at", -(10**9)) < 2):
-            return
-        wait["asked_at"] = self._round
-        self.counters["retransmits"] += 1
-        self._outbox.append(self._bundle(neighbour, sorted(wait["agg"].records), down=False, boot=wait))
-
-    def _ask_down(self) -> None:
-        """After a timeout without every agent's forms, keep asking the parent for the down bundle (every
-        3 rounds, at most 10 times this window): a late complete set re-seeds the window exactly."""
-        late = self._late
-        if (late is None or late["step"] != self._step or late["asked"] >= 10 or self._round - late["last"] < 3
-                or late["agg"].parent is None):
-            return
-        agg = late["agg"]
-        late["asked"] += 1
-        late["last"] = self._round
-        self.counters["retransmits"] += 1
-        self._outbox.append(self._bundle(self.config.assemblies[agg.parent], sorted(agg.records), down=False,
-                                         boot=late))
-
-    def _repair_down(self) -> None:
-        """Send the down bundle again to children not heard from in this window's ADMM (it was lost).
-
-        A child that has the down bundle starts the ADMM at its ``start`` round with everyone else, and its
-        first values reach this agent (a view-graph neighbour) a round later; a child still silent
-        2 rounds after that gets the bundle again, every 3 rounds, at most 4 times (it may no longer be a
-        neighbour; it also asks by itself)."""
-        down = self._down
-        if down is not None and (down["boot"].get("solution") or down["boot"].get("solution_out")):
-            return  # an exact window sends no ADMM values to tell it by: the children ask themselves
-        if down is None or down["step"] != self._step or not down["repair"]:
-            return
-        names = self.config.assemblies
-        for child in down["repair"].due(self._round, lambda c: self._inbox.heard_in(names[c], self._step)):
-            self.counters["retransmits"] += 1
-            self._outbox.append(self._down_bundle(names[child]))
-
-    def _readdressed(self, bundle: FormBundle, receiver: str) -> FormBundle:
-        return FormBundle(sender=self.name, receiver=receiver, round=self._round, step=bundle.step, down=True,
-                          hop=bundle.hop, parent=bundle.parent, depth=bundle.depth, start=bundle.start,
-                          members=bundle.members, owners=bundle.owners, keys=bundle.keys, forms=bundle.forms,
-                          pin=bundle.pin)
-
-    def _on_bundle(self, message: FormBundle | DeltaBundle, rebuilt: dict | None = None) -> None:
-        """A bundle from a child (records up) or from the parent (the final set, down); ``rebuilt``: the
-        records a delta bundle describes, rebuilt from this agent's cache (:meth:`_on_delta`)."""
-        n = len(self.config.assemblies)
-        down = bool(getattr(message, "down", False))
-        sender = self._index.get(message.sender)
-        if rebuilt is None and (sender is None or (len(message.keys) and message.keys[:, 1].max() >= n)
-                                or (len(message.members) and message.members.max() >= n)):
-            self.counters["ignored"] += 1
-            return  # (a delta's indices were checked by _on_delta)
-        self._tree[message.sender] = (message.hop, message.parent, self._round, self._step)
-        for member in message.members.tolist():
-            self._alive[int(member)] = self._step if self._step is not None else 0
-        boot, late = self._boot, self._late
-        names = self.config.assemblies
-        if rebuilt is None:
-            records = {i: [(keys, LocalProblem(tuple((names[a], s) for a, s in keys), M, b_z, c_z))
-                           for keys, M, b_z, c_z in forms] for i, forms in message.records().items()}
-            for i, forms in records.items():
-                self._remember(i, forms)
-        else:
-            records = rebuilt
-        if boot is None and late is not None and late["step"] == message.step == self._step:
-            # this window finished here without every agent's forms: what arrives late may complete it
-            agg = late["agg"]
-            if len(message.pin):
-                late["pin"] = np.array(message.pin)
-            new = agg.add(records, child=None if down else sender)
-            if not down and new and agg.parent is not None:  # the root missed them too: pass them on
-                self._outbox.append(self._bundle(names[agg.parent], sorted(new), down=False, boot=late))
-            if agg.complete:  # start again from the joint solution, and tell the children
-                self._late, self._boot = None, late
-                agg.final = False
-                self._send_down(exclude=(sender,) if down else (), start=0)
-                self.counters["late_seeds"] += 1
-                self._finish_bootstrap()
-            elif not down and self._down is not None and self._down["step"] == message.step:
-                self._outbox.append(self._down_bundle(message.sender))
-            return
-        if boot is None or message.step != boot["step"]:
-            # finished with this window: a bundle from below means the down bundle was lost: send it again
-            if not down and self._down is not None and self._down["step"] == message.step:
-                self._outbox.append(self._down_bundle(message.sender))
-            return
-        agg = boot["agg"]
-        if len(message.pin):
-            boot["pin"] = np.array(message.pin)
-        if down:
-            if agg.final:
-                return
-            agg.add(records, depth=message.depth)
-            self._tree_depth = max(1, message.depth)
-            lost = agg.missing_from(message.members.tolist())
-            if lost and agg.parent is not None:  # the root timed out without records from here: send them again
-                self._outbox.append(self._bundle(names[agg.parent], lost, down=False))
-            self._send_down(exclude=(sender,), start=message.start)  # forwarded at once: one hop per phase
-            # acknowledged: in an exact window no ADMM values come back to tell the parent it arrived
-            self._outbox.append(FormAck(sender=self.name, receiver=message.sender, round=self._round,
-                                        step=boot["step"], have=np.array(sorted(agg.records), dtype=np.int64)))
-        else:
-            agg.add(records, child=sender, depth=message.depth)
-            if agg.final:  # already finished the window's sharing: the child missed the down bundle
-                if self._down is not None:
-                    self._outbox.append(self._down_bundle(message.sender))
-                return
-            self._outbox.append(FormAck(sender=self.name, receiver=message.sender, round=self._round,
-                                        step=boot["step"], have=np.array(sorted(agg.records), dtype=np.int64)))
-            self._tree_progress()
-
-    def _remember(self, owner: int, forms) -> None:
-        """Keep ``owner``'s forms ``[(keys, LocalProblem)]`` of the window (a parent rebuilds delta records from them)."""
-        self._forms.remember(owner, forms)
-
-    def _on_delta(self, message: DeltaBundle) -> None:
-        """A delta bundle from a child: rebuild each member's record of the window from the forms carried and
-        those held here (:class:`protocols.form_cache.FormCache`); a member that cannot be rebuilt exactly is
-        left out (not acknowledged: the child sends it whole)."""
-        n, names = len(self.config.assemblies), self.config.assemblies
-        if (self._index.get(message.sender) is None or (len(message.pairs) and message.pairs.max() >= n)
-                or (len(message.members) and message.members.max() >= n)):
-            self.counters["ignored"] += 1
-            return
-        for owner, keys, M, b_z, c_z in message.carried():
-            self._remember(owner, [(keys, LocalProblem(tuple((names[a], k) for a, k in keys), M, b_z, c_z))])
-        first = message.step - self.config.window + 1
-        rebuilt = {}
-        for member, digest in zip(message.members.tolist(), message.digest.tolist()):
-            record = self._forms.rebuild(member, tuple(digest), first, message.step)
-            if record is not None:
-                rebuilt[member] = record
-        self._on_bundle(message, rebuilt)
-
-    def _delta(self, parent: int, indices: list[int]) -> DeltaBundle | None:
-        """Records ``indices`` for ``parent`` as a delta (:class:`protocols.form_cache.DeltaSender`): the forms
-        not yet sent to it, and each record's digest (``None``: the records go whole)."""
-        boot, agg = self._boot, self._boot["agg"]
-        packed = self._delta_sender.delta(parent, {i: agg.records[i] for i in indices}, boot["step"])
-        if packed is None:
-            return None
-        carried, digests = packed
-        ref = self._index[self.config.reference]
-        pin = boot["pin"] if boot["pin"] is not None and ref in indices else np.zeros(0)
-        return DeltaBundle(sender=self.name, receiver=self.config.assemblies[parent], round=self._round,
-                           step=boot["step"], hop=agg.hop, parent=parent, depth=agg.depth,
-                           members=np.array(sorted(indices), dtype=np.int16), pin=pin,
-                           digest=np.array(digests, dtype=np.int64).reshape(-1, 2), **DeltaBundle.pack(boot["step"], carried))
-
-    def _factor_share(self, receiver: str) -> FactorShare:
-        step, keys, flat, pin = self._own_forms
-        have = [self._index[self.name]]
-        if self._boot is not None and self._boot["step"] == step:
-            have = sorted(self._boot["records"])
-        return FactorShare(sender=self.name, receiver=receiver, round=self._round, step=step,
-                           have=np.array(have, dtype=np.int64), keys=keys, forms=flat, pin=pin)
-
-    def _on_factors(self, message: FactorShare) -> None:
-        sender = self._index.get(message.sender)
-        n = len(self.config.assemblies)
-        if sender is None or (len(message.keys) and message.keys[:, 1].max() >= n):
-            self.counters["ignored"] += 1
-            return
-        boot = self._boot
-        if boot is not None and message.step == boot["step"]:
-            names, agg = self.config.assemblies, boot["agg"]
-            if sender not in boot["records"]:
-                forms = [(keys, LocalProblem(tuple((names[a], s) for a, s in keys), M, b_z, c_z))
-                         for keys, M, b_z, c_z in message.unpack()]
-                self._remember(sender, forms)
-                agg.add({sender: forms}, forward=message.sender == self.name)
-                if len(message.pin):
-                    boot["pin"] = np.array(message.pin)
-            if (boot["mode"] == "tree" and message.receiver == BROADCAST and agg.parent == sender
-                    and not agg.final):
-                boot["mode"], boot["sent"] = "broadcast", -(10**9)  # the parent has no route: nor has this agent
-        mine = self._own_forms
-        # it lacks ours: answer directly (only broadcasts are answered, so answers never ping-pong)
-        if (mine is not None and mine[0] == message.step and message.receiver == BROADCAST
-                and message.sender != self.name and self._index[self.name] not in set(message.have.tolist())):
-            self._outbox.append(self._factor_share(message.sender))
-
-    def _joint(self, boot: dict):
-        """The joint solution of a window's shared forms (:func:`decentral.admm.solve_joint`, computed once per
-        window), or ``None`` (no forms, or the gauge's value at this window unknown here)."""
-        if "joint" not in boot:
-            boot["joint"] = None
-            problems = [prob for idx in sorted(boot["records"]) for _, prob in boot["records"][idx]]
-            first = self._steps[0]
-            pin = boot["pin"]
-            if problems and (pin is not None and int(pin[0]) == first or first == 0):
-                value = (rot2(float(pin[4])), np.array(pin[1:4])) if pin is not None and int(pin[0]) == first else None
-                try:
-                    boot["joint"] = solve_joint(problems, (self.config.reference, first), value)
-                except np.linalg.LinAlgError:
-                    # a set whose variables are tied by keys but not by factors (a step with neither odometry
-                    # nor detections, forms missing): no joint solution; the ADMM goes on from its own state
-                    self.counters["joint_failures"] += 1
-        return boot["joint"]
-
-    def _edges(self, boot: dict) -> set[tuple[int, int]]:
-        """The view graph's observing pairs ``(observer, target)`` the window's forms name (each pair form names
-        its observer first and its target last)."""
-        return {(keys[0][0], keys[-1][0]) for idx in boot["records"] for keys, _ in boot["records"][idx]
-                if keys[0][0] != keys[-1][0]}
-
-    def _placeable_of(self, boot: dict, joint) -> frozenset:
-        if "placeable" not in boot:
-            limit = self.config.max_yaw_std if self.config.noise.weighting == "information" else np.inf
-            boot["placeable"], boot["yaw_std"] = joint.placement((self.name, self._step), limit)
-        return boot["placeable"]
-
-    def _unplaced_reasons(self, boot: dict, joint) -> dict[str, str]:
-        """Why the joint placement test leaves an assembly out at this step (assembly -> reason code of
-        :func:`decentral.placement.unplaced_reasons`); call after :meth:`_placeable_of`."""
-        problems = [prob for idx in sorted(boot["records"]) for _, prob in boot["records"][idx]]
-        return unplaced_reasons(
-            self.config.assemblies, self.name, {name for name, _ in self._placeable_of(boot, joint)},
-            with_data={name for prob in problems if len({k[0] for k in prob.keys}) > 1 for name, _ in prob.keys},
-            connected={name for name, step in joint.index if step == self._step}, solved=True,
-            yaw_std=boot["yaw_std"])
 
     def _learn_graph(self, edges: set[tuple[int, int]]) -> None:
         """A complete window reveals the whole view graph: the neighbours' places in the tree (ready for the
         next window without waiting for the distance vector to cross the graph) and this agent's observers."""
         me = self._index[self.name]
-        hops, parents = tree_from_edges(edges, len(self.config.assemblies), self._index[self.config.reference])
-        # assemblies no longer adjacent leave the table (with no ADMM values to refresh it, a stale entry would
-        # make a former neighbour wait for a child that never reports)
-        self._tree = {}
+        self._sharing.tree.learn(edges, self._round, self._step)
         self._watchers = {self.config.assemblies[a] for a, b in edges if b == me and a != me}
-        for a, b in edges:
-            other = b if a == me else a if b == me else None
-            if other is not None and other != me and other in hops:
-                self._tree[self.config.assemblies[other]] = (hops[other], parents.get(other, -1), self._round,
-                                                             self._step)
 
     def _fill_table(self, poses: dict) -> None:
         """The joint solution's poses of the current step into the gossip table (its own row too: in an exact
@@ -960,37 +562,33 @@ class AssemblyAgent:
     def _finish_bootstrap(self) -> None:
         """Solve the joint problem of the shared forms (:func:`decentral.admm.solve_joint`) and seed the ADMM,
         or adopt the joint solution the reference sent down (:class:`protocols.delta_messages.JointPoses`)."""
-        boot = self._boot
-        self._boot = None
-        self._hold = max(boot["start_at"], self._round + 1)  # the ADMM starts with a later round's pair phase
-        agg = boot["agg"]
-        self._late = None
-        if boot.get("solution") is not None:
-            self._adopt(boot["solution"])
+        sharing = self._sharing
+        share, partial = sharing.finish()
+        self._hold = max(share.start_at, self._round + 1)  # the ADMM starts with a later round's pair phase
+        if share.solution is not None:
+            self._adopt(share.solution)
             return
-        if boot["mode"] == "tree" and not agg.complete:
-            self._late = dict(boot, asked=0, last=self._round)
+        if partial:
             # values from a partial solution would pull the neighbours that have the whole set off the exact
             # fixed point (100-250 rounds per window at 50 % loss): stay silent while the rest may still come
             self._hold = self._round + self.config.share_timeout
-        joint = self._joint(boot)
+        joint = sharing.joint(share)
         if joint is None:
             return  # no forms, or the gauge's value at this window is unknown here: the ADMM goes on
         seeds = joint.poses
         # every agent's forms: the seeds are the joint estimate of this step (a fixed point of the ADMM),
         # and the centralized estimator's placement test can be run on them
-        self._seeds_complete = agg.complete  # every (live) agent's forms
+        self._seeds_complete = share.agg.complete  # every (live) agent's forms
         if self._seeds_complete:
-            self._placeable = self._placeable_of(boot, joint)
-            self._why = self._unplaced_reasons(boot, joint)
+            self._placeable = sharing.placeable(share, joint)
+            self._why = sharing.unplaced_reasons(share, joint)
             # the joint solution already gives every assembly's pose of this step: the gossip table need
             # not cross the view graph before the convergence flag can settle (rounds flat in the diameter)
             self._fill_table(seeds)
-            self._learn_graph(self._edges(boot))
+            self._learn_graph(share.edges())
         # the seeded duals balance only with every observer's contribution: wait for their first values
-        names, me = self.config.assemblies, self._index[self.name]
-        self._expected = {names[keys[0][0]] for idx in boot["records"] for keys, _ in boot["records"][idx]
-                          if len(keys) >= 2 and keys[1][0] == me and keys[0][0] != me}
+        names = self.config.assemblies
+        self._expected = {names[i] for i in share.observers_of(self._index[self.name])}
         if self.config.share_forms == "every":
             self._fresh_admm()
         self.seed(seeds)
@@ -1014,28 +612,6 @@ class AssemblyAgent:
         if self.config.share_forms == "every":
             self._fresh_admm()
         self.seed(newest)
-
-    def _on_solution(self, message: JointPoses) -> None:
-        """The reference's joint solution coming down: adopt it and forward it to the children."""
-        if message.n != len(self.config.assemblies):
-            self.counters["ignored"] += 1
-            return
-        boot, late = self._boot, self._late
-        if boot is None and late is not None and late["step"] == message.step == self._step:
-            self._late, self._boot = None, late  # a window that timed out here: complete after all
-            late["agg"].final = False
-            boot = late
-            self.counters["late_seeds"] += 1
-        if boot is None or boot["step"] != message.step or boot["agg"].final:
-            return
-        self._tree[message.sender] = (message.hop, message.parent, self._round, self._step)
-        boot["solution"] = message
-        boot["agg"].depth = max(boot["agg"].depth, message.depth)
-        self._tree_depth = max(1, message.depth)
-        # (not acknowledged: a child still without it after its bundle up was acknowledged sends the bundle again,
-        # and whoever has finished the window answers with the solution)
-        self._send_down(exclude=(self._index.get(message.sender),), start=message.start)
-        self._finish_bootstrap()
 
     def _pair_phase(self) -> None:
         """Phase 0: each owned pair iterates once the target's consensus of its iteration has arrived."""
@@ -1167,7 +743,7 @@ class AssemblyAgent:
         """
         if len(self._configs) >= len(self.config.assemblies) - 1:
             return set()
-        alive = self._alive_members(self._step or 0)
+        alive = self._sharing.alive_members(self._step or 0)
         if alive is not None:
             # a peer not heard from for two windows (down, or never started) cannot name its nodes: once every
             # live assembly's configuration is in, the nodes left are its own or stray tags, skipped alike
@@ -1275,10 +851,6 @@ class AssemblyAgent:
 
 
 _DONE = np.ones(1)
-
-
-def _yaw2(R: np.ndarray) -> float:
-    return float(np.arctan2(R[1, 0], R[0, 0]))
 
 
 def _same_config(a: dict, b: dict) -> bool:

@@ -132,7 +132,7 @@ def test_an_agent_missing_from_a_share_answers_with_its_own_forms(log):
 def test_answers_to_a_share_are_not_answered_again(log):
     """A unicast answer that lacks the receiver does not trigger another answer (no ping-pong)."""
     agents, a0 = _first_shares(log)
-    agents["A1"]._boot = None  # A1 is done: its answer lists only itself, so it lacks A0
+    agents["A1"]._sharing.share = None  # A1 is done: its answer lists only itself, so it lacks A0
     agents["A1"].handle(a0)
     answer = [m for m in agents["A1"].outbox() if isinstance(m, FactorShare)][0]
     assert 0 not in answer.have.tolist()
@@ -288,17 +288,17 @@ def test_a_broadcast_from_its_parent_turns_a_tree_agent_to_broadcasting(log):
     child.on_step(own_step(log, child.name, 1))
     child.tick(200)
     child.outbox()
-    assert child._boot["mode"] == "tree"
+    assert child._sharing.share.mode == "tree"
     other = agents[parent]
     other.on_step(own_step(log, parent, 1))
-    other._tree, other._parent, other._hop = {}, None, None  # as if restarted: no route
-    other._boot["agg"].parent = other._boot["agg"].root = None
+    other._sharing.tree.entries, other._parent, other._hop = {}, None, None  # as if restarted: no route
+    other._sharing.share.agg.parent = other._sharing.share.agg.root = None
     other.tick(200)
     share = next(m for m in other.outbox() if isinstance(m, FactorShare) and m.receiver == BROADCAST)
     child.handle(share)
     child.tick(201)
     child.tick(202)
-    assert child._boot["mode"] == "broadcast"
+    assert child._sharing.share.mode == "broadcast"
     assert any(isinstance(m, FactorShare) and m.receiver == BROADCAST for m in child.outbox())
 
 
@@ -397,7 +397,7 @@ def test_a_parent_that_cannot_rebuild_a_delta_gets_the_records_whole():
     agents, _ = _tree_agents(log)
     _drive(agents, 1, log, 12)
     for a in agents.values():
-        a._forms.clear()
+        a._sharing.forms.clear()
     sent = _drive(agents, 2, log, 20)
     assert any(isinstance(m, DeltaBundle) for m in sent)
     assert any(isinstance(m, FormBundle) and not m.down for m in sent)
