@@ -91,8 +91,9 @@ from protocols.messages import BROADCAST, AdmmDual, AdmmPrimal, Message
 from protocols.config_gossip import ConfigTable
 from protocols.delta_messages import DeltaBundle, JointPoses
 from protocols.pose_gossip import PoseGossip, pose_row
-from protocols.admm_values import AdmmInbox, Inbound, packed_metric, value_blocks
+from protocols.admm_values import AdmmInbox
 from protocols.window_aggregation import WindowAggregation
+from protocols.admm_rounds import AdmmRounds, RoundView
 
 __all__ = ["AgentConfig", "OwnStep", "AssemblyAgent"]
 
@@ -238,21 +239,13 @@ class AssemblyAgent:
         self._dirty = True
         self._phase = 0
         self._round = 0
-        self._converged = False
-        self._last_ages: dict[str, int] = {}
         self.counters = {"ignored": 0, "timeouts": 0, "retransmits": 0, "uncertified": 0, "unknown_nodes": 0,
                          "tree_windows": 0, "broadcast_windows": 0, "late_seeds": 0, "joint_failures": 0}
-        self._iter = 0  # consensus iterations done
-        self._iter_before = 0
-        self._step_rounds = 0
-        self._fresh_pairs = True
         self._unknown: set[int] = set()
         self._requested = -(10**9)
-        self._pair_iter: dict[str, int] = {}
-        self._pair_out: dict[str, tuple] = {}
-        self._waiting: dict[tuple, int] = {}
-        self._last_dual: dict[str, dict] = {}
-        self._last_primal: dict | None = None
+        # the ADMM rounds: iteration counters, the last values sent, waiting counts and the convergence flag
+        self._rounds = AdmmRounds(config.name, self._index[config.name], config.admm, patience=config.patience,
+                                  window=config.window, share_timeout=config.share_timeout, counters=self.counters)
         self._seeds: dict[tuple[str, int], tuple] = {}  # (assembly, step) -> Pose2 of a known joint solution
         self._seeds_complete = False  # the seeds come from every agent's forms
         self._placeable: frozenset = frozenset()  # (assembly, step) keys the joint test places
@@ -331,8 +324,7 @@ class AssemblyAgent:
                 del store[k]
         self._consensus.slide(self._steps, self._odometry)
         self._dirty = True
-        self._converged = False
-        self._step_rounds = 0
+        self._rounds.new_window()
 
     def seed(self, poses: dict) -> None:
         """Start the current window from a known joint solution ``(assembly, step) -> (R (2, 2), p (3,))``.
@@ -439,8 +431,9 @@ class AssemblyAgent:
         self._pair_steps = {k for r in rows.values() for k, *_ in r}
         self._pair_sig = {target: len(facts) for target, facts in rows.items()}
         for target in [t for t in self._pairs if t not in rows]:
-            for store in (self._pairs, self._pair_out, self._last_dual, self._pair_iter, self._shared):
+            for store in (self._pairs, self._shared):
                 store.pop(target, None)
+            self._rounds.forget(target)
         for target, facts in rows.items():
             keys, io, ia, q, t, w = [], [], [], [], [], []
             slot = {}
@@ -494,7 +487,7 @@ class AssemblyAgent:
         if self._exact() and self._round - self._busy_seen > 2:
             # every live agent's forms and this agent's pairs as they described them: the joint solution is the
             # ADMM's fixed point, and every agent holding the set has it too; no round would change it
-            self._converged = True
+            self._rounds.converged = True
         elif self._phase == 0:
             self._pair_phase()
         else:
@@ -505,9 +498,6 @@ class AssemblyAgent:
         """The window started at the joint solution of every live agent's forms, its own pairs among them
         as they are now, and no node is left to name: the estimate is final without ADMM rounds."""
         return self._seeds_complete and self._form_sig == self._pair_sig and not self._unresolved()
-
-    def _age(self, inbound: Inbound | None) -> int:
-        return self._inbox.age(inbound, self._round)
 
     # ------------------------------------------------------------------ cold start
     def _request_unknown(self) -> None:
@@ -553,9 +543,7 @@ class AssemblyAgent:
     def _fresh_admm(self) -> None:
         """A fresh ADMM start at the new window's fixed point: earlier values belong to the old window."""
         self._inbox.keep_from(self._step)
-        self._iter = 0
-        self._pair_iter, self._waiting, self._pair_out, self._last_dual = {}, {}, {}, {}
-        self._last_primal = None
+        self._rounds.restart()
         for pair in self._pairs.values():
             pair.y, pair.y_hat = {}, {}
 
@@ -617,120 +605,23 @@ class AssemblyAgent:
         """Phase 0: each owned pair iterates once the target's consensus of its iteration has arrived."""
         if self._dirty:
             self._rebuild()
-        me, cons, patience = self.name, self._consensus, self.config.patience
         self._request_unknown()
-        self._fresh_pairs = True
-        for target, pair in self._pairs.items():
-            inbound = self._inbox.targets.get(target)
-            i = self._pair_iter.get(target, 0)
-            waited = self._waiting.get(("pair", target), 0)
-            # not heard from for `patience` rounds: gone (crashed, cut off, or no longer watching) - go on
-            # iteration i + 1 uses both ends' consensus of iteration i (Boyd §7.1's synchronous order)
-            fresh = (inbound is None or inbound.iteration >= i or self._age(inbound) > patience) and self._iter >= i
-            due = fresh or waited >= patience
-            if due:
-                if not fresh:
-                    self.counters["timeouts"] += 1  # go on with the newest (stale) values
-                    self._fresh_pairs = False
-                z = {(me, k): v for k, v in cons.z.items()}
-                ready = {me: cons.ready, target: False}
-                if inbound is not None:
-                    z.update({(target, k): v for k, v in inbound.values.items() if k in cons.z})
-                    ready[target] = inbound.ready
-                elif any(key[0] == target for key in self._seeds):  # nothing heard yet: the seeded solution
-                    z.update({key: v for key, v in self._seeds.items() if key[0] == target and key[1] in cons.z})
-                    ready[target] = True
-                out, metrics = pair.iterate(z, ready)
-                if not pair.certified:
-                    self.counters["uncertified"] += 1
-                i = max(i, inbound.iteration if inbound is not None else 0) + 1
-                self._pair_iter[target] = i
-                self._waiting[("pair", target)] = 0
-                mine = {k[1]: v for k, v in out.items() if k[0] == me}
-                mine_m = {k[1]: v for k, v in metrics.items() if k[0] == me}
-                self._pair_out[target] = (mine, mine_m, cons.ready or ready[target], i)
-                theirs = sorted((k[1], v) for k, v in out.items() if k[0] == target)
-                w = np.array([packed_metric(metrics[(target, k)]) for k, _ in theirs], float).reshape(-1, 7)
-                self._last_dual[target] = value_blocks(theirs, cons.ready, i, rho=(pair.rho_R, pair.rho_p), w=w)
-            else:
-                self._waiting[("pair", target)] = waited + 1
-                self.counters["retransmits"] += 1
-            if target in self._last_dual:  # a new value, or the last one again (repairs a lost copy)
-                self._outbox.append(AdmmDual(sender=me, receiver=target, round=self._round, window=self._step,
-                                             rho=float(self._last_dual[target]["meta"][1]) or 1.0,
-                                             blocks=self._with_table(self._last_dual[target], target)))
+        self._outbox += self._rounds.pair_phase(self._view())
 
     def _consensus_phase(self) -> None:
         """Phase 1: the consensus update once every pair's copies of the next iteration are in."""
-        cons, cfg = self._consensus, self.config
-        self._step_rounds += 1
-        gone = cfg.window + 2 * cfg.patience + 10
-        ages, inputs = {}, []
-        for target in self._pairs:
-            ages[target] = self._age(self._inbox.targets.get(target))
-            if target in self._pair_out:
-                mine, mine_m, usable, it = self._pair_out[target]
-                inputs.append((it, usable, (mine, mine_m)))
-        for sender, inbound in self._inbox.observers.items():
-            age = self._age(inbound)
-            if age > gone:
-                continue  # an observer gone for long: its copies no longer count
-            ages[sender] = age
-            if not any(k in cons.z for k in inbound.values):
-                continue  # copies of steps that left the window
-            # an observer silent for `patience` rounds is not waited for (its newest copies still count)
-            it = inbound.iteration if age <= cfg.patience else 10**12
-            inputs.append((it, inbound.ready or cons.ready, (inbound.values, inbound.metrics)))
-        self._last_ages = ages
-        waited = self._waiting.get(("cons", ""), 0)
-        lowest = min((it for it, _, _ in inputs), default=self._iter + 1)
-        patience = cfg.patience
-        if any(a not in self._inbox.observers for a in self._expected):
-            lowest = -1  # a seeded start without an observer's contribution would leave the fixed point
-            if self._seeds_complete:
-                # the observer is most likely still getting the window's forms (late under loss): leaving the
-                # exact fixed point without it cost 100-250 rounds per window at 50 % loss; wait longer
-                patience = cfg.share_timeout
-        self._iter_before = self._iter
-        due = lowest >= self._iter + 1 or waited >= patience or cons.pinned and not inputs
-        if due:
-            if lowest < self._iter + 1:
-                self.counters["timeouts"] += 1
-            cons.update([c for _, usable, c in inputs if usable])
-            self._iter = max([self._iter + 1] + [it for it, _, _ in inputs if it < 10**12])
-            self._waiting[("cons", "")] = 0
-            last = self._steps[-1]
-            if cons.ready and cons.anchored(last, self._pair_steps | self._inbox.remote_steps()):
-                R, p = cons.z[last]
-                me = self._index[self.name]
-                self._gossip.set_own(pose_row(me, last, self._round, R, p), self._round)
-            self._last_primal = value_blocks(sorted(cons.z.items()), cons.ready, self._iter)
-        else:
-            self._waiting[("cons", "")] = waited + 1
-            self.counters["retransmits"] += 1
-        if self._last_primal is not None:
-            for observer in self._inbox.observers:
-                if ages.get(observer, gone + 1) <= gone:
-                    self._outbox.append(AdmmPrimal(sender=self.name, receiver=observer, round=self._round,
-                                                   window=self._step,
-                                                   blocks=self._with_table(self._last_primal, observer)))
-        if due:  # the flag describes the last completed iteration (kept while waiting for the next)
-            eps = cfg.admm
-            # nobody to agree with after `patience` rounds of this step and no unnamed detections:
-            # nothing left to do (counting it converged earlier ended lossy steps before discovery)
-            alone = (not self._pairs and not inputs and not self._unresolved()
-                     and self._step_rounds >= cfg.patience)
-            self._converged = alone or bool(
-                lowest >= self._iter_before + 1
-                and self._gossip.settled(self._round)  # the gossip of the others' poses has settled
-                and cons.ready
-                and all(p.converged() for p in self._pairs.values())
-                and cons.change <= max(eps.eps_rot, eps.eps_pos)
-                and (cons.remaining() <= eps.tail * max(eps.eps_rot, eps.eps_pos) or self._near_seeds())
-                and self._fresh_pairs
-                # nodes it sees but cannot name yet (lost announcements): their pair is still to come
-                and not self._unresolved()
-            )
+        self._outbox += self._rounds.consensus_phase(self._view())
+
+    def _view(self) -> RoundView:
+        """The window as the ADMM rounds see it at this round."""
+        place = None
+        if self.config.aggregation == "tree":
+            place = (-1 if self._hop is None else self._hop, -1 if self._parent is None else self._parent)
+        return RoundView(round=self._round, step=self._step, pairs=self._pairs, consensus=self._consensus,
+                         inbox=self._inbox, gossip=self._gossip, seeds=self._seeds,
+                         seeds_complete=self._seeds_complete, forms_current=self._form_sig == self._pair_sig,
+                         expected=frozenset(self._expected), pair_steps=frozenset(self._pair_steps),
+                         unresolved=bool(self._unresolved()), done=self.window_done, place=place)
 
     def _unresolved(self) -> set[int]:
         """Unnamed nodes that an assembly whose configuration has not arrived here may still own.
@@ -752,39 +643,11 @@ class AssemblyAgent:
                 return set()
         return set(self._unknown)
 
-    def _near_seeds(self) -> bool:
-        """With every agent's forms, the window started at the joint solution (the fixed point): the
-        consensus staying within the ADMM tolerances of it is convergence, whatever the tail estimate
-        (which, on changes at the solver's precision, ~1e-7, can predict a long way still to go)."""
-        if not self._seeds_complete or self._form_sig != self._pair_sig:
-            return False  # (a pair built or grown after the forms went out: the joint solution lacks it)
-        eps = self.config.admm
-        for k, (R, p) in self._consensus.z.items():
-            seed = self._seeds.get((self.name, k))
-            if seed is None:
-                return False
-            R0, p0 = seed
-            dyaw = abs(wrap_angle(np.arctan2(R[1, 0], R[0, 0]) - np.arctan2(R0[1, 0], R0[0, 0])))
-            if dyaw > eps.eps_rot or np.abs(p - p0).max() > eps.eps_pos:
-                return False
-        return True
-
-    def _with_table(self, blocks: dict, receiver: str) -> dict:
-        """``blocks`` plus the sender's place in the aggregation tree (``tree``: hop to the reference, parent;
-        -1 for none) and the gossip table if it changed since it last went to ``receiver`` (or is due)."""
-        if self.window_done:
-            blocks = dict(blocks, done=_DONE)
-        if self.config.aggregation == "tree":
-            blocks = dict(blocks, tree=np.array([-1 if self._hop is None else self._hop,
-                                                 -1 if self._parent is None else self._parent], float))
-        table = self._gossip.attach(receiver, self._round)
-        return blocks if table is None else dict(blocks, table=table)
-
     # ------------------------------------------------------------------ results
     @property
     def converged(self) -> bool:
         """Whether its pairs' residuals and its consensus change are below tolerance with fresh inputs."""
-        return self._converged
+        return self._rounds.converged
 
     @property
     def ready(self) -> bool:
@@ -805,7 +668,7 @@ class AssemblyAgent:
     @property
     def ages(self) -> dict[str, int]:
         """Rounds since the newest value used from each neighbour (0 or 1: fresh)."""
-        return dict(self._last_ages)
+        return dict(self._rounds.ages)
 
     def unplaced(self, placed: dict[str, PlanarPose] | None = None) -> dict[str, str]:
         """Why each assembly missing from :meth:`estimates` (or ``placed``) is missing (a reason code of
@@ -848,9 +711,6 @@ class AssemblyAgent:
             p = np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1], d[2]])  # seed 000 eq. (19)
             out[self.config.assemblies[i]] = PlanarPose(p, float(wrap_angle(row[6] - me[6])))
         return out
-
-
-_DONE = np.ones(1)
 
 
 def _same_config(a: dict, b: dict) -> bool:
