@@ -18,136 +18,19 @@ Nothing here reads a clock: the agent sets :attr:`WindowAggregation.round` and
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
-from typing import Any, Callable, Iterable
+from typing import Callable, Iterable
 
 import numpy as np
 
-from decentral.admm import LocalProblem, solve_joint
-from decentral.geometry import rot2
-from decentral.placement import unplaced_reasons
+from decentral.admm import LocalProblem
 from protocols.admm_messages import FactorShare, FormAck, FormBundle, pack_bundle, pack_forms
 from protocols.aggregation import DownRepair, NeighbourTree, TreeAggregation
 from protocols.delta_messages import DeltaBundle, JointPoses
 from protocols.form_cache import DeltaSender, FormCache
 from protocols.messages import BROADCAST, Message
+from protocols.window_share import NEVER, DownState, OwnForms, WindowShare
 
-__all__ = ["OwnForms", "WindowShare", "DownState", "WindowAggregation"]
-
-_NEVER = -(10**9)
-_UNSOLVED = object()  # a window whose joint solution has not been computed yet
-
-
-@dataclass(frozen=True)
-class OwnForms:
-    """The forms an agent shared for window ``step``: packed ``keys`` (n, 4) int and ``forms``, and the
-    gauge ``pin`` (``(step, x, y, z, theta)`` at the reference, else empty)."""
-
-    step: int
-    keys: np.ndarray
-    forms: np.ndarray
-    pin: np.ndarray
-
-
-@dataclass
-class WindowShare:
-    """One window's sharing of the cost forms at one agent.
-
-    Attributes
-    ----------
-    step : int
-        The window's log step.
-    agg : TreeAggregation
-        Its records (agent index -> ``[(keys, LocalProblem)]``) and the tree's bookkeeping.
-    mode : {"tree", "broadcast"} or None
-        How the forms travel (None until the agent's own forms are shared).
-    start : int or None
-        Round of the first bootstrap phase of the window.
-    sent : int
-        Round of the last broadcast of the own forms.
-    waited : int
-        Bootstrap phases run.
-    pin : ndarray or None
-        The reference's gauge value ``(step, x, y, z, theta)`` of the window, when received.
-    start_at : int
-        Round at which the ADMM starts (from the down bundle; 0: at once).
-    asked_at : int
-        Round this agent last asked a neighbour for the final set (:meth:`WindowAggregation.ask`).
-    asked, last : int
-        After a timeout: how often, and at which round last, the parent was asked for the down bundle.
-    solution : JointPoses or None
-        The reference's joint solution as it came down.
-    solution_out : JointPoses or None
-        At the reference: the joint solution it sends down.
-    joint : JointSolution or None
-        The joint solution of the records (computed once: :meth:`WindowAggregation.joint`).
-    placeable : frozenset or None
-        ``(assembly, step)`` keys the joint placement test places, and ``yaw_std`` its yaw deviations.
-    """
-
-    step: int
-    agg: TreeAggregation
-    mode: str | None = None
-    start: int | None = None
-    sent: int = _NEVER
-    waited: int = 0
-    pin: np.ndarray | None = None
-    start_at: int = 0
-    asked_at: int = _NEVER
-    asked: int = 0
-    last: int = 0
-    solution: JointPoses | None = None
-    solution_out: JointPoses | None = None
-    joint: Any = _UNSOLVED
-    placeable: frozenset | None = None
-    yaw_std: Any = None
-
-    @property
-    def records(self) -> dict:
-        """Agent index -> its forms ``[(keys, LocalProblem)]`` held for the window."""
-        return self.agg.records
-
-    def problems(self) -> list[LocalProblem]:
-        """Every form held, in agent order."""
-        return [prob for idx in sorted(self.records) for _, prob in self.records[idx]]
-
-    def edges(self) -> set[tuple[int, int]]:
-        """The view graph's observing pairs ``(observer, target)`` the forms name (each pair form names its
-        observer first and its target last)."""
-        return {(keys[0][0], keys[-1][0]) for idx in self.records for keys, _ in self.records[idx]
-                if keys[0][0] != keys[-1][0]}
-
-    def observers_of(self, me: int) -> set[int]:
-        """Agents whose pair forms observe agent ``me``."""
-        return {keys[0][0] for idx in self.records for keys, _ in self.records[idx]
-                if len(keys) >= 2 and keys[1][0] == me and keys[0][0] != me}
-
-
-@dataclass
-class DownState:
-    """The final set of a window as this agent sent it down (kept to answer children that lack it).
-
-    Attributes
-    ----------
-    share : WindowShare
-        The window it belongs to.
-    start : int
-        The round at which the ADMM starts, as sent.
-    repair : DownRepair
-        Children that may still lack it.
-    bundle : FormBundle or None
-        The packed forms (packed when first needed).
-    """
-
-    share: WindowShare
-    start: int
-    repair: DownRepair
-    bundle: FormBundle | None = None
-
-    @property
-    def step(self) -> int:
-        return self.share.step
-
+__all__ = ["WindowAggregation"]
 
 class WindowAggregation:
     """The sharing of every window's cost forms at one agent (send and receive halves).
@@ -287,40 +170,20 @@ class WindowAggregation:
 
     # ------------------------------------------------------------------ the joint solution
     def joint(self, share: WindowShare):
-        """The joint solution of a window's forms (:func:`decentral.admm.solve_joint`, computed once per
-        window), or ``None`` (no forms, or the gauge's value at this window unknown here)."""
-        if share.joint is _UNSOLVED:
-            share.joint = None
-            problems = share.problems()
-            first = max(0, self.step - self.window + 1)
-            pin = share.pin
-            if problems and (pin is not None and int(pin[0]) == first or first == 0):
-                value = (rot2(float(pin[4])), np.array(pin[1:4])) if pin is not None and int(pin[0]) == first else None
-                try:
-                    share.joint = solve_joint(problems, (self.reference, first), value)
-                except np.linalg.LinAlgError:
-                    # a set whose variables are tied by keys but not by factors (a step with neither odometry
-                    # nor detections, forms missing): no joint solution; the ADMM goes on from its own state
-                    self.counters["joint_failures"] += 1
+        """The joint solution of a window's forms (computed once per window, :meth:`WindowShare.solve`), or
+        ``None`` (no forms, the gauge's value at this window unknown here, or a failed solve)."""
+        if not share.solved and not share.solve(self.reference, max(0, self.step - self.window + 1)):
+            self.counters["joint_failures"] += 1
         return share.joint
 
     def placeable(self, share: WindowShare, joint) -> frozenset:
         """``(assembly, step)`` keys the centralized placement test places on the joint solution (relative
         to this agent at the current step)."""
-        if share.placeable is None:
-            share.placeable, share.yaw_std = joint.placement((self.name, self.step), self.placement_limit)
-        return share.placeable
+        return share.placeable_keys(joint, self.name, self.step, self.placement_limit)
 
     def unplaced_reasons(self, share: WindowShare, joint) -> dict[str, str]:
-        """Why the joint placement test leaves an assembly out at this step (assembly -> reason code of
-        :func:`decentral.placement.unplaced_reasons`)."""
-        placed = {name for name, _ in self.placeable(share, joint)}
-        problems = share.problems()
-        return unplaced_reasons(
-            self.names, self.name, placed,
-            with_data={name for prob in problems if len({k[0] for k in prob.keys}) > 1 for name, _ in prob.keys},
-            connected={name for name, step in joint.index if step == self.step}, solved=True,
-            yaw_std=share.yaw_std)
+        """Why the joint placement test leaves an assembly out at this step (assembly -> reason code)."""
+        return share.unplaced(joint, self.names, self.name, self.step, self.placement_limit)
 
     # ------------------------------------------------------------------ send half
     def _tree_progress(self) -> None:
@@ -503,7 +366,7 @@ class WindowAggregation:
                 if len(message.pin):
                     share.pin = np.array(message.pin)
             if share.mode == "tree" and message.receiver == BROADCAST and agg.parent == sender and not agg.final:
-                share.mode, share.sent = "broadcast", _NEVER  # the parent has no route: nor has this agent
+                share.mode, share.sent = "broadcast", NEVER  # the parent has no route: nor has this agent
         own = self.own
         # it lacks ours: answer directly (only broadcasts are answered, so answers never ping-pong)
         if (own is not None and own.step == message.step and message.receiver == BROADCAST
