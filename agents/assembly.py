@@ -87,8 +87,8 @@ from decentral.factors import NoiseModel, detection_weights
 from decentral.geometry import backproject, rot2, wrap_angle
 from decentral.observations import Camera, Detection, Odometry, PlanarPose, Pose
 from protocols.admm_messages import ConfigAnnounce, ConfigRequest, FactorShare, FormAck, FormBundle
-from protocols.messages import BROADCAST, AdmmDual, AdmmPrimal, Message
-from protocols.config_gossip import ConfigTable
+from protocols.messages import AdmmDual, AdmmPrimal, Message
+from protocols.config_gossip import ConfigGossip
 from protocols.delta_messages import DeltaBundle, JointPoses
 from protocols.pose_gossip import PoseGossip, pose_row
 from protocols.admm_values import AdmmInbox
@@ -226,9 +226,8 @@ class AssemblyAgent:
         self._step: int | None = None
         self._t = 0.0
         self._steps: list[int] = []
-        self._own_config: dict[int, np.ndarray] = {}
-        self._announced: tuple[int, dict] | None = None  # (step, config) last announced
-        self._configs = ConfigTable(config.name, config.assemblies)  # others' announced configurations
+        # own configuration's announcements, others' configurations, requests for unnamed nodes
+        self._configs = ConfigGossip(config.name, config.assemblies, config.announce_every)
         self._seen: dict[int, list[tuple[int, np.ndarray, float]]] = {}  # step -> [(node, t, w)]
         self._odometry: dict[int, tuple] = {}
         self._pairs: dict[str, PairState] = {}
@@ -241,8 +240,6 @@ class AssemblyAgent:
         self._round = 0
         self.counters = {"ignored": 0, "timeouts": 0, "retransmits": 0, "uncertified": 0, "unknown_nodes": 0,
                          "tree_windows": 0, "broadcast_windows": 0, "late_seeds": 0, "joint_failures": 0}
-        self._unknown: set[int] = set()
-        self._requested = -(10**9)
         # the ADMM rounds: iteration counters, the last values sent, waiting counts and the convergence flag
         self._rounds = AdmmRounds(config.name, self._index[config.name], config.admm, patience=config.patience,
                                   window=config.window, share_timeout=config.share_timeout, counters=self.counters)
@@ -253,7 +250,6 @@ class AssemblyAgent:
         self._hold = 0  # the ADMM of this window starts at this round (after the forms are shared)
         self._hop: int | None = 0 if config.name == config.reference else None
         self._parent: int | None = None
-        self._reannounced = -(10**9)  # step of the last re-announcement to the observers
         self._pair_sig: dict[str, int] = {}  # target -> detections used by its pair, at the last rebuild
         self._form_sig: dict[str, int] | None = None  # the same when this window's own forms were shared
         # the gossip table of every assembly's newest consensus pose (sent on the ADMM messages)
@@ -300,21 +296,11 @@ class AssemblyAgent:
             self._sharing.open(own.step, self._parent, self._hop, cfg.patience)
         self._step, self._t = own.step, own.t
         self._sharing.step = own.step
-        self._own_config = {int(k): np.asarray(v, float) for k, v in own.config.items()}
+        self._outbox += self._configs.set_own(own.config, own.step, self._round, self.observers)
         if own.odometry is not None:
             w_p, w_R = cfg.noise.odometry_weights()
             self._odometry[own.step] = (np.asarray(own.odometry.dp, float), float(own.odometry.dtheta), w_p, w_R)
         self._seen[own.step] = self._measure(own)
-        changed = self._announced is None or not _same_config(self._announced[1], self._own_config)
-        if changed:  # a broadcast only when the configuration changes (rare: reconfiguration)
-            self._outbox.append(self._announcement(BROADCAST))
-            self._announced = (own.step, dict(self._own_config))
-            self._reannounced = own.step
-        elif own.step - self._reannounced >= cfg.announce_every:
-            # repairs a lost announcement: to the current observers only (others ask with a request)
-            for observer in self.observers:
-                self._outbox.append(self._announcement(observer))
-            self._reannounced = own.step
         first = max(0, own.step - cfg.window + 1)
         self._steps = list(range(first, own.step + 1))
         # forms of steps that left the window are no longer part of any record
@@ -338,22 +324,11 @@ class AssemblyAgent:
             pair.seed(self._seeds)
         self._dirty = True
 
-    def _announcement(self, receiver: str) -> ConfigAnnounce:
-        ids = np.array(sorted(self._own_config), dtype=np.int64)
-        centres = np.array([self._own_config[i] for i in ids]).reshape(-1, 3)
-        step = self._announced[0] if self._announced is not None and receiver != BROADCAST else self._step
-        return ConfigAnnounce(sender=self.name, receiver=receiver, round=self._round, step=step, ids=ids,
-                              centres=centres)
-
-    def _relay(self, request: ConfigRequest) -> None:
-        """Answer a request for other assemblies' nodes with their configurations held here."""
-        self._outbox += self._configs.relays(request, self.name, self._round)
-
     def _measure(self, own: OwnStep) -> list[tuple[int, np.ndarray, float]]:
         """Own detections as (node, centre in own root frame (3,), weight), seed 000 eq. (1), (4)."""
         out = []
         for cam in self.config.cameras:
-            dets = [d for d in own.detections.get(cam.key, ()) if d.node not in self._own_config]
+            dets = [d for d in own.detections.get(cam.key, ()) if d.node not in self._configs.own]
             if not dets:
                 continue
             u, v, r = (np.array([getattr(d, a) for d in dets]) for a in ("u", "v", "r"))
@@ -386,11 +361,7 @@ class AssemblyAgent:
         elif isinstance(message, FormAck):
             sharing.on_ack(message)
         elif isinstance(message, ConfigRequest):
-            # every agent answers with its own configuration, owner or not: a requester that holds every
-            # assembly's configuration knows that the ids none of them lists are stray tags
-            if self._step is not None and message.sender != self.name:
-                self._outbox.append(self._announcement(message.sender))
-            self._relay(message)
+            self._outbox += self._configs.answer(message, self._step, self._round)
         elif isinstance(message, (AdmmPrimal, AdmmDual)):
             if "done" not in message.blocks and message.window == self._step:
                 self._busy_seen = self._round  # it runs the ADMM (late names, partial forms): take part
@@ -412,22 +383,19 @@ class AssemblyAgent:
         return out
 
     # ------------------------------------------------------------------ ADMM
-    def _owner_of(self, node: int, step: int) -> tuple[str, np.ndarray] | None:
-        return self._configs.owner_of(node, step)
-
     def _rebuild(self) -> None:
         """Directed pair subproblems ``self -> target`` over the window from own detections."""
         rows: dict[str, list] = {}
         unknown = set()
         for k in self._steps:
             for node, t, w in self._seen.get(k, []):
-                hit = self._owner_of(node, k)
+                hit = self._configs.owner_of(node, k)
                 if hit is None:
                     unknown.add(int(node))
                     continue
                 rows.setdefault(hit[0], []).append((k, hit[1], t, w))
         self.counters["unknown_nodes"] = len(unknown)
-        self._unknown = unknown
+        self._configs.unknown = unknown
         self._pair_steps = {k for r in rows.values() for k, *_ in r}
         self._pair_sig = {target: len(facts) for target, facts in rows.items()}
         for target in [t for t in self._pairs if t not in rows]:
@@ -501,10 +469,7 @@ class AssemblyAgent:
 
     # ------------------------------------------------------------------ cold start
     def _request_unknown(self) -> None:
-        if self._unresolved() and self._round - self._requested >= 3:
-            self._outbox.append(ConfigRequest(sender=self.name, receiver=BROADCAST, round=self._round,
-                                              ids=np.array(sorted(self._unknown), dtype=np.int64)))
-            self._requested = self._round
+        self._outbox += self._configs.request(self._round, self._sharing.alive_members(self._step or 0))
 
     def _bootstrap_phase(self) -> None:
         """Share the window's cost forms (up and down the tree, or by broadcast); then solve and seed."""
@@ -624,24 +589,9 @@ class AssemblyAgent:
                          unresolved=bool(self._unresolved()), done=self.window_done, place=place)
 
     def _unresolved(self) -> set[int]:
-        """Unnamed nodes that an assembly whose configuration has not arrived here may still own.
-
-        Once every other assembly's configuration is in (announcements, answers to ``config_request``,
-        relays), a node none of them lists is a stray tag (CONTRACT §1: skipped): it neither holds the
-        convergence flag nor triggers requests. Until then an unnamed node may be a pair still to
-        come, and an agent that reported convergence without it would report the joint solution of
-        a view graph that lacks the pair (4-ring at 50 % loss: 20 mm off, flagged converged).
-        """
-        if len(self._configs) >= len(self.config.assemblies) - 1:
-            return set()
-        alive = self._sharing.alive_members(self._step or 0)
-        if alive is not None:
-            # a peer not heard from for two windows (down, or never started) cannot name its nodes: once every
-            # live assembly's configuration is in, the nodes left are its own or stray tags, skipped alike
-            names = self.config.assemblies
-            if all(names[i] in self._configs for i in alive if names[i] != self.name):
-                return set()
-        return set(self._unknown)
+        """Unnamed nodes that an assembly whose configuration has not arrived here may still own
+        (:meth:`protocols.config_gossip.ConfigGossip.unresolved`)."""
+        return self._configs.unresolved(self._sharing.alive_members(self._step or 0))
 
     # ------------------------------------------------------------------ results
     @property
@@ -711,7 +661,3 @@ class AssemblyAgent:
             p = np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1], d[2]])  # seed 000 eq. (19)
             out[self.config.assemblies[i]] = PlanarPose(p, float(wrap_angle(row[6] - me[6])))
         return out
-
-
-def _same_config(a: dict, b: dict) -> bool:
-    return a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)

@@ -312,7 +312,7 @@ def test_configuration_is_re_announced_to_observers_only(log):
     assert observers
     a.on_step(own_step(log, "A1", 1))
     assert not [m for m in a.outbox() if isinstance(m, ConfigAnnounce)]
-    a._reannounced -= a.config.announce_every
+    a._configs._reannounced -= a.config.announce_every
     a.on_step(own_step(log, "A1", 1))
     anns = [m for m in a.outbox() if isinstance(m, ConfigAnnounce)]
     assert {m.receiver for m in anns} == observers
@@ -333,11 +333,11 @@ def test_a_request_for_another_assemblys_nodes_is_relayed_and_never_overrides_th
     fresh = _agent(log, "A0")
     fresh.on_step(own_step(log, "A0", 0))
     fresh.handle(relays[0])
-    assert node in fresh._configs["A2"][-1][1]
+    assert node in fresh._configs.table["A2"][-1][1]
     forged = ConfigAnnounce(sender="A1", receiver="A0", round=1, step=relays[0].step, ids=relays[0].ids,
                             centres=relays[0].centres + 1.0, owner="A2")
     agents["A0"].handle(forged)
-    assert np.array_equal(agents["A0"]._configs["A2"][-1][1][node], log.steps[0].config["A2"][node])
+    assert np.array_equal(agents["A0"]._configs.table["A2"][-1][1][node], log.steps[0].config["A2"][node])
 
 
 def test_an_agent_that_cannot_name_a_node_does_not_report_convergence_until_every_configuration_is_in(log):
