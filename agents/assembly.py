@@ -80,12 +80,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from decentral.admm import AdmmConfig, ConsensusState, LocalProblem, PairState, quadratic_form
+from decentral.admm import AdmmConfig, ConsensusState, LocalProblem, PairState
 from decentral.estimator import EstimatorConfig
 from decentral.errors import InputError
-from decentral.factors import NoiseModel, detection_weights
-from decentral.geometry import backproject, rot2, wrap_angle
+from decentral.factors import NoiseModel
+from decentral.geometry import rot2, wrap_angle
 from decentral.observations import Camera, Detection, Odometry, PlanarPose, Pose
+from decentral.pair_forms import own_detections, pair_forms
 from protocols.admm_messages import ConfigAnnounce, ConfigRequest, FactorShare, FormAck, FormBundle
 from protocols.messages import AdmmDual, AdmmPrimal, Message
 from protocols.config_gossip import ConfigGossip
@@ -300,7 +301,8 @@ class AssemblyAgent:
         if own.odometry is not None:
             w_p, w_R = cfg.noise.odometry_weights()
             self._odometry[own.step] = (np.asarray(own.odometry.dp, float), float(own.odometry.dtheta), w_p, w_R)
-        self._seen[own.step] = self._measure(own)
+        self._seen[own.step] = own_detections(cfg.cameras, own.detections, own.mounts, self._configs.own,
+                                              cfg.node_radius, cfg.noise)
         first = max(0, own.step - cfg.window + 1)
         self._steps = list(range(first, own.step + 1))
         # forms of steps that left the window are no longer part of any record
@@ -323,22 +325,6 @@ class AssemblyAgent:
         for pair in self._pairs.values():
             pair.seed(self._seeds)
         self._dirty = True
-
-    def _measure(self, own: OwnStep) -> list[tuple[int, np.ndarray, float]]:
-        """Own detections as (node, centre in own root frame (3,), weight), seed 000 eq. (1), (4)."""
-        out = []
-        for cam in self.config.cameras:
-            dets = [d for d in own.detections.get(cam.key, ()) if d.node not in self._configs.own]
-            if not dets:
-                continue
-            u, v, r = (np.array([getattr(d, a) for d in dets]) for a in ("u", "v", "r"))
-            p_cam = backproject(cam.K, u, v, r, self.config.node_radius)  # seed 000 eq. (1)
-            pose = cam.in_root(own.mounts.get(cam.key))
-            t = pose.apply(p_cam)  # eq. (4): t_i in the own root frame
-            f = 0.5 * (cam.K[0, 0] + cam.K[1, 1])
-            w = detection_weights(p_cam[:, 2], r, f, self.config.noise)
-            out += [(d.node, t[i], float(w[i])) for i, d in enumerate(dets)]
-        return out
 
     # ------------------------------------------------------------------ messages
     def handle(self, message: Message) -> None:
@@ -403,26 +389,9 @@ class AssemblyAgent:
                 store.pop(target, None)
             self._rounds.forget(target)
         for target, facts in rows.items():
-            keys, io, ia, q, t, w = [], [], [], [], [], []
-            slot = {}
-            for k, qk, tk, wk in facts:
-                if k not in slot:
-                    slot[k] = len(keys)
-                    keys += [(self.name, k), (target, k)]
-                io.append(slot[k])
-                ia.append(slot[k] + 1)
-                q.append(qk), t.append(tk), w.append(wk)
-            problem = quadratic_form(keys, visual=(np.array(io), np.array(ia), np.array(q), np.array(t), np.array(w)))
-            # the same factors step by step, for sharing: each window adds its newest step's form, and a step's
-            # form is built from that step's detections alone, so it is bit-identical from window to window
-            per_step = {}
-            for k, qk, tk, wk in facts:
-                per_step.setdefault(k, []).append((qk, tk, wk))
-            self._shared[target] = [
-                quadratic_form([(self.name, k), (target, k)], visual=(
-                    np.zeros(len(f), int), np.ones(len(f), int), np.array([x[0] for x in f]),
-                    np.array([x[1] for x in f]), np.array([x[2] for x in f])))
-                for k, f in sorted(per_step.items())]
+            # the window's form for the ADMM, and the same factors step by step for sharing (a window adds its
+            # newest step's form, bit-identical from window to window)
+            problem, self._shared[target] = pair_forms(self.name, target, facts)
             pair = self._pairs.get(target) or PairState(self.name, target, self.config.admm)
             pair.set_problem(problem)
             if pair.iterations == 0 and not pair.y and self._seeds:
