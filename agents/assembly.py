@@ -1,74 +1,38 @@
 """The assembly agent: one per assembly, consensus-ADMM over the pairs it observes (:mod:`decentral.admm`).
 
 An agent holds only what its assembly really has: its own node configuration, odometry and camera
-detections (never ground truth), plus what arrives in its inbox. Per log step it
+detections (never ground truth), plus what arrives in its inbox. It is a thin composition of
+protocol roles, each a small state machine in :mod:`protocols` with its own tests (house style 8-9).
+Per log step it
 
-1. back-projects its own detections (seed 000 eq. (1), (4)) and announces its configuration
-   (``admm.config``: a broadcast when it changes; every ``announce_every`` steps a unicast to its
-   current observers);
+1. back-projects its own detections (seed 000 eq. (1), (4), :func:`decentral.pair_forms.own_detections`)
+   and announces its configuration (:class:`protocols.config_gossip.ConfigGossip`: ``admm.config``, a
+   broadcast when it changes, every ``announce_every`` steps a unicast to its current observers);
 2. names the owner of every node it sees from the announced configurations and builds one
-   directed pair subproblem ``self -> target`` per observed assembly over the sliding window;
-3. runs ADMM rounds, two phases each (:meth:`AssemblyAgent.tick`):
+   directed pair subproblem ``self -> target`` per observed assembly over the sliding window
+   (:func:`decentral.pair_forms.pair_forms`); an observer that detects nodes it cannot name asks with
+   ``admm.config_request`` and does not report convergence while such nodes remain and some
+   assembly's configuration is still missing (once it holds every configuration, nodes none of them
+   lists are stray tags and are skipped);
+3. shares its cost forms (``AgentConfig.share_forms``: at every step, the default, or at the run's
+   first step only): the quadratic forms of the pairs it observes and of its own odometry chain
+   (private data stay private; only these sums of squares travel), up and down a spanning tree to the
+   reference or by broadcast (:class:`protocols.window_aggregation.WindowAggregation`). Once it holds
+   every live agent's forms (or after ``share_timeout`` rounds) it solves the same joint problem
+   (:func:`decentral.admm.solve_joint`, bit-identical everywhere), or adopts the reference's joint
+   solution, and seeds its consensus poses, pair copies and duals there, a fixed point of the ADMM
+   (:meth:`decentral.admm.PairState.seed`); the joint solution also fills the gossip table's rows of
+   the step;
+4. runs ADMM rounds, two phases each (:meth:`AssemblyAgent.tick`, :class:`protocols.admm_rounds.AdmmRounds`):
+   phase 0 sends each observed assembly its pair's ``copy + dual`` (``admm.dual``), phase 1 updates
+   its consensus poses and sends them to its observers (``admm.primal``). The rounds confirm the
+   seeded fixed point, or finish the job for agents whose forms were missing.
 
-   * phase 0: every owned pair updates its copies with the newest consensus values (its own, and
-     the target's from the last ``admm.primal``) and sends the target's ``copy + dual`` as
-     ``admm.dual`` (with its penalties) to the target;
-   * phase 1: the agent updates its own consensus poses from its pairs and from the ``admm.dual``
-     messages of the agents that observe it, then sends them as ``admm.primal`` to those observers.
-
-Lost, late, duplicated or reordered messages: every value carries its ADMM iteration number. A pair
-iterates only when both ends' consensus of the current iteration is in, and a consensus update only
-when every pair's copies of the next iteration are in; meanwhile the agent resends its last value
-each round (which repairs a lost copy), so losses mostly delay the iterates rather than change them
-(they still change when a neighbour's first message or a configuration arrives late, or on a
-timeout). A neighbour silent for ``patience`` rounds (crashed, partitioned, or no longer
-watching) is not waited for: its newest value is reused with its age, counted as a timeout. Older
-rounds never overwrite newer values (reordering, duplicates), and a restarted agent jumps its
-iteration counter forward to its neighbours'. Ages in rounds are kept (:attr:`AssemblyAgent.ages`).
-An observer that detects nodes it cannot name asks with ``admm.config_request``: every agent answers
-with its own configuration and agents holding the owner's relay that too. It does not report
-convergence while such nodes remain and some assembly's configuration is still missing; once it
-holds every configuration, nodes none of them lists are stray tags and are skipped. With every agent's forms in hand,
+Both ADMM kinds also carry (when it changed, see ``gossip_refresh``) a small gossip table
+(:class:`protocols.pose_gossip.PoseGossip`: the newest consensus pose of every assembly at its latest
+step) so every agent learns the poses of assemblies it does not talk to; :meth:`AssemblyAgent.estimates`
+turns it into poses relative to the agent (seed 000 eq. (19)). With every agent's forms in hand,
 the joint solution only counts as the fixed point while its pairs are the ones its forms described.
-
-Both ADMM kinds also carry (when it changed, see ``gossip_refresh``) a small gossip table (``(assembly index, step, round, x, y, z, theta)`` rows, the newest consensus pose of every
-assembly at its latest step) so every agent learns the poses of assemblies it does not talk to;
-:meth:`AssemblyAgent.estimates` turns it into poses relative to the agent (seed 000 eq. (19)).
-
-Message counts per round and agent: one ``admm.dual`` per observed assembly and one ``admm.primal``
-per observer, i.e. the agent's degree in the view graph.
-
-Shared forms (``AgentConfig.share_forms``): at every step (``"every"``, the default) or at the run's
-first step only (``"first"``) the agents first share their cost forms: the quadratic forms of the
-pairs each observes over the window and of its own odometry chain (private data stay private; only
-these sums of squares travel). Once an agent holds every agent's forms (or after ``share_timeout``
-rounds) it solves the same joint problem (:func:`decentral.admm.solve_joint`, bit-identical
-everywhere) and seeds its consensus poses, pair copies and duals at that solution, a fixed point of
-the ADMM (:meth:`decentral.admm.PairState.seed`); the ADMM rounds that follow confirm it (or finish the
-job for agents whose forms were missing). How the forms travel:
-
-* **tree** (``aggregation="tree"``, default, once the agent has a route to the reference): a
-  convergecast up a spanning tree of the view graph to the reference agent and a broadcast back down
-  (:mod:`protocols.aggregation`, ``admm.bundle`` / ``admm.bundle_ack``). Its parent is the neighbour
-  with the smallest hop count to the reference (distance vector carried as the ``tree`` block of the
-  ADMM messages, and filled at once from the view graph the forms of a complete window reveal). The
-  reference's down bundle names the round at which every agent starts the ADMM, so agents near the
-  reference do not spend rounds waiting for the far ones. Per window and agent without loss: one
-  bundle up, and per child one acknowledgement and one bundle down.
-* **broadcast** (the cold start, a restarted agent, a side of a partition without the reference, or
-  ``aggregation="broadcast"``): ``admm.factors`` to everyone, with the list of agents whose forms it
-  has; agents missing from that list answer directly. Messages per agent grow with the number of
-  agents.
-
-When an agent holds every agent's forms, the joint solution also fills the gossip table's rows of
-the step (the table need not cross the graph before the convergence flag settles), and the ADMM is
-converged once the consensus stays within the tolerances of that fixed point.
-
-Byte budget (``docs/processes.md``): forms are shared one per pair and step (and per odometry link),
-each built from its step's data alone, so a window adds one new step of forms; in the tree they go up
-as ``admm.delta`` (only what the parent lacks, a digest per record:
-:mod:`protocols.form_cache`), and once the reference holds every live agent's forms it sends its
-joint solution down as ``admm.solution`` (float32 poses of the newest step) instead of the forms.
 A window that starts at the joint solution of every live agent's forms is exact and runs no ADMM
 round (:meth:`AssemblyAgent._exact`); an agent joins the ADMM only while a neighbour runs it. Peers
 not heard from for two windows are not waited for.
@@ -76,16 +40,12 @@ not heard from for two windows are not waited for.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
-from decentral.admm import AdmmConfig, ConsensusState, LocalProblem, PairState
-from decentral.estimator import EstimatorConfig
-from decentral.errors import InputError
-from decentral.factors import NoiseModel
+from agents.agent_config import AgentConfig, OwnStep
+from decentral.admm import ConsensusState, LocalProblem, PairState
 from decentral.geometry import rot2, wrap_angle
-from decentral.observations import Camera, Detection, Odometry, PlanarPose, Pose
+from decentral.observations import PlanarPose
 from decentral.pair_forms import own_detections, pair_forms
 from protocols.admm_messages import ConfigAnnounce, ConfigRequest, FactorShare, FormAck, FormBundle
 from protocols.messages import AdmmDual, AdmmPrimal, Message
@@ -97,119 +57,6 @@ from protocols.window_aggregation import WindowAggregation
 from protocols.admm_rounds import AdmmRounds, RoundView
 
 __all__ = ["AgentConfig", "OwnStep", "AssemblyAgent"]
-
-
-@dataclass(frozen=True)
-class AgentConfig:
-    """What an agent is told when it starts.
-
-    Attributes
-    ----------
-    name : str
-        Its assembly.
-    assemblies : tuple of str
-        Every assembly's name (the log header); rows of the gossip table are indices into it.
-    reference : str
-        The assembly whose agent pins the gauge (its pose at each window's first step).
-    cameras : tuple of Camera
-        Its own cameras.
-    node_radius : float
-        Node radius r_0 (m), for the radius depth cue.
-    noise : NoiseModel
-        Factor weights (the same model the centralized estimator uses).
-    window : int
-        Sliding-window length K.
-    admm : AdmmConfig
-        ADMM parameters.
-    announce_every : int
-        Re-announce the configuration to the current observers (unicast) every this many steps
-        (repairs lost announcements; it is broadcast only when it changes).
-    stale_rounds : int
-        Inputs older than this many rounds keep the agent from reporting convergence.
-    patience : int
-        Rounds an ADMM step waits for a neighbour's value of the current iteration (while resending
-        its own last value, which repairs lost copies) before going on with the newest value it has.
-    share_forms : {"first", "every", "never"}
-        When agents share their cost forms (``admm.factors``) and start the ADMM at the joint solution
-        they all compute from them: at the run's first step only (step 0, the cold start), at every
-        step (default), or never (the gauge flood alone). See the module docstring.
-    share_timeout : int
-        Rounds after which an agent goes on with the forms it has (agents that never answered start
-        from the gauge flood instead); below the reference in the tree, twice this (the reference's
-        partial set comes down first).
-    max_yaw_std : float
-        With every agent's forms in hand, an assembly is reported only if the centralized estimator's
-        placement test passes on the joint form (relative yaw determined, Laplace std at most this, rad;
-        :class:`decentral.estimator.EstimatorConfig`).
-    gossip_refresh : int
-        The gossip table rides on an ADMM message to a neighbour only when it changed (a new row, a
-        new step, or a pose moved by more than the ADMM tolerances) since it last went to that
-        neighbour, or every this many rounds (repairs a lost copy).
-    aggregation : {"tree", "broadcast"}
-        How the forms of a window travel once the agent knows its place in the aggregation tree:
-        up a spanning tree of the view graph to the reference agent and back down
-        (:mod:`protocols.aggregation`, default), or broadcast by every agent (the cold start's way,
-        used by both whenever an agent has no route to the reference yet).
-    """
-
-    name: str
-    assemblies: tuple[str, ...]
-    reference: str
-    cameras: tuple[Camera, ...] = ()
-    node_radius: float = 0.06
-    noise: NoiseModel = field(default_factory=NoiseModel)
-    window: int = 5
-    admm: AdmmConfig = field(default_factory=AdmmConfig)
-    announce_every: int = 5
-    stale_rounds: int = 2
-    patience: int = 6
-    share_forms: str = "every"
-    max_yaw_std: float = EstimatorConfig.max_yaw_std
-    share_timeout: int = 24
-    gossip_refresh: int = 10
-    aggregation: str = "tree"
-
-    def __post_init__(self) -> None:
-        if self.name not in self.assemblies or self.reference not in self.assemblies:
-            raise InputError("name and reference must be listed in assemblies", field="assemblies")
-        if any(cam.assembly != self.name for cam in self.cameras):
-            raise InputError("an agent only holds its own cameras", field="cameras")
-        if not (isinstance(self.window, int) and self.window >= 1):
-            raise InputError(f"window must be an integer >= 1, got {self.window!r}", field="window")
-        if not (isinstance(self.announce_every, int) and self.announce_every >= 1):
-            raise InputError("announce_every must be an integer >= 1", field="announce_every")
-        if self.share_forms not in ("first", "every", "never"):
-            raise InputError("share_forms must be 'first', 'every' or 'never'", field="share_forms")
-        if self.aggregation not in ("tree", "broadcast"):
-            raise InputError("aggregation must be 'tree' or 'broadcast'", field="aggregation")
-
-
-@dataclass(frozen=True)
-class OwnStep:
-    """What an assembly's own sensors give at one step (no other assembly's data, no truth).
-
-    Attributes
-    ----------
-    step : int
-        Log step index.
-    t : float
-        Time (s).
-    config : dict[int, ndarray]
-        Own node id -> centre (3,) in the root horizontal frame.
-    odometry : Odometry or None
-        Own root motion since the previous step.
-    detections : dict[str, tuple[Detection, ...]]
-        Own camera key -> identified detections.
-    mounts : dict[str, Pose]
-        Own camera key -> strut pose overriding the default at this step.
-    """
-
-    step: int
-    t: float
-    config: dict[int, np.ndarray]
-    odometry: Odometry | None = None
-    detections: dict[str, tuple[Detection, ...]] = field(default_factory=dict)
-    mounts: dict[str, Pose] = field(default_factory=dict)
 
 
 class AssemblyAgent:

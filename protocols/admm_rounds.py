@@ -11,6 +11,19 @@ agent's module docstring describes the protocol). Each ADMM round has two halves
   once every pair's copies of the next iteration are in (own pairs, and the ``admm.dual`` of the
   observers), sent to the observers as ``admm.primal``, and the convergence flag is set.
 
+Lost, late, duplicated or reordered messages: every value carries its ADMM iteration number. A pair
+iterates only when both ends' consensus of the current iteration is in, and a consensus update only
+when every pair's copies of the next iteration are in; meanwhile the agent resends its last value
+each round (which repairs a lost copy), so losses mostly delay the iterates rather than change them
+(they still change when a neighbour's first message or a configuration arrives late, or on a
+timeout). A neighbour silent for ``patience`` rounds (crashed, partitioned, or no longer
+watching) is not waited for: its newest value is reused with its age, counted as a timeout. Older
+rounds never overwrite newer values (reordering, duplicates), and a restarted agent jumps its
+iteration counter forward to its neighbours'. Ages in rounds are kept (:attr:`AdmmRounds.ages`).
+
+Message counts per round and agent: one ``admm.dual`` per observed assembly and one ``admm.primal``
+per observer, i.e. the agent's degree in the view graph.
+
 Every input of a half round is explicit: a :class:`RoundView` of the window the agent works on (its
 pairs, consensus and inbox, the known joint solution, the round). The numerical steps are
 :class:`decentral.admm.PairState` and :class:`decentral.admm.ConsensusState`; this module decides

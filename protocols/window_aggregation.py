@@ -6,9 +6,30 @@ forms seen here, :class:`protocols.aggregation.TreeAggregation`), sends its bund
 down, answers and repairs lost bundles, keeps a window that timed out without every agent's forms
 open for late records, and says when the window's sharing is finished. The agent feeds it messages
 (``on_*``), calls :meth:`WindowAggregation.progress` in its bootstrap phases, and takes the finished
-window (:meth:`WindowAggregation.finish`) to solve and seed its ADMM. The joint solution of a window's
-forms (:func:`decentral.admm.solve_joint`) is computed here once per window, because the reference
-sends it down instead of the forms.
+window (:meth:`WindowAggregation.finish`) to solve and seed its ADMM. The window's state is typed
+(:class:`protocols.window_share.WindowShare`); its joint solution (:func:`decentral.admm.solve_joint`,
+once per window) is asked for here, because the reference sends it down instead of the forms.
+
+How the forms travel:
+
+* **tree** (``aggregation="tree"``, default, once the agent has a route to the reference): a
+  convergecast up a spanning tree of the view graph to the reference agent and a broadcast back down
+  (:mod:`protocols.aggregation`, ``admm.bundle`` / ``admm.bundle_ack``). Its parent is the neighbour
+  with the smallest hop count to the reference (distance vector carried as the ``tree`` block of the
+  ADMM messages, and filled at once from the view graph the forms of a complete window reveal). The
+  reference's down bundle names the round at which every agent starts the ADMM, so agents near the
+  reference do not spend rounds waiting for the far ones. Per window and agent without loss: one
+  bundle up, and per child one acknowledgement and one bundle down.
+* **broadcast** (the cold start, a restarted agent, a side of a partition without the reference, or
+  ``aggregation="broadcast"``): ``admm.factors`` to everyone, with the list of agents whose forms it
+  has; agents missing from that list answer directly. Messages per agent grow with the number of
+  agents.
+
+Byte budget (``docs/processes.md``): forms are shared one per pair and step (and per odometry link),
+each built from its step's data alone, so a window adds one new step of forms; in the tree they go up
+as ``admm.delta`` (only what the parent lacks, a digest per record:
+:mod:`protocols.form_cache`), and once the reference holds every live agent's forms it sends its
+joint solution down as ``admm.solution`` (float32 poses of the newest step) instead of the forms.
 
 Nothing here reads a clock: the agent sets :attr:`WindowAggregation.round` and
 :attr:`WindowAggregation.step` (its round and log step), and every message goes out through the
@@ -31,6 +52,7 @@ from protocols.messages import BROADCAST, Message
 from protocols.window_share import NEVER, DownState, OwnForms, WindowShare
 
 __all__ = ["WindowAggregation"]
+
 
 class WindowAggregation:
     """The sharing of every window's cost forms at one agent (send and receive halves).
