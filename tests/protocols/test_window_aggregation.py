@@ -61,6 +61,17 @@ def _middle(**kw):
     return role, out
 
 
+def _finished_middle(start):
+    """A1 after its child's bundle up and the down bundle (ADMM from round ``start``): the window finished."""
+    role, out = _middle()
+    role.on_bundle(_bundle("A2", "A1", [2], down=False, hop=2, parent=1, depth=2))
+    role.on_bundle(_bundle("A0", "A1", [0, 1, 2], down=True, hop=0, parent=-1, depth=2, start=start))
+    role.progress(parent=0)
+    role.finish()
+    out.clear()
+    return role, out
+
+
 def test_the_bundle_up_waits_for_the_child_and_carries_its_record():
     """A middle agent sends nothing up until its child reports, then one delta to its parent with both records."""
     role, out = _middle()
@@ -168,12 +179,7 @@ def test_after_a_timeout_the_parent_is_asked_for_the_down_bundle_every_three_rou
 
 def test_a_bundle_from_below_after_the_window_finished_gets_the_down_bundle_again():
     """A child whose bundle arrives once the window has finished (it lacks the down bundle) gets it directly."""
-    role, out = _middle()
-    role.on_bundle(_bundle("A2", "A1", [2], down=False, hop=2, parent=1, depth=2))
-    role.on_bundle(_bundle("A0", "A1", [0, 1, 2], down=True, hop=0, parent=-1, depth=2, start=15))
-    role.progress(parent=0)
-    role.finish()
-    out.clear()
+    role, out = _finished_middle(start=15)
     role.on_bundle(_bundle("A2", "A1", [2], down=False, hop=2, parent=1, depth=2))
     assert len(out) == 1 and isinstance(out[0], FormBundle) and out[0].down and out[0].receiver == "A2"
     assert out[0].members.tolist() == [0, 1, 2]
@@ -181,12 +187,7 @@ def test_a_bundle_from_below_after_the_window_finished_gets_the_down_bundle_agai
 
 def test_a_lost_down_bundle_is_resent_to_a_child_not_heard_from():
     """repair_down resends the down bundle to a silent child from start + 2 rounds, never to one heard from."""
-    role, out = _middle()
-    role.on_bundle(_bundle("A2", "A1", [2], down=False, hop=2, parent=1, depth=2))
-    role.on_bundle(_bundle("A0", "A1", [0, 1, 2], down=True, hop=0, parent=-1, depth=2, start=12))
-    role.progress(parent=0)
-    role.finish()
-    out.clear()
+    role, out = _finished_middle(start=12)
     role.round = 13
     role.repair_down(lambda name: False)
     assert out == []
