@@ -44,7 +44,7 @@ from typing import Callable, Iterable
 import numpy as np
 
 from decentral.admm import LocalProblem
-from protocols.admm_messages import FactorShare, FormAck, FormBundle, pack_bundle, pack_forms
+from protocols.admm_messages import FactorShare, FormAck, FormBundle, pack_forms
 from protocols.aggregation import DownRepair, NeighbourTree, TreeAggregation
 from protocols.delta_messages import DeltaBundle, JointPoses
 from protocols.form_cache import DeltaSender, FormCache
@@ -228,14 +228,8 @@ class WindowAggregation:
 
     def _bundle(self, receiver: str, indices, down: bool, start: int = 0,
                 share: WindowShare | None = None) -> FormBundle:
-        share = share or self.share
-        agg = share.agg
-        records = {i: [(keys, prob.M, prob.b_z, prob.c_z) for keys, prob in agg.records[i]] for i in indices}
-        members, owners, keys, flat = pack_bundle(records)
-        pin = share.pin if share.pin is not None and self.index[self.reference] in records else np.zeros(0)
-        return FormBundle(sender=self.name, receiver=receiver, round=self.round, step=share.step, down=down,
-                          hop=agg.hop, parent=-1 if agg.parent is None else agg.parent, depth=agg.depth,
-                          start=start, members=members, owners=owners, keys=keys, forms=flat, pin=pin)
+        return (share or self.share).bundle(self.name, receiver, indices, down=down, start=start,
+                                            round_index=self.round, reference=self.index[self.reference])
 
     def _send_up(self, indices: list[int], whole: bool = False) -> None:
         """Records ``indices`` to the parent: as a delta (what it lacks), or ``whole`` (a resend: it could not
@@ -257,7 +251,8 @@ class WindowAggregation:
         return DeltaBundle(sender=self.name, receiver=self.names[parent], round=self.round, step=share.step,
                            hop=agg.hop, parent=parent, depth=agg.depth,
                            members=np.array(sorted(indices), dtype=np.int16), pin=pin,
-                           digest=np.array(digests, dtype=np.int64).reshape(-1, 2), **DeltaBundle.pack(share.step, carried))
+                           digest=np.array(digests, dtype=np.int64).reshape(-1, 2),
+                           **DeltaBundle.pack(share.step, carried))
 
     def _send_down(self, exclude=(), start: int | None = None) -> None:
         """The final set of this window to the children (the root: when complete or on timeout)."""
@@ -286,35 +281,16 @@ class WindowAggregation:
             joint = self.joint(share)
             if joint is not None:
                 solution = share.solution_out = share.solution_out or self._solution_message(share, joint)
-        if solution is not None:
-            agg = share.agg
-            return JointPoses(sender=self.name, receiver=receiver, round=self.round, step=solution.step,
-                              hop=agg.hop, parent=-1 if agg.parent is None else agg.parent, depth=solution.depth,
-                              start=down.start, n=solution.n, members=solution.members, index=solution.index,
-                              poses=solution.poses, placeable=solution.placeable, edges=solution.edges)
-        if down.bundle is None:
-            down.bundle = self._bundle(BROADCAST, sorted(share.records), down=True, start=down.start, share=share)
-        bundle = down.bundle
-        return FormBundle(sender=self.name, receiver=receiver, round=self.round, step=bundle.step, down=True,
-                          hop=bundle.hop, parent=bundle.parent, depth=bundle.depth, start=bundle.start,
-                          members=bundle.members, owners=bundle.owners, keys=bundle.keys, forms=bundle.forms,
-                          pin=bundle.pin)
+        return down.to(self.name, receiver, self.round, solution, self.index[self.reference])
 
     def _solution_message(self, share: WindowShare, joint) -> JointPoses:
-        """The reference's joint solution of the window as it goes down: newest step, float32, bit masks."""
-        n, step = len(self.names), share.step
-        edges = share.edges()  # sent when the view graph changed (an empty mask: as in the last solution)
-        message_edges, self._edges_sent = self._edges_sent, edges
-        rows = sorted((self.index[a], p, float(np.arctan2(R[1, 0], R[0, 0])))
-                      for (a, k), (R, p) in joint.poses.items() if k == step and a in self.index)
-        placeable = {self.index[a] for a, k in self.placeable(share, joint) if k == step}
-        return JointPoses(sender=self.name, receiver=BROADCAST, round=self.round, step=step, hop=0, parent=-1,
-                          depth=share.agg.depth, start=0, n=n, members=JointPoses.mask(share.records, n),
-                          index=JointPoses.mask([r[0] for r in rows], n),
-                          poses=np.array([[*r[1], r[2]] for r in rows], float).reshape(-1, 4),
-                          placeable=JointPoses.mask(placeable, n),
-                          edges=JointPoses.mask([a * n + b for a, b in edges], n * n) if edges != message_edges
-                          else np.zeros(0, np.uint8))
+        """The reference's joint solution of the window as it goes down, with the view graph when it changed
+        since the last solution sent."""
+        edges = share.edges()
+        previous, self._edges_sent = self._edges_sent, edges
+        placeable = {self.index[a] for a, k in self.placeable(share, joint) if k == share.step}
+        return share.solution_message(self.name, joint, self.index, placeable, edges if edges != previous else None,
+                                      self.round, len(self.names))
 
     def _factor_share(self, receiver: str) -> FactorShare:
         own = self.own
@@ -339,7 +315,8 @@ class WindowAggregation:
         """After a timeout without every agent's forms, keep asking the parent for the down bundle (every
         3 rounds, at most 10 times this window): a late complete set re-seeds the window exactly."""
         late = self.late
-        if late is None or late.step != self.step or late.asked >= 10 or self.round - late.last < 3 or late.agg.parent is None:
+        if (late is None or late.step != self.step or late.asked >= 10 or self.round - late.last < 3
+                or late.agg.parent is None):
             return
         late.asked += 1
         late.last = self.round
@@ -459,20 +436,16 @@ class WindowAggregation:
                 self._send(self._bundle(self.names[agg.parent], lost, down=False))
             self._send_down(exclude=(sender,), start=message.start)  # forwarded at once: one hop per phase
             # acknowledged: in an exact window no ADMM values come back to tell the parent it arrived
-            self._send(self._ack(message.sender, share))
+            self._send(share.ack(self.name, message.sender, self.round))
         else:
             agg.add(records, child=sender, depth=message.depth)
             if agg.final:  # already finished the window's sharing: the child missed the down bundle
                 if self.down is not None:
                     self._send(self._down_bundle(message.sender))
                 return False
-            self._send(self._ack(message.sender, share))
+            self._send(share.ack(self.name, message.sender, self.round))
             self._tree_progress()
         return False
-
-    def _ack(self, receiver: str, share: WindowShare) -> FormAck:
-        return FormAck(sender=self.name, receiver=receiver, round=self.round, step=share.step,
-                       have=np.array(sorted(share.agg.records), dtype=np.int64))
 
     def _on_late(self, message, records: dict, down: bool, sender: int) -> bool:
         """Records of a window that finished here without every agent's forms: they may complete it."""

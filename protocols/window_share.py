@@ -3,22 +3,24 @@
 :class:`WindowShare` holds a window's records (every agent's forms seen here, in a
 :class:`protocols.aggregation.TreeAggregation`), how they travel, the timers of the sharing, and the
 window's joint solution (:func:`decentral.admm.solve_joint`, computed once) with its placement test;
-:class:`DownState` the final set as sent down; :class:`OwnForms` the agent's own forms as shared.
+:class:`DownState` the final set as sent down; :class:`OwnForms` the agent's own forms as shared. The
+window's wire messages (its bundles, acknowledgement and joint solution) are packed here.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 
 from decentral.admm import LocalProblem, solve_joint
 from decentral.geometry import rot2
 from decentral.placement import unplaced_reasons
-from protocols.admm_messages import FormBundle
+from protocols.admm_messages import FormAck, FormBundle, pack_bundle
 from protocols.aggregation import DownRepair, TreeAggregation
 from protocols.delta_messages import JointPoses
+from protocols.messages import BROADCAST
 
 __all__ = ["NEVER", "OwnForms", "WindowShare", "DownState"]
 
@@ -130,6 +132,39 @@ class WindowShare:
             with_data={a for prob in problems if len({k[0] for k in prob.keys}) > 1 for a, _ in prob.keys},
             connected={a for a, k in joint.index if k == step}, solved=True, yaw_std=self.yaw_std)
 
+    def bundle(self, sender: str, receiver: str, indices, *, down: bool, start: int, round_index: int,
+               reference: int) -> FormBundle:
+        """The records ``indices`` as an ``admm.bundle`` (with the gauge ``pin`` when the ``reference``'s
+        record is among them); ``down``: the final set from the parent, ADMM from round ``start``."""
+        agg = self.agg
+        records = {i: [(keys, prob.M, prob.b_z, prob.c_z) for keys, prob in agg.records[i]] for i in indices}
+        members, owners, keys, flat = pack_bundle(records)
+        pin = self.pin if self.pin is not None and reference in records else np.zeros(0)
+        return FormBundle(sender=sender, receiver=receiver, round=round_index, step=self.step, down=down,
+                          hop=agg.hop, parent=-1 if agg.parent is None else agg.parent, depth=agg.depth,
+                          start=start, members=members, owners=owners, keys=keys, forms=flat, pin=pin)
+
+    def ack(self, sender: str, receiver: str, round_index: int) -> FormAck:
+        """The acknowledgement of a bundle: the records held here."""
+        return FormAck(sender=sender, receiver=receiver, round=round_index, step=self.step,
+                       have=np.array(sorted(self.agg.records), dtype=np.int64))
+
+    def solution_message(self, sender: str, joint, index: Mapping[str, int], placeable: set[int],
+                         edges: set | None, round_index: int, n: int) -> JointPoses:
+        """The joint solution as it goes down (:class:`protocols.delta_messages.JointPoses`): the newest step's
+        poses (float32 on the wire), the records it was solved from, the ``placeable`` agent indices and
+        the view graph's ``edges`` (None: unchanged, sent as an empty mask); ``n`` agents."""
+        step = self.step
+        rows = sorted((index[a], p, float(np.arctan2(R[1, 0], R[0, 0])))
+                      for (a, k), (R, p) in joint.poses.items() if k == step and a in index)
+        return JointPoses(sender=sender, receiver=BROADCAST, round=round_index, step=step, hop=0, parent=-1,
+                          depth=self.agg.depth, start=0, n=n, members=JointPoses.mask(self.records, n),
+                          index=JointPoses.mask([r[0] for r in rows], n),
+                          poses=np.array([[*r[1], r[2]] for r in rows], float).reshape(-1, 4),
+                          placeable=JointPoses.mask(placeable, n),
+                          edges=JointPoses.mask([a * n + b for a, b in edges], n * n) if edges is not None
+                          else np.zeros(0, np.uint8))
+
     @property
     def records(self) -> dict:
         """Agent index -> its forms ``[(keys, LocalProblem)]`` held for the window."""
@@ -175,3 +210,22 @@ class DownState:
     @property
     def step(self) -> int:
         return self.share.step
+
+    def to(self, sender: str, receiver: str, round_index: int, solution: JointPoses | None,
+           reference: int) -> FormBundle | JointPoses:
+        """The down message for ``receiver``: the joint ``solution`` when there is one, else the final set's
+        forms (packed once)."""
+        share = self.share
+        if solution is not None:
+            agg = share.agg
+            return JointPoses(sender=sender, receiver=receiver, round=round_index, step=solution.step,
+                              hop=agg.hop, parent=-1 if agg.parent is None else agg.parent, depth=solution.depth,
+                              start=self.start, n=solution.n, members=solution.members, index=solution.index,
+                              poses=solution.poses, placeable=solution.placeable, edges=solution.edges)
+        if self.bundle is None:
+            self.bundle = share.bundle(sender, BROADCAST, sorted(share.records), down=True, start=self.start,
+                                       round_index=round_index, reference=reference)
+        b = self.bundle
+        return FormBundle(sender=sender, receiver=receiver, round=round_index, step=b.step, down=True, hop=b.hop,
+                          parent=b.parent, depth=b.depth, start=b.start, members=b.members, owners=b.owners,
+                          keys=b.keys, forms=b.forms, pin=b.pin)

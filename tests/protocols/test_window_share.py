@@ -46,3 +46,24 @@ def test_records_edges_and_observers_come_from_the_pair_forms():
     share = _share()
     assert share.edges() == {(1, 0)} and share.observers_of(0) == {1} and share.observers_of(1) == set()
     assert all(isinstance(p, LocalProblem) for p in share.problems())
+
+
+def test_a_bundle_carries_the_gauge_pin_only_with_the_references_record():
+    """The pin rides with the reference's record; a bundle without it carries none."""
+    share = _share(step=2, pin=np.array([2, 0.5, 0.2, 0.0, 0.0]))
+    with_ref = share.bundle("A1", "A0", [0, 1], down=False, start=0, round_index=7, reference=0)
+    without = share.bundle("A1", "A0", [1], down=False, start=0, round_index=7, reference=0)
+    assert np.array_equal(with_ref.pin, share.pin) and len(without.pin) == 0
+    assert with_ref.members.tolist() == [0, 1] and without.members.tolist() == [1] and with_ref.step == 2
+    assert share.ack("A0", "A1", 8).have.tolist() == [0, 1]
+
+
+def test_the_solution_message_holds_the_newest_poses_and_the_graph_only_when_given():
+    """The joint solution goes down as the newest step's poses of every agent; the edge mask only when given."""
+    share = _share()
+    share.solve("A0", 0)
+    index = {"A0": 0, "A1": 1}
+    sent = share.solution_message("A0", share.joint, index, {0, 1}, {(1, 0)}, 9, 2)
+    assert sent.indices("members") == [0, 1] and sent.indices("placeable") == [0, 1]
+    assert np.allclose(sent.pose_of()[1][0], [-1.0, 0.0, 0.0], atol=1e-6) and sent.edge_set() == {(1, 0)}
+    assert len(share.solution_message("A0", share.joint, index, {0, 1}, None, 9, 2).edges) == 0
