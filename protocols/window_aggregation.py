@@ -186,6 +186,8 @@ class WindowAggregation:
         share, self.share, self.late = self.share, None, None
         partial = share.solution is None and share.mode == "tree" and not share.agg.complete
         if partial:
+            # a shallow copy: the same records (late ones complete both), but its own timers, pin and a joint
+            # solution not yet computed (the finished window's is of the partial set)
             self.late = copy.copy(share)
             self.late.asked, self.late.last = 0, self.round
         return share, partial
