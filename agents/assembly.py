@@ -43,6 +43,7 @@ from __future__ import annotations
 import numpy as np
 
 from agents.agent_config import AgentConfig, OwnStep
+from agents.window_start import WindowStart
 from decentral.admm import ConsensusState, LocalProblem, PairState
 from decentral.geometry import rot2, wrap_angle
 from decentral.observations import PlanarPose
@@ -57,6 +58,7 @@ from protocols.window_aggregation import WindowAggregation
 from protocols.admm_rounds import AdmmRounds, RoundView
 
 __all__ = ["AgentConfig", "OwnStep", "AssemblyAgent"]
+
 
 
 class AssemblyAgent:
@@ -91,19 +93,14 @@ class AssemblyAgent:
         # the ADMM rounds: iteration counters, the last values sent, waiting counts and the convergence flag
         self._rounds = AdmmRounds(config.name, self._index[config.name], config.admm, patience=config.patience,
                                   window=config.window, share_timeout=config.share_timeout, counters=self.counters)
-        self._seeds: dict[tuple[str, int], tuple] = {}  # (assembly, step) -> Pose2 of a known joint solution
-        self._seeds_complete = False  # the seeds come from every agent's forms
-        self._placeable: frozenset = frozenset()  # (assembly, step) keys the joint test places
-        self._why: dict[str, str] = {}  # assembly -> why the joint test does not place it (this step)
+        self._start = WindowStart()  # the joint solution the current window started at, if any
         self._hold = 0  # the ADMM of this window starts at this round (after the forms are shared)
         self._hop: int | None = 0 if config.name == config.reference else None
         self._parent: int | None = None
         self._pair_sig: dict[str, int] = {}  # target -> detections used by its pair, at the last rebuild
-        self._form_sig: dict[str, int] | None = None  # the same when this window's own forms were shared
         # the gossip table of every assembly's newest consensus pose (sent on the ADMM messages)
         self._gossip = PoseGossip(self._index[config.name], len(config.assemblies),
                                   min(config.admm.eps_rot, config.admm.eps_pos), config.gossip_refresh)
-        self._expected: set[str] = set()  # observers whose first values a seeded start waits for
         #: set by the runtime's local rule (:class:`agents.runtime.LocalAgent`) once this agent's window is done:
         #: its ADMM values then carry a ``done`` block, so that quiet neighbours do not answer them
         self.window_done = False
@@ -133,12 +130,7 @@ class AssemblyAgent:
             self.advance(round_index)
         cfg = self.config
         first = self._step is None and own.step == 0
-        self._seeds = {}
-        self._seeds_complete = False
-        self._placeable = frozenset()
-        self._why = {}
-        self._expected = set()
-        self._form_sig = None
+        self._start = WindowStart()
         if cfg.share_forms == "every" or (cfg.share_forms == "first" and first):
             self._parent, self._hop = self._sharing.tree.position(self._round, self._step)
             self._sharing.open(own.step, self._parent, self._hop, cfg.patience)
@@ -167,10 +159,10 @@ class AssemblyAgent:
         Own consensus poses take their values; pairs built afterwards start at the solution with the
         duals that make it an ADMM fixed point (:meth:`decentral.admm.PairState.seed`).
         """
-        self._seeds = dict(poses)
+        self._start.seeds = dict(poses)
         self._consensus.seed({k: v for (a, k), v in poses.items() if a == self.name})
         for pair in self._pairs.values():
-            pair.seed(self._seeds)
+            pair.seed(self._start.seeds)
         self._dirty = True
 
     # ------------------------------------------------------------------ messages
@@ -241,8 +233,8 @@ class AssemblyAgent:
             problem, self._shared[target] = pair_forms(self.name, target, facts)
             pair = self._pairs.get(target) or PairState(self.name, target, self.config.admm)
             pair.set_problem(problem)
-            if pair.iterations == 0 and not pair.y and self._seeds:
-                pair.seed(self._seeds)
+            if pair.iterations == 0 and not pair.y and self._start.seeds:
+                pair.seed(self._start.seeds)
             self._pairs[target] = pair
         self._dirty = False
 
@@ -281,7 +273,7 @@ class AssemblyAgent:
     def _exact(self) -> bool:
         """The window started at the joint solution of every live agent's forms, its own pairs among them
         as they are now, and no node is left to name: the estimate is final without ADMM rounds."""
-        return self._seeds_complete and self._form_sig == self._pair_sig and not self._unresolved()
+        return self._start.complete and self._start.form_sig == self._pair_sig and not self._unresolved()
 
     # ------------------------------------------------------------------ cold start
     def _request_unknown(self) -> None:
@@ -303,7 +295,7 @@ class AssemblyAgent:
             cons = self._consensus
             if cons.pinned and cons.pin is not None:
                 pin = np.array([cons.pin[0], *cons.pin[2], cons.pin[1]])
-            self._form_sig = dict(self._pair_sig)
+            self._start.form_sig = dict(self._pair_sig)
             sharing.share_own(forms, pin)
         if sharing.progress(self._parent):
             self._finish_bootstrap()
@@ -348,17 +340,17 @@ class AssemblyAgent:
         seeds = joint.poses
         # every agent's forms: the seeds are the joint estimate of this step (a fixed point of the ADMM),
         # and the centralized estimator's placement test can be run on them
-        self._seeds_complete = share.agg.complete  # every (live) agent's forms
-        if self._seeds_complete:
-            self._placeable = sharing.placeable(share, joint)
-            self._why = sharing.unplaced_reasons(share, joint)
+        self._start.complete = share.agg.complete  # every (live) agent's forms
+        if self._start.complete:
+            self._start.placeable = sharing.placeable(share, joint)
+            self._start.why = sharing.unplaced_reasons(share, joint)
             # the joint solution already gives every assembly's pose of this step: the gossip table need
             # not cross the view graph before the convergence flag can settle (rounds flat in the diameter)
             self._fill_table(seeds)
             self._learn_graph(share.edges())
         # the seeded duals balance only with every observer's contribution: wait for their first values
         names = self.config.assemblies
-        self._expected = {names[i] for i in share.observers_of(self._index[self.name])}
+        self._start.expected = {names[i] for i in share.observers_of(self._index[self.name])}
         if self.config.share_forms == "every":
             self._fresh_admm()
         self.seed(seeds)
@@ -369,16 +361,16 @@ class AssemblyAgent:
         names, me, step = self.config.assemblies, self._index[self.name], solution.step
         newest = {(names[i], step): (rot2(theta), p) for i, (p, theta) in solution.pose_of().items()
                   if i < len(names)}
-        self._seeds_complete = True
+        self._start.complete = True
         ref = self._index[self.config.reference]
         placeable = set(solution.indices("placeable")) | {ref}
         # placed relative to the reference; relative to this agent when it is placed itself
-        self._placeable = frozenset((names[i], step) for i in placeable | {me} if i < len(names)) \
+        self._start.placeable = frozenset((names[i], step) for i in placeable | {me} if i < len(names)) \
             if me in placeable else frozenset()
         self._fill_table(newest)
         if len(solution.edges):
             self._learn_graph({(a, b) for a, b in solution.edge_set() if a != b})
-        self._expected = set()
+        self._start.expected = set()
         if self.config.share_forms == "every":
             self._fresh_admm()
         self.seed(newest)
@@ -400,9 +392,9 @@ class AssemblyAgent:
         if self.config.aggregation == "tree":
             place = (-1 if self._hop is None else self._hop, -1 if self._parent is None else self._parent)
         return RoundView(round=self._round, step=self._step, pairs=self._pairs, consensus=self._consensus,
-                         inbox=self._inbox, gossip=self._gossip, seeds=self._seeds,
-                         seeds_complete=self._seeds_complete, forms_current=self._form_sig == self._pair_sig,
-                         expected=frozenset(self._expected), pair_steps=frozenset(self._pair_steps),
+                         inbox=self._inbox, gossip=self._gossip, seeds=self._start.seeds,
+                         seeds_complete=self._start.complete, forms_current=self._start.form_sig == self._pair_sig,
+                         expected=frozenset(self._start.expected), pair_steps=frozenset(self._pair_steps),
                          unresolved=bool(self._unresolved()), done=self.window_done, place=place)
 
     def _unresolved(self) -> set[int]:
@@ -445,7 +437,7 @@ class AssemblyAgent:
         otherwise ``no_consensus`` (it cannot tell a lost row from an assembly nobody saw).
         """
         placed = self.estimates() if placed is None else placed
-        return {name: (self._why.get(name, "no_consensus") if self._seeds_complete else "no_consensus")
+        return {name: (self._start.why.get(name, "no_consensus") if self._start.complete else "no_consensus")
                 for name in self.config.assemblies if name != self.name and name not in placed}
 
     def estimates(self) -> dict[str, PlanarPose]:
@@ -462,8 +454,8 @@ class AssemblyAgent:
         if me is None or int(me[1]) != self._step:
             return {}
         rows = {i: row for i, row in self._gossip.rows.items() if int(row[1]) == self._step}
-        if self._seeds_complete:
-            for (name, step), (R, p) in self._seeds.items():
+        if self._start.complete:
+            for (name, step), (R, p) in self._start.seeds.items():
                 i = self._index.get(name)
                 if step == self._step and i is not None and i not in rows:
                     rows[i] = np.array([i, step, 0, *p, np.arctan2(R[1, 0], R[0, 0])])
@@ -472,7 +464,7 @@ class AssemblyAgent:
         for i, row in rows.items():
             if i == self._index[self.name]:
                 continue
-            if self._seeds_complete and (self.config.assemblies[i], self._step) not in self._placeable:
+            if self._start.complete and (self.config.assemblies[i], self._step) not in self._start.placeable:
                 continue  # its yaw relative to this agent is not determined: left out, never guessed
             d = row[3:6] - me[3:6]
             p = np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1], d[2]])  # seed 000 eq. (19)

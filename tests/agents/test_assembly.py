@@ -153,7 +153,7 @@ def test_after_the_shared_cold_start_every_agent_holds_the_same_joint_solution(l
                 a.handle(m)
         a.tick(0)
         a.tick(1)
-    seeds = [a._seeds for a in agents.values()]
+    seeds = [a._start.seeds for a in agents.values()]
     assert seeds[0] and all(s.keys() == seeds[0].keys() for s in seeds)
     for key in seeds[0]:
         for s in seeds[1:]:
@@ -258,12 +258,12 @@ def test_after_a_complete_window_the_forms_go_up_the_tree_not_by_broadcast(log):
     for m in ups:
         assert m.receiver == log.assemblies[agents[m.sender]._parent] and m.hop >= 1
     # the reference solves, the others start from its solution of the newest step (float32 on the wire)
-    root = agents["A0"]._seeds
+    root = agents["A0"]._start.seeds
     newest = {key: v for key, v in root.items() if key[1] == 1}
     for a in list(agents.values())[1:]:
-        assert a._seeds.keys() == newest.keys()
+        assert a._start.seeds.keys() == newest.keys()
         for key, (R, p) in newest.items():
-            assert np.allclose(a._seeds[key][1], p, atol=1e-5) and np.allclose(a._seeds[key][0], R, atol=1e-6)
+            assert np.allclose(a._start.seeds[key][1], p, atol=1e-5) and np.allclose(a._start.seeds[key][0], R, atol=1e-6)
 
 
 def test_a_bundle_from_below_after_the_window_is_answered_with_the_down_bundle(log):
@@ -401,9 +401,9 @@ def test_a_parent_that_cannot_rebuild_a_delta_gets_the_records_whole():
     sent = _drive(agents, 2, log, 20)
     assert any(isinstance(m, DeltaBundle) for m in sent)
     assert any(isinstance(m, FormBundle) and not m.down for m in sent)
-    root = agents["A0"]._seeds
+    root = agents["A0"]._start.seeds
     assert any(key[1] == 2 for key in root)
     for a in list(agents.values())[1:]:
         for key, (R, p) in root.items():
             if key[1] == 2:
-                assert np.allclose(a._seeds[key][1], p, atol=1e-5)
+                assert np.allclose(a._start.seeds[key][1], p, atol=1e-5)
