@@ -1,74 +1,38 @@
 """The assembly agent: one per assembly, consensus-ADMM over the pairs it observes (:mod:`decentral.admm`).
 
 An agent holds only what its assembly really has: its own node configuration, odometry and camera
-detections (never ground truth), plus what arrives in its inbox. Per log step it
+detections (never ground truth), plus what arrives in its inbox. It is a thin composition of
+protocol roles, each a small state machine in :mod:`protocols` with its own tests (house style 8-9).
+Per log step it
 
-1. back-projects its own detections (seed 000 eq. (1), (4)) and announces its configuration
-   (``admm.config``: a broadcast when it changes; every ``announce_every`` steps a unicast to its
-   current observers);
+1. back-projects its own detections (seed 000 eq. (1), (4), :func:`decentral.pair_forms.own_detections`)
+   and announces its configuration (:class:`protocols.config_gossip.ConfigGossip`: ``admm.config``, a
+   broadcast when it changes, every ``announce_every`` steps a unicast to its current observers);
 2. names the owner of every node it sees from the announced configurations and builds one
-   directed pair subproblem ``self -> target`` per observed assembly over the sliding window;
-3. runs ADMM rounds, two phases each (:meth:`AssemblyAgent.tick`):
+   directed pair subproblem ``self -> target`` per observed assembly over the sliding window
+   (:func:`decentral.pair_forms.pair_forms`); an observer that detects nodes it cannot name asks with
+   ``admm.config_request`` and does not report convergence while such nodes remain and some
+   assembly's configuration is still missing (once it holds every configuration, nodes none of them
+   lists are stray tags and are skipped);
+3. shares its cost forms (``AgentConfig.share_forms``: at every step, the default, or at the run's
+   first step only): the quadratic forms of the pairs it observes and of its own odometry chain
+   (private data stay private; only these sums of squares travel), up and down a spanning tree to the
+   reference or by broadcast (:class:`protocols.window_aggregation.WindowAggregation`). Once it holds
+   every live agent's forms (or after ``share_timeout`` rounds) it solves the same joint problem
+   (:func:`decentral.admm.solve_joint`, bit-identical everywhere), or adopts the reference's joint
+   solution, and seeds its consensus poses, pair copies and duals there, a fixed point of the ADMM
+   (:meth:`decentral.admm.PairState.seed`); the joint solution also fills the gossip table's rows of
+   the step;
+4. runs ADMM rounds, two phases each (:meth:`AssemblyAgent.tick`, :class:`protocols.admm_rounds.AdmmRounds`):
+   phase 0 sends each observed assembly its pair's ``copy + dual`` (``admm.dual``), phase 1 updates
+   its consensus poses and sends them to its observers (``admm.primal``). The rounds confirm the
+   seeded fixed point, or finish the job for agents whose forms were missing.
 
-   * phase 0: every owned pair updates its copies with the newest consensus values (its own, and
-     the target's from the last ``admm.primal``) and sends the target's ``copy + dual`` as
-     ``admm.dual`` (with its penalties) to the target;
-   * phase 1: the agent updates its own consensus poses from its pairs and from the ``admm.dual``
-     messages of the agents that observe it, then sends them as ``admm.primal`` to those observers.
-
-Lost, late, duplicated or reordered messages: every value carries its ADMM iteration number. A pair
-iterates only when both ends' consensus of the current iteration is in, and a consensus update only
-when every pair's copies of the next iteration are in; meanwhile the agent resends its last value
-each round (which repairs a lost copy), so losses mostly delay the iterates rather than change them
-(they still change when a neighbour's first message or a configuration arrives late, or on a
-timeout). A neighbour silent for ``patience`` rounds (crashed, partitioned, or no longer
-watching) is not waited for: its newest value is reused with its age, counted as a timeout. Older
-rounds never overwrite newer values (reordering, duplicates), and a restarted agent jumps its
-iteration counter forward to its neighbours'. Ages in rounds are kept (:attr:`AssemblyAgent.ages`).
-An observer that detects nodes it cannot name asks with ``admm.config_request``: every agent answers
-with its own configuration and agents holding the owner's relay that too. It does not report
-convergence while such nodes remain and some assembly's configuration is still missing; once it
-holds every configuration, nodes none of them lists are stray tags and are skipped. With every agent's forms in hand,
+Both ADMM kinds also carry (when it changed, see ``gossip_refresh``) a small gossip table
+(:class:`protocols.pose_gossip.PoseGossip`: the newest consensus pose of every assembly at its latest
+step) so every agent learns the poses of assemblies it does not talk to; :meth:`AssemblyAgent.estimates`
+turns it into poses relative to the agent (seed 000 eq. (19)). With every agent's forms in hand,
 the joint solution only counts as the fixed point while its pairs are the ones its forms described.
-
-Both ADMM kinds also carry (when it changed, see ``gossip_refresh``) a small gossip table (``(assembly index, step, round, x, y, z, theta)`` rows, the newest consensus pose of every
-assembly at its latest step) so every agent learns the poses of assemblies it does not talk to;
-:meth:`AssemblyAgent.estimates` turns it into poses relative to the agent (seed 000 eq. (19)).
-
-Message counts per round and agent: one ``admm.dual`` per observed assembly and one ``admm.primal``
-per observer, i.e. the agent's degree in the view graph.
-
-Shared forms (``AgentConfig.share_forms``): at every step (``"every"``, the default) or at the run's
-first step only (``"first"``) the agents first share their cost forms: the quadratic forms of the
-pairs each observes over the window and of its own odometry chain (private data stay private; only
-these sums of squares travel). Once an agent holds every agent's forms (or after ``share_timeout``
-rounds) it solves the same joint problem (:func:`decentral.admm.solve_joint`, bit-identical
-everywhere) and seeds its consensus poses, pair copies and duals at that solution, a fixed point of
-the ADMM (:meth:`decentral.admm.PairState.seed`); the ADMM rounds that follow confirm it (or finish the
-job for agents whose forms were missing). How the forms travel:
-
-* **tree** (``aggregation="tree"``, default, once the agent has a route to the reference): a
-  convergecast up a spanning tree of the view graph to the reference agent and a broadcast back down
-  (:mod:`protocols.aggregation`, ``admm.bundle`` / ``admm.bundle_ack``). Its parent is the neighbour
-  with the smallest hop count to the reference (distance vector carried as the ``tree`` block of the
-  ADMM messages, and filled at once from the view graph the forms of a complete window reveal). The
-  reference's down bundle names the round at which every agent starts the ADMM, so agents near the
-  reference do not spend rounds waiting for the far ones. Per window and agent without loss: one
-  bundle up, and per child one acknowledgement and one bundle down.
-* **broadcast** (the cold start, a restarted agent, a side of a partition without the reference, or
-  ``aggregation="broadcast"``): ``admm.factors`` to everyone, with the list of agents whose forms it
-  has; agents missing from that list answer directly. Messages per agent grow with the number of
-  agents.
-
-When an agent holds every agent's forms, the joint solution also fills the gossip table's rows of
-the step (the table need not cross the graph before the convergence flag settles), and the ADMM is
-converged once the consensus stays within the tolerances of that fixed point.
-
-Byte budget (``docs/processes.md``): forms are shared one per pair and step (and per odometry link),
-each built from its step's data alone, so a window adds one new step of forms; in the tree they go up
-as ``admm.delta`` (only what the parent lacks, a digest per record:
-:mod:`protocols.form_cache`), and once the reference holds every live agent's forms it sends its
-joint solution down as ``admm.solution`` (float32 poses of the newest step) instead of the forms.
 A window that starts at the joint solution of every live agent's forms is exact and runs no ADMM
 round (:meth:`AssemblyAgent._exact`); an agent joins the ADMM only while a neighbour runs it. Peers
 not heard from for two windows are not waited for.
@@ -76,142 +40,25 @@ not heard from for two windows are not waited for.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
-from decentral.admm import (AdmmConfig, ConsensusState, LocalProblem, PairState, quadratic_form,
-                            solve_joint)
-from decentral.estimator import EstimatorConfig
-from decentral.errors import InputError
-from decentral.factors import NoiseModel, detection_weights
-from decentral.geometry import backproject, rot2, wrap_angle
-from decentral.observations import Camera, Detection, Odometry, PlanarPose, Pose
-from decentral.placement import unplaced_reasons
-from protocols.admm_messages import (ConfigAnnounce, ConfigRequest, FactorShare, FormAck, FormBundle, pack_bundle,
-                                     pack_forms)
-from protocols.aggregation import DownRepair, TreeAggregation, choose_parent, tree_from_edges
-from protocols.messages import BROADCAST, AdmmDual, AdmmPrimal, Message
-from protocols.config_gossip import ConfigTable
+from agents.agent_config import AgentConfig, OwnStep
+from agents.window_start import WindowStart
+from decentral.admm import ConsensusState, LocalProblem, PairState
+from decentral.geometry import rot2, wrap_angle
+from decentral.observations import PlanarPose
+from decentral.pair_forms import own_detections, pair_forms
+from protocols.admm_messages import ConfigAnnounce, ConfigRequest, FactorShare, FormAck, FormBundle
+from protocols.messages import AdmmDual, AdmmPrimal, Message
+from protocols.config_gossip import ConfigGossip
 from protocols.delta_messages import DeltaBundle, JointPoses
-from protocols.form_cache import DeltaSender, FormCache
 from protocols.pose_gossip import PoseGossip, pose_row
-from protocols.admm_values import AdmmInbox, Inbound, packed_metric, value_blocks
+from protocols.admm_values import AdmmInbox
+from protocols.window_aggregation import WindowAggregation
+from protocols.admm_rounds import AdmmRounds, RoundView
 
 __all__ = ["AgentConfig", "OwnStep", "AssemblyAgent"]
 
-
-@dataclass(frozen=True)
-class AgentConfig:
-    """What an agent is told when it starts.
-
-    Attributes
-    ----------
-    name : str
-        Its assembly.
-    assemblies : tuple of str
-        Every assembly's name (the log header); rows of the gossip table are indices into it.
-    reference : str
-        The assembly whose agent pins the gauge (its pose at each window's first step).
-    cameras : tuple of Camera
-        Its own cameras.
-    node_radius : float
-        Node radius r_0 (m), for the radius depth cue.
-    noise : NoiseModel
-        Factor weights (the same model the centralized estimator uses).
-    window : int
-        Sliding-window length K.
-    admm : AdmmConfig
-        ADMM parameters.
-    announce_every : int
-        Re-announce the configuration to the current observers (unicast) every this many steps
-        (repairs lost announcements; it is broadcast only when it changes).
-    stale_rounds : int
-        Inputs older than this many rounds keep the agent from reporting convergence.
-    patience : int
-        Rounds an ADMM step waits for a neighbour's value of the current iteration (while resending
-        its own last value, which repairs lost copies) before going on with the newest value it has.
-    share_forms : {"first", "every", "never"}
-        When agents share their cost forms (``admm.factors``) and start the ADMM at the joint solution
-        they all compute from them: at the run's first step only (step 0, the cold start), at every
-        step (default), or never (the gauge flood alone). See the module docstring.
-    share_timeout : int
-        Rounds after which an agent goes on with the forms it has (agents that never answered start
-        from the gauge flood instead); below the reference in the tree, twice this (the reference's
-        partial set comes down first).
-    max_yaw_std : float
-        With every agent's forms in hand, an assembly is reported only if the centralized estimator's
-        placement test passes on the joint form (relative yaw determined, Laplace std at most this, rad;
-        :class:`decentral.estimator.EstimatorConfig`).
-    gossip_refresh : int
-        The gossip table rides on an ADMM message to a neighbour only when it changed (a new row, a
-        new step, or a pose moved by more than the ADMM tolerances) since it last went to that
-        neighbour, or every this many rounds (repairs a lost copy).
-    aggregation : {"tree", "broadcast"}
-        How the forms of a window travel once the agent knows its place in the aggregation tree:
-        up a spanning tree of the view graph to the reference agent and back down
-        (:mod:`protocols.aggregation`, default), or broadcast by every agent (the cold start's way,
-        used by both whenever an agent has no route to the reference yet).
-    """
-
-    name: str
-    assemblies: tuple[str, ...]
-    reference: str
-    cameras: tuple[Camera, ...] = ()
-    node_radius: float = 0.06
-    noise: NoiseModel = field(default_factory=NoiseModel)
-    window: int = 5
-    admm: AdmmConfig = field(default_factory=AdmmConfig)
-    announce_every: int = 5
-    stale_rounds: int = 2
-    patience: int = 6
-    share_forms: str = "every"
-    max_yaw_std: float = EstimatorConfig.max_yaw_std
-    share_timeout: int = 24
-    gossip_refresh: int = 10
-    aggregation: str = "tree"
-
-    def __post_init__(self) -> None:
-        if self.name not in self.assemblies or self.reference not in self.assemblies:
-            raise InputError("name and reference must be listed in assemblies", field="assemblies")
-        if any(cam.assembly != self.name for cam in self.cameras):
-            raise InputError("an agent only holds its own cameras", field="cameras")
-        if not (isinstance(self.window, int) and self.window >= 1):
-            raise InputError(f"window must be an integer >= 1, got {self.window!r}", field="window")
-        if not (isinstance(self.announce_every, int) and self.announce_every >= 1):
-            raise InputError("announce_every must be an integer >= 1", field="announce_every")
-        if self.share_forms not in ("first", "every", "never"):
-            raise InputError("share_forms must be 'first', 'every' or 'never'", field="share_forms")
-        if self.aggregation not in ("tree", "broadcast"):
-            raise InputError("aggregation must be 'tree' or 'broadcast'", field="aggregation")
-
-
-@dataclass(frozen=True)
-class OwnStep:
-    """What an assembly's own sensors give at one step (no other assembly's data, no truth).
-
-    Attributes
-    ----------
-    step : int
-        Log step index.
-    t : float
-        Time (s).
-    config : dict[int, ndarray]
-        Own node id -> centre (3,) in the root horizontal frame.
-    odometry : Odometry or None
-        Own root motion since the previous step.
-    detections : dict[str, tuple[Detection, ...]]
-        Own camera key -> identified detections.
-    mounts : dict[str, Pose]
-        Own camera key -> strut pose overriding the default at this step.
-    """
-
-    step: int
-    t: float
-    config: dict[int, np.ndarray]
-    odometry: Odometry | None = None
-    detections: dict[str, tuple[Detection, ...]] = field(default_factory=dict)
-    mounts: dict[str, Pose] = field(default_factory=dict)
 
 
 class AssemblyAgent:
@@ -229,9 +76,8 @@ class AssemblyAgent:
         self._step: int | None = None
         self._t = 0.0
         self._steps: list[int] = []
-        self._own_config: dict[int, np.ndarray] = {}
-        self._announced: tuple[int, dict] | None = None  # (step, config) last announced
-        self._configs = ConfigTable(config.name, config.assemblies)  # others' announced configurations
+        # own configuration's announcements, others' configurations, requests for unnamed nodes
+        self._configs = ConfigGossip(config.name, config.assemblies, config.announce_every)
         self._seen: dict[int, list[tuple[int, np.ndarray, float]]] = {}  # step -> [(node, t, w)]
         self._odometry: dict[int, tuple] = {}
         self._pairs: dict[str, PairState] = {}
@@ -242,51 +88,31 @@ class AssemblyAgent:
         self._dirty = True
         self._phase = 0
         self._round = 0
-        self._converged = False
-        self._last_ages: dict[str, int] = {}
         self.counters = {"ignored": 0, "timeouts": 0, "retransmits": 0, "uncertified": 0, "unknown_nodes": 0,
                          "tree_windows": 0, "broadcast_windows": 0, "late_seeds": 0, "joint_failures": 0}
-        self._iter = 0  # consensus iterations done
-        self._iter_before = 0
-        self._step_rounds = 0
-        self._fresh_pairs = True
-        self._unknown: set[int] = set()
-        self._requested = -(10**9)
-        self._pair_iter: dict[str, int] = {}
-        self._pair_out: dict[str, tuple] = {}
-        self._waiting: dict[tuple, int] = {}
-        self._last_dual: dict[str, dict] = {}
-        self._last_primal: dict | None = None
-        self._seeds: dict[tuple[str, int], tuple] = {}  # (assembly, step) -> Pose2 of a known joint solution
-        self._seeds_complete = False  # the seeds come from every agent's forms
-        self._placeable: frozenset = frozenset()  # (assembly, step) keys the joint test places
-        self._why: dict[str, str] = {}  # assembly -> why the joint test does not place it (this step)
-        self._boot: dict | None = None  # cold-start state while sharing the first step's pair forms
-        self._own_forms: tuple | None = None  # (step, keys, forms, pin) last shared (answers late askers)
+        # the ADMM rounds: iteration counters, the last values sent, waiting counts and the convergence flag
+        self._rounds = AdmmRounds(config.name, self._index[config.name], config.admm, patience=config.patience,
+                                  window=config.window, share_timeout=config.share_timeout, counters=self.counters)
+        self._start = WindowStart()  # the joint solution the current window started at, if any
         self._hold = 0  # the ADMM of this window starts at this round (after the forms are shared)
-        self._tree: dict[str, tuple[int, int, int, int]] = {}  # neighbour -> (hop, parent index, round heard, step)
         self._hop: int | None = 0 if config.name == config.reference else None
         self._parent: int | None = None
-        self._tree_depth = 1  # depth of the aggregation tree in the last down bundle
-        self._down: dict | None = None  # the final set of forms of the last window (answers lost down bundles)
-        self._reannounced = -(10**9)  # step of the last re-announcement to the observers
-        self._late: dict | None = None  # a window's sharing that timed out without every agent's forms
         self._pair_sig: dict[str, int] = {}  # target -> detections used by its pair, at the last rebuild
-        self._form_sig: dict[str, int] | None = None  # the same when this window's own forms were shared
         # the gossip table of every assembly's newest consensus pose (sent on the ADMM messages)
         self._gossip = PoseGossip(self._index[config.name], len(config.assemblies),
                                   min(config.admm.eps_rot, config.admm.eps_pos), config.gossip_refresh)
-        self._expected: set[str] = set()  # observers whose first values a seeded start waits for
         #: set by the runtime's local rule (:class:`agents.runtime.LocalAgent`) once this agent's window is done:
         #: its ADMM values then carry a ``done`` block, so that quiet neighbours do not answer them
         self.window_done = False
         self._busy_seen = -(10**9)  # last round with ADMM values of this window from a neighbour still at work
         self._watchers: set[str] = set()  # observers named by the last complete set of forms
         self._shared: dict[str, list[LocalProblem]] = {}  # target -> its pair's forms, one per step
-        self._forms = FormCache()  # every agent's forms seen here for the window (rebuilds deltas from below)
-        self._edges_sent: set = set()  # the view graph in the last solution sent down (the reference)
-        self._delta_sender = DeltaSender()  # per parent, the forms already sent up to it
-        self._alive: dict[int, int] = {}  # agent index -> last step at which it (or its records) was heard
+        # the sharing of every window's cost forms (tree or broadcast), its records and the neighbours' tree places
+        limit = config.max_yaw_std if config.noise.weighting == "information" else np.inf
+        self._sharing = WindowAggregation(config.name, config.assemblies, config.reference,
+                                          aggregation=config.aggregation, window=config.window,
+                                          share_timeout=config.share_timeout, placement_limit=limit,
+                                          counters=self.counters, send=self._outbox.append)
 
     # ------------------------------------------------------------------ sensing
     @property
@@ -296,6 +122,7 @@ class AssemblyAgent:
     def advance(self, round_index: int) -> None:
         """The runtime's clock: the round under way, also while the agent runs no half rounds (quiet)."""
         self._round = max(self._round, int(round_index))
+        self._sharing.round = self._round
 
     def on_step(self, own: OwnStep, round_index: int | None = None) -> None:
         """Take the assembly's own observations of a new step (at round ``round_index``) and slide the window."""
@@ -303,51 +130,28 @@ class AssemblyAgent:
             self.advance(round_index)
         cfg = self.config
         first = self._step is None and own.step == 0
-        self._seeds = {}
-        self._seeds_complete = False
-        self._placeable = frozenset()
-        self._why = {}
-        self._expected = set()
-        self._form_sig = None
+        self._start = WindowStart()
         if cfg.share_forms == "every" or (cfg.share_forms == "first" and first):
-            self._parent, self._hop = self._tree_position()
-            me = self._index[self.name]
-            agg = TreeAggregation(me, len(cfg.assemblies), root=self.name == cfg.reference, parent=self._parent,
-                                  children={self._index[a] for a, entry in self._tree.items()
-                                            if entry[1] == me and self._fresh(entry)},
-                                  start=self._round + 1, wait=cfg.patience, hop=self._hop or 0,
-                                  expected=self._alive_members(own.step))
-            self._boot = {"records": agg.records, "agg": agg, "mode": None, "start": None, "sent": -(10**9),
-                          "waited": 0, "step": own.step, "pin": None, "start_at": 0}
-            self._own_forms = None
+            self._parent, self._hop = self._sharing.tree.position(self._round, self._step)
+            self._sharing.open(own.step, self._parent, self._hop, cfg.patience)
         self._step, self._t = own.step, own.t
-        self._own_config = {int(k): np.asarray(v, float) for k, v in own.config.items()}
+        self._sharing.step = own.step
+        self._outbox += self._configs.set_own(own.config, own.step, self._round, self.observers)
         if own.odometry is not None:
             w_p, w_R = cfg.noise.odometry_weights()
             self._odometry[own.step] = (np.asarray(own.odometry.dp, float), float(own.odometry.dtheta), w_p, w_R)
-        self._seen[own.step] = self._measure(own)
-        changed = self._announced is None or not _same_config(self._announced[1], self._own_config)
-        if changed:  # a broadcast only when the configuration changes (rare: reconfiguration)
-            self._outbox.append(self._announcement(BROADCAST))
-            self._announced = (own.step, dict(self._own_config))
-            self._reannounced = own.step
-        elif own.step - self._reannounced >= cfg.announce_every:
-            # repairs a lost announcement: to the current observers only (others ask with a request)
-            for observer in self.observers:
-                self._outbox.append(self._announcement(observer))
-            self._reannounced = own.step
+        self._seen[own.step] = own_detections(cfg.cameras, own.detections, own.mounts, self._configs.own,
+                                              cfg.node_radius, cfg.noise)
         first = max(0, own.step - cfg.window + 1)
         self._steps = list(range(first, own.step + 1))
         # forms of steps that left the window are no longer part of any record
-        self._forms.slide(first)
-        self._delta_sender.slide(first)
+        self._sharing.slide(first)
         for store in (self._seen, self._odometry):
             for k in [k for k in store if k < first]:
                 del store[k]
         self._consensus.slide(self._steps, self._odometry)
         self._dirty = True
-        self._converged = False
-        self._step_rounds = 0
+        self._rounds.new_window()
 
     def seed(self, poses: dict) -> None:
         """Start the current window from a known joint solution ``(assembly, step) -> (R (2, 2), p (3,))``.
@@ -355,68 +159,34 @@ class AssemblyAgent:
         Own consensus poses take their values; pairs built afterwards start at the solution with the
         duals that make it an ADMM fixed point (:meth:`decentral.admm.PairState.seed`).
         """
-        self._seeds = dict(poses)
+        self._start.seeds = dict(poses)
         self._consensus.seed({k: v for (a, k), v in poses.items() if a == self.name})
         for pair in self._pairs.values():
-            pair.seed(self._seeds)
+            pair.seed(self._start.seeds)
         self._dirty = True
-
-    def _announcement(self, receiver: str) -> ConfigAnnounce:
-        ids = np.array(sorted(self._own_config), dtype=np.int64)
-        centres = np.array([self._own_config[i] for i in ids]).reshape(-1, 3)
-        step = self._announced[0] if self._announced is not None and receiver != BROADCAST else self._step
-        return ConfigAnnounce(sender=self.name, receiver=receiver, round=self._round, step=step, ids=ids,
-                              centres=centres)
-
-    def _relay(self, request: ConfigRequest) -> None:
-        """Answer a request for other assemblies' nodes with their configurations held here."""
-        self._outbox += self._configs.relays(request, self.name, self._round)
-
-    def _measure(self, own: OwnStep) -> list[tuple[int, np.ndarray, float]]:
-        """Own detections as (node, centre in own root frame (3,), weight), seed 000 eq. (1), (4)."""
-        out = []
-        for cam in self.config.cameras:
-            dets = [d for d in own.detections.get(cam.key, ()) if d.node not in self._own_config]
-            if not dets:
-                continue
-            u, v, r = (np.array([getattr(d, a) for d in dets]) for a in ("u", "v", "r"))
-            p_cam = backproject(cam.K, u, v, r, self.config.node_radius)  # seed 000 eq. (1)
-            pose = cam.in_root(own.mounts.get(cam.key))
-            t = pose.apply(p_cam)  # eq. (4): t_i in the own root frame
-            f = 0.5 * (cam.K[0, 0] + cam.K[1, 1])
-            w = detection_weights(p_cam[:, 2], r, f, self.config.noise)
-            out += [(d.node, t[i], float(w[i])) for i, d in enumerate(dets)]
-        return out
 
     # ------------------------------------------------------------------ messages
     def handle(self, message: Message) -> None:
         """Route one received message by its type (anything else is counted and ignored)."""
         sender = self._index.get(message.sender)
+        sharing = self._sharing
         if sender is not None and self._step is not None:
-            self._alive[sender] = self._step
+            sharing.heard(sender, self._step)
         if isinstance(message, ConfigAnnounce):
             if self._configs.learn(message):
                 self._dirty = True
         elif isinstance(message, FactorShare):
-            self._on_factors(message)
-        elif isinstance(message, FormBundle):
-            self._on_bundle(message)
-        elif isinstance(message, JointPoses):
-            self._on_solution(message)
-        elif isinstance(message, DeltaBundle):
-            self._on_delta(message)
+            sharing.on_factors(message)
+        elif isinstance(message, (FormBundle, JointPoses, DeltaBundle)):
+            finished = (sharing.on_bundle(message) if isinstance(message, FormBundle)
+                        else sharing.on_solution(message) if isinstance(message, JointPoses)
+                        else sharing.on_delta(message))
+            if finished:
+                self._finish_bootstrap()
         elif isinstance(message, FormAck):
-            boot, down = self._boot, self._down
-            if boot is not None and boot["step"] == message.step and self._index.get(message.sender) == boot["agg"].parent:
-                boot["agg"].acknowledge(message.have.tolist(), self._round)
-            elif down is not None and down["step"] == message.step:
-                down["repair"].have(self._index.get(message.sender))  # a child has the down bundle
+            sharing.on_ack(message)
         elif isinstance(message, ConfigRequest):
-            # every agent answers with its own configuration, owner or not: a requester that holds every
-            # assembly's configuration knows that the ids none of them lists are stray tags
-            if self._step is not None and message.sender != self.name:
-                self._outbox.append(self._announcement(message.sender))
-            self._relay(message)
+            self._outbox += self._configs.answer(message, self._step, self._round)
         elif isinstance(message, (AdmmPrimal, AdmmDual)):
             if "done" not in message.blocks and message.window == self._step:
                 self._busy_seen = self._round  # it runs the ADMM (late names, partial forms): take part
@@ -424,8 +194,8 @@ class AssemblyAgent:
             b = message.blocks
             tree = b.get("tree")
             if tree is not None and tree.shape == (2,):
-                self._tree[message.sender] = (int(tree[0]), int(tree[1]), self._round, self._step)
-            self._ask(message.sender, int(message.window))
+                sharing.tree.heard(message.sender, int(tree[0]), int(tree[1]), self._round, self._step)
+            sharing.ask(message.sender, int(message.window))
             if not self._inbox.receive(message):
                 self.counters["ignored"] += 1
         else:
@@ -433,56 +203,38 @@ class AssemblyAgent:
 
     def outbox(self) -> list[Message]:
         """Messages queued since the last call (and forget them)."""
-        out, self._outbox = self._outbox, []
+        out = list(self._outbox)
+        self._outbox.clear()
         return out
 
     # ------------------------------------------------------------------ ADMM
-    def _owner_of(self, node: int, step: int) -> tuple[str, np.ndarray] | None:
-        return self._configs.owner_of(node, step)
-
     def _rebuild(self) -> None:
         """Directed pair subproblems ``self -> target`` over the window from own detections."""
         rows: dict[str, list] = {}
         unknown = set()
         for k in self._steps:
             for node, t, w in self._seen.get(k, []):
-                hit = self._owner_of(node, k)
+                hit = self._configs.owner_of(node, k)
                 if hit is None:
                     unknown.add(int(node))
                     continue
                 rows.setdefault(hit[0], []).append((k, hit[1], t, w))
         self.counters["unknown_nodes"] = len(unknown)
-        self._unknown = unknown
+        self._configs.unknown = unknown
         self._pair_steps = {k for r in rows.values() for k, *_ in r}
         self._pair_sig = {target: len(facts) for target, facts in rows.items()}
         for target in [t for t in self._pairs if t not in rows]:
-            for store in (self._pairs, self._pair_out, self._last_dual, self._pair_iter, self._shared):
+            for store in (self._pairs, self._shared):
                 store.pop(target, None)
+            self._rounds.forget(target)
         for target, facts in rows.items():
-            keys, io, ia, q, t, w = [], [], [], [], [], []
-            slot = {}
-            for k, qk, tk, wk in facts:
-                if k not in slot:
-                    slot[k] = len(keys)
-                    keys += [(self.name, k), (target, k)]
-                io.append(slot[k])
-                ia.append(slot[k] + 1)
-                q.append(qk), t.append(tk), w.append(wk)
-            problem = quadratic_form(keys, visual=(np.array(io), np.array(ia), np.array(q), np.array(t), np.array(w)))
-            # the same factors step by step, for sharing: each window adds its newest step's form, and a step's
-            # form is built from that step's detections alone, so it is bit-identical from window to window
-            per_step = {}
-            for k, qk, tk, wk in facts:
-                per_step.setdefault(k, []).append((qk, tk, wk))
-            self._shared[target] = [
-                quadratic_form([(self.name, k), (target, k)], visual=(
-                    np.zeros(len(f), int), np.ones(len(f), int), np.array([x[0] for x in f]),
-                    np.array([x[1] for x in f]), np.array([x[2] for x in f])))
-                for k, f in sorted(per_step.items())]
+            # the window's form for the ADMM, and the same factors step by step for sharing (a window adds its
+            # newest step's form, bit-identical from window to window)
+            problem, self._shared[target] = pair_forms(self.name, target, facts)
             pair = self._pairs.get(target) or PairState(self.name, target, self.config.admm)
             pair.set_problem(problem)
-            if pair.iterations == 0 and not pair.y and self._seeds:
-                pair.seed(self._seeds)
+            if pair.iterations == 0 and not pair.y and self._start.seeds:
+                pair.seed(self._start.seeds)
             self._pairs[target] = pair
         self._dirty = False
 
@@ -496,13 +248,13 @@ class AssemblyAgent:
             self._phase = phase
         if self._step is None:
             return
-        self._round = round_index
-        self._parent, self._hop = self._tree_position()
-        if self._phase == 0 and self._boot is None:
-            self._repair_down()
-            self._ask_down()
-        if self._boot is not None or round_index < self._hold:
-            if self._phase == 0 and self._boot is not None:
+        self._round = self._sharing.round = round_index
+        self._parent, self._hop = self._sharing.tree.position(self._round, self._step)
+        if self._phase == 0 and self._sharing.share is None:
+            self._sharing.repair_down(lambda name: self._inbox.heard_in(name, self._step))
+            self._sharing.ask_down()
+        if self._sharing.share is not None or round_index < self._hold:
+            if self._phase == 0 and self._sharing.share is not None:
                 self._bootstrap_phase()  # when it finishes, the ADMM starts at round `_hold` (at least the next)
             self._phase = 1 - self._phase
             return
@@ -511,7 +263,7 @@ class AssemblyAgent:
         if self._exact() and self._round - self._busy_seen > 2:
             # every live agent's forms and this agent's pairs as they described them: the joint solution is the
             # ADMM's fixed point, and every agent holding the set has it too; no round would change it
-            self._converged = True
+            self._rounds.converged = True
         elif self._phase == 0:
             self._pair_phase()
         else:
@@ -521,425 +273,39 @@ class AssemblyAgent:
     def _exact(self) -> bool:
         """The window started at the joint solution of every live agent's forms, its own pairs among them
         as they are now, and no node is left to name: the estimate is final without ADMM rounds."""
-        return self._seeds_complete and self._form_sig == self._pair_sig and not self._unresolved()
-
-    def _age(self, inbound: Inbound | None) -> int:
-        return self._inbox.age(inbound, self._round)
+        return self._start.complete and self._start.form_sig == self._pair_sig and not self._unresolved()
 
     # ------------------------------------------------------------------ cold start
     def _request_unknown(self) -> None:
-        if self._unresolved() and self._round - self._requested >= 3:
-            self._outbox.append(ConfigRequest(sender=self.name, receiver=BROADCAST, round=self._round,
-                                              ids=np.array(sorted(self._unknown), dtype=np.int64)))
-            self._requested = self._round
-
-    def _fresh(self, entry: tuple[int, int, int, int]) -> bool:
-        """Whether a neighbour's tree entry is recent: heard within :meth:`_tree_fresh` rounds, or in this
-        window or the one before (rounds between windows depend on the pace of the sensor steps, which
-        a process does not choose)."""
-        return self._round - entry[2] <= self._tree_fresh() or entry[3] is not None and entry[3] >= (self._step or 0) - 1
-
-    def _alive_members(self, step: int) -> set[int] | None:
-        """Agents heard from (directly or through their records) in this window or the one before: a set of
-        forms is complete once it holds theirs. ``None`` (every agent) without such a history (the first
-        two steps): an agent down for two windows, or one that never started, is then no longer waited
-        for, and the others' windows complete without it."""
-        if not self._alive or step < 2:
-            return None
-        return {i for i, seen in self._alive.items() if seen >= step - 1}
-
-    def _tree_fresh(self) -> int:
-        """Rounds for which a neighbour's place in the tree is trusted (a window's sharing and ADMM fit in)."""
-        return 2 * self.config.share_timeout
-
-    def _tree_position(self) -> tuple[int | None, int | None]:
-        """(parent index, hop count to the reference) from the neighbours' recent hops (distance vector)."""
-        if self.name == self.config.reference:
-            return None, 0
-        hops = {self._index[a]: entry[0] for a, entry in self._tree.items() if self._fresh(entry)}
-        return choose_parent(hops, len(self.config.assemblies))
+        self._outbox += self._configs.request(self._round, self._sharing.alive_members(self._step or 0))
 
     def _bootstrap_phase(self) -> None:
         """Share the window's cost forms (up and down the tree, or by broadcast); then solve and seed."""
-        boot, cfg = self._boot, self.config
-        agg = boot["agg"]
-        if boot["start"] is None:
-            boot["start"] = self._round
+        sharing, cfg = self._sharing, self.config
         if self._dirty:
             self._rebuild()
         self._request_unknown()
-        me = self._index[self.name]
-        if self._own_forms is None and (not self._unresolved() or boot["waited"] >= cfg.patience):
+        if sharing.own is None and (not self._unresolved() or sharing.share.waited >= cfg.patience):
             # one form per pair and step, and per odometry link: a window adds only its newest step's forms
             problems = [part for _, parts in sorted(self._shared.items()) for part in parts] \
                 + self._consensus.odometry_links()
-            forms = [tuple((self._index[a], k) for a, k in prob.keys) + (prob,) for prob in problems]
-            keys, flat = pack_forms([(f[:-1], f[-1].M, f[-1].b_z, f[-1].c_z) for f in forms])
+            forms = [(tuple((self._index[a], k) for a, k in prob.keys), prob.M, prob.b_z, prob.c_z)
+                     for prob in problems]
             pin = np.zeros(0)
             cons = self._consensus
             if cons.pinned and cons.pin is not None:
                 pin = np.array([cons.pin[0], *cons.pin[2], cons.pin[1]])
-            self._own_forms = (boot["step"], keys, flat, pin)
-            self._form_sig = dict(self._pair_sig)
-            # the tree when this agent has a route to the reference (or, at the reference, children);
-            # otherwise (the cold start, a restarted agent, a side of a partition) the broadcast
-            tree = cfg.aggregation == "tree" and (agg.parent is not None or agg.root and bool(agg.children))
-            boot["mode"] = "tree" if tree else "broadcast"
-            self.counters["tree_windows" if tree else "broadcast_windows"] += 1
-            # own forms go through the same packing as everyone else's, so all agents sum identical numbers
-            self._on_factors(self._factor_share(self.name))
-        boot["waited"] += 1
-        elapsed = self._round - boot["start"]
-        if boot["mode"] == "tree":
-            self._tree_progress()
-            # the root finishes (partial) at the timeout; below it, agents wait longer: an agent that starts the ADMM
-            # without the set pulls its seeded neighbours off the fixed point (200+ rounds per window at 50 % loss)
-            limit = cfg.share_timeout * (1 if agg.root else 2) + (agg.hop or 0)
-        else:
-            if self._own_forms is not None and self._round - boot["sent"] >= 3:
-                self._outbox.append(self._factor_share(BROADCAST))
-                boot["sent"] = self._round
-            limit = cfg.share_timeout
-        if boot["mode"] == "broadcast" and agg.complete or agg.final or elapsed >= limit:
-            if not agg.final:
-                if boot["mode"] == "tree" and not agg.root and self._parent is not None:
-                    self._tree.pop(self.config.assemblies[self._parent], None)  # a silent parent: choose again
-                self._send_down()  # children that reported get what this agent ends with
+            self._start.form_sig = dict(self._pair_sig)
+            sharing.share_own(forms, pin)
+        if sharing.progress(self._parent):
             self._finish_bootstrap()
-
-    def _tree_progress(self) -> None:
-        """Send what the tree protocol owes now: the bundle up (or a resend), or at the root the bundle down."""
-        boot = self._boot
-        agg = boot["agg"]
-        if boot["mode"] != "tree" or agg.final:
-            return
-        if agg.root:
-            if agg.complete:
-                self._send_down()
-            return
-        if agg.up_due(self._round):
-            self._send_up(agg.take_up(self._round))
-        elif agg.resend_due(self._round, 3, max(self._tree_depth, agg.hop) + 3):
-            # (a parent that stays silent is dropped at the window's timeout; switching to the broadcast after
-            # a few unanswered resends instead cost 180-300 rounds per window at 50 % loss: it fired on loss alone)
-            self.counters["retransmits"] += 1
-            self._send_up(agg.take_resend(self._round), whole=True)
-
-    def _bundle(self, receiver: str, indices, down: bool, start: int = 0, boot: dict | None = None) -> FormBundle:
-        boot = boot or self._boot
-        agg = boot["agg"]
-        records = {i: [(keys, prob.M, prob.b_z, prob.c_z) for keys, prob in agg.records[i]] for i in indices}
-        members, owners, keys, flat = pack_bundle(records)
-        ref = self._index[self.config.reference]
-        pin = boot["pin"] if boot["pin"] is not None and ref in records else np.zeros(0)
-        return FormBundle(sender=self.name, receiver=receiver, round=self._round, step=boot["step"], down=down,
-                          hop=agg.hop, parent=-1 if agg.parent is None else agg.parent, depth=agg.depth,
-                          start=start, members=members, owners=owners, keys=keys, forms=flat, pin=pin)
-
-    def _send_up(self, indices: list[int], whole: bool = False) -> None:
-        """Records ``indices`` to the parent: as a delta (what it lacks), or ``whole`` (a resend: it could not
-        rebuild them, or the bundle was lost)."""
-        agg = self._boot["agg"]
-        delta = None if whole else self._delta(agg.parent, indices)
-        self._outbox.append(delta or self._bundle(self.config.assemblies[agg.parent], indices, down=False))
-
-    def _send_down(self, exclude=(), start: int | None = None) -> None:
-        """The final set of this window to the children (the root: when complete or on timeout)."""
-        boot = self._boot
-        agg = boot["agg"]
-        agg.final = True
-        if start is None:  # the root: when the deepest agent will have it, everyone starts the ADMM at once
-            start = self._round + agg.depth // 2 + 2 if boot["mode"] == "tree" and agg.root else 0
-        boot["start_at"] = start
-        self._down = None
-        if self.config.aggregation != "tree":
-            return
-        targets = agg.down_targets(exclude)
-        # kept by every agent, so that any neighbour still waiting can be answered (packed when first asked)
-        self._down = {"step": boot["step"], "boot": boot, "bundle": None, "start": start,
-                      "repair": DownRepair(targets, start, self._round)}  # children that may lack it
-        for child in targets:
-            self._outbox.append(self._down_bundle(self.config.assemblies[child]))
-
-    def _down_bundle(self, receiver: str) -> FormBundle | JointPoses:
-        """What goes down to ``receiver``: the reference's joint solution when the set was complete there
-        (:class:`protocols.delta_messages.JointPoses`, a few bytes per assembly), else the forms."""
-        down = self._down
-        boot = down["boot"]
-        solution = boot.get("solution")
-        if solution is None and self.name == self.config.reference and boot["agg"].complete:
-            joint = self._joint(boot)
-            if joint is not None:
-                solution = boot["solution_out"] = boot.get("solution_out") or self._solution_message(boot, joint)
-        if solution is not None:
-            agg = boot["agg"]
-            return JointPoses(sender=self.name, receiver=receiver, round=self._round, step=solution.step,
-                              hop=agg.hop, parent=-1 if agg.parent is None else agg.parent, depth=solution.depth,
-                              start=down["start"], n=solution.n, members=solution.members, index=solution.index,
-                              poses=solution.poses, placeable=solution.placeable, edges=solution.edges)
-        if down["bundle"] is None:
-            down["bundle"] = self._bundle(BROADCAST, sorted(down["boot"]["records"]), down=True, start=down["start"],
-                                          boot=down["boot"])
-        return self._readdressed(down["bundle"], receiver)
-
-    def _solution_message(self, boot: dict, joint) -> JointPoses:
-        """The reference's joint solution of the window as it goes down: newest step, float32, bit masks."""
-        n, step = len(self.config.assemblies), boot["step"]
-        edges = self._edges(boot)  # sent when the view graph changed (an empty mask: as in the last solution)
-        message_edges, self._edges_sent = self._edges_sent, edges
-        rows = sorted((self._index[a], p, _yaw2(R)) for (a, k), (R, p) in joint.poses.items()
-                      if k == step and a in self._index)
-        placeable = {self._index[a] for a, k in self._placeable_of(boot, joint) if k == step}
-        return JointPoses(sender=self.name, receiver=BROADCAST, round=self._round, step=step, hop=0, parent=-1,
-                          depth=boot["agg"].depth, start=0, n=n, members=JointPoses.mask(boot["records"], n),
-                          index=JointPoses.mask([r[0] for r in rows], n),
-                          poses=np.array([[*r[1], r[2]] for r in rows], float).reshape(-1, 4),
-                          placeable=JointPoses.mask(placeable, n),
-                          edges=JointPoses.mask([a * n + b for a, b in edges], n * n) if edges != message_edges
-                          else np.zeros(0, np.uint8))
-
-    def _ask(self, neighbour: str, step: int) -> None:
-        """A neighbour sends ADMM values of this window, so it has finished the sharing: ask it for the set
-        (at most every other round) by sending it this agent's records, which it answers with the down bundle."""
-        wait = self._boot if self._boot is not None else self._late
-        if (wait is None or wait["step"] != step or wait["mode"] != "tree" or wait["agg"].parent is None
-                or self._round - wait.get("asked_at", -(10**9)) < 2):
-            return
-        wait["asked_at"] = self._round
-        self.counters["retransmits"] += 1
-        self._outbox.append(self._bundle(neighbour, sorted(wait["agg"].records), down=False, boot=wait))
-
-    def _ask_down(self) -> None:
-        """After a timeout without every agent's forms, keep asking the parent for the down bundle (every
-        3 rounds, at most 10 times this window): a late complete set re-seeds the window exactly."""
-        late = self._late
-        if (late is None or late["step"] != self._step or late["asked"] >= 10 or self._round - late["last"] < 3
-                or late["agg"].parent is None):
-            return
-        agg = late["agg"]
-        late["asked"] += 1
-        late["last"] = self._round
-        self.counters["retransmits"] += 1
-        self._outbox.append(self._bundle(self.config.assemblies[agg.parent], sorted(agg.records), down=False,
-                                         boot=late))
-
-    def _repair_down(self) -> None:
-        """Send the down bundle again to children not heard from in this window's ADMM (it was lost).
-
-        A child that has the down bundle starts the ADMM at its ``start`` round with everyone else, and its
-        first values reach this agent (a view-graph neighbour) a round later; a child still silent
-        2 rounds after that gets the bundle again, every 3 rounds, at most 4 times (it may no longer be a
-        neighbour; it also asks by itself)."""
-        down = self._down
-        if down is not None and (down["boot"].get("solution") or down["boot"].get("solution_out")):
-            return  # an exact window sends no ADMM values to tell it by: the children ask themselves
-        if down is None or down["step"] != self._step or not down["repair"]:
-            return
-        names = self.config.assemblies
-        for child in down["repair"].due(self._round, lambda c: self._inbox.heard_in(names[c], self._step)):
-            self.counters["retransmits"] += 1
-            self._outbox.append(self._down_bundle(names[child]))
-
-    def _readdressed(self, bundle: FormBundle, receiver: str) -> FormBundle:
-        return FormBundle(sender=self.name, receiver=receiver, round=self._round, step=bundle.step, down=True,
-                          hop=bundle.hop, parent=bundle.parent, depth=bundle.depth, start=bundle.start,
-                          members=bundle.members, owners=bundle.owners, keys=bundle.keys, forms=bundle.forms,
-                          pin=bundle.pin)
-
-    def _on_bundle(self, message: FormBundle | DeltaBundle, rebuilt: dict | None = None) -> None:
-        """A bundle from a child (records up) or from the parent (the final set, down); ``rebuilt``: the
-        records a delta bundle describes, rebuilt from this agent's cache (:meth:`_on_delta`)."""
-        n = len(self.config.assemblies)
-        down = bool(getattr(message, "down", False))
-        sender = self._index.get(message.sender)
-        if rebuilt is None and (sender is None or (len(message.keys) and message.keys[:, 1].max() >= n)
-                                or (len(message.members) and message.members.max() >= n)):
-            self.counters["ignored"] += 1
-            return  # (a delta's indices were checked by _on_delta)
-        self._tree[message.sender] = (message.hop, message.parent, self._round, self._step)
-        for member in message.members.tolist():
-            self._alive[int(member)] = self._step if self._step is not None else 0
-        boot, late = self._boot, self._late
-        names = self.config.assemblies
-        if rebuilt is None:
-            records = {i: [(keys, LocalProblem(tuple((names[a], s) for a, s in keys), M, b_z, c_z))
-                           for keys, M, b_z, c_z in forms] for i, forms in message.records().items()}
-            for i, forms in records.items():
-                self._remember(i, forms)
-        else:
-            records = rebuilt
-        if boot is None and late is not None and late["step"] == message.step == self._step:
-            # this window finished here without every agent's forms: what arrives late may complete it
-            agg = late["agg"]
-            if len(message.pin):
-                late["pin"] = np.array(message.pin)
-            new = agg.add(records, child=None if down else sender)
-            if not down and new and agg.parent is not None:  # the root missed them too: pass them on
-                self._outbox.append(self._bundle(names[agg.parent], sorted(new), down=False, boot=late))
-            if agg.complete:  # start again from the joint solution, and tell the children
-                self._late, self._boot = None, late
-                agg.final = False
-                self._send_down(exclude=(sender,) if down else (), start=0)
-                self.counters["late_seeds"] += 1
-                self._finish_bootstrap()
-            elif not down and self._down is not None and self._down["step"] == message.step:
-                self._outbox.append(self._down_bundle(message.sender))
-            return
-        if boot is None or message.step != boot["step"]:
-            # finished with this window: a bundle from below means the down bundle was lost: send it again
-            if not down and self._down is not None and self._down["step"] == message.step:
-                self._outbox.append(self._down_bundle(message.sender))
-            return
-        agg = boot["agg"]
-        if len(message.pin):
-            boot["pin"] = np.array(message.pin)
-        if down:
-            if agg.final:
-                return
-            agg.add(records, depth=message.depth)
-            self._tree_depth = max(1, message.depth)
-            lost = agg.missing_from(message.members.tolist())
-            if lost and agg.parent is not None:  # the root timed out without records from here: send them again
-                self._outbox.append(self._bundle(names[agg.parent], lost, down=False))
-            self._send_down(exclude=(sender,), start=message.start)  # forwarded at once: one hop per phase
-            # acknowledged: in an exact window no ADMM values come back to tell the parent it arrived
-            self._outbox.append(FormAck(sender=self.name, receiver=message.sender, round=self._round,
-                                        step=boot["step"], have=np.array(sorted(agg.records), dtype=np.int64)))
-        else:
-            agg.add(records, child=sender, depth=message.depth)
-            if agg.final:  # already finished the window's sharing: the child missed the down bundle
-                if self._down is not None:
-                    self._outbox.append(self._down_bundle(message.sender))
-                return
-            self._outbox.append(FormAck(sender=self.name, receiver=message.sender, round=self._round,
-                                        step=boot["step"], have=np.array(sorted(agg.records), dtype=np.int64)))
-            self._tree_progress()
-
-    def _remember(self, owner: int, forms) -> None:
-        """Keep ``owner``'s forms ``[(keys, LocalProblem)]`` of the window (a parent rebuilds delta records from them)."""
-        self._forms.remember(owner, forms)
-
-    def _on_delta(self, message: DeltaBundle) -> None:
-        """A delta bundle from a child: rebuild each member's record of the window from the forms carried and
-        those held here (:class:`protocols.form_cache.FormCache`); a member that cannot be rebuilt exactly is
-        left out (not acknowledged: the child sends it whole)."""
-        n, names = len(self.config.assemblies), self.config.assemblies
-        if (self._index.get(message.sender) is None or (len(message.pairs) and message.pairs.max() >= n)
-                or (len(message.members) and message.members.max() >= n)):
-            self.counters["ignored"] += 1
-            return
-        for owner, keys, M, b_z, c_z in message.carried():
-            self._remember(owner, [(keys, LocalProblem(tuple((names[a], k) for a, k in keys), M, b_z, c_z))])
-        first = message.step - self.config.window + 1
-        rebuilt = {}
-        for member, digest in zip(message.members.tolist(), message.digest.tolist()):
-            record = self._forms.rebuild(member, tuple(digest), first, message.step)
-            if record is not None:
-                rebuilt[member] = record
-        self._on_bundle(message, rebuilt)
-
-    def _delta(self, parent: int, indices: list[int]) -> DeltaBundle | None:
-        """Records ``indices`` for ``parent`` as a delta (:class:`protocols.form_cache.DeltaSender`): the forms
-        not yet sent to it, and each record's digest (``None``: the records go whole)."""
-        boot, agg = self._boot, self._boot["agg"]
-        packed = self._delta_sender.delta(parent, {i: agg.records[i] for i in indices}, boot["step"])
-        if packed is None:
-            return None
-        carried, digests = packed
-        ref = self._index[self.config.reference]
-        pin = boot["pin"] if boot["pin"] is not None and ref in indices else np.zeros(0)
-        return DeltaBundle(sender=self.name, receiver=self.config.assemblies[parent], round=self._round,
-                           step=boot["step"], hop=agg.hop, parent=parent, depth=agg.depth,
-                           members=np.array(sorted(indices), dtype=np.int16), pin=pin,
-                           digest=np.array(digests, dtype=np.int64).reshape(-1, 2), **DeltaBundle.pack(boot["step"], carried))
-
-    def _factor_share(self, receiver: str) -> FactorShare:
-        step, keys, flat, pin = self._own_forms
-        have = [self._index[self.name]]
-        if self._boot is not None and self._boot["step"] == step:
-            have = sorted(self._boot["records"])
-        return FactorShare(sender=self.name, receiver=receiver, round=self._round, step=step,
-                           have=np.array(have, dtype=np.int64), keys=keys, forms=flat, pin=pin)
-
-    def _on_factors(self, message: FactorShare) -> None:
-        sender = self._index.get(message.sender)
-        n = len(self.config.assemblies)
-        if sender is None or (len(message.keys) and message.keys[:, 1].max() >= n):
-            self.counters["ignored"] += 1
-            return
-        boot = self._boot
-        if boot is not None and message.step == boot["step"]:
-            names, agg = self.config.assemblies, boot["agg"]
-            if sender not in boot["records"]:
-                forms = [(keys, LocalProblem(tuple((names[a], s) for a, s in keys), M, b_z, c_z))
-                         for keys, M, b_z, c_z in message.unpack()]
-                self._remember(sender, forms)
-                agg.add({sender: forms}, forward=message.sender == self.name)
-                if len(message.pin):
-                    boot["pin"] = np.array(message.pin)
-            if (boot["mode"] == "tree" and message.receiver == BROADCAST and agg.parent == sender
-                    and not agg.final):
-                boot["mode"], boot["sent"] = "broadcast", -(10**9)  # the parent has no route: nor has this agent
-        mine = self._own_forms
-        # it lacks ours: answer directly (only broadcasts are answered, so answers never ping-pong)
-        if (mine is not None and mine[0] == message.step and message.receiver == BROADCAST
-                and message.sender != self.name and self._index[self.name] not in set(message.have.tolist())):
-            self._outbox.append(self._factor_share(message.sender))
-
-    def _joint(self, boot: dict):
-        """The joint solution of a window's shared forms (:func:`decentral.admm.solve_joint`, computed once per
-        window), or ``None`` (no forms, or the gauge's value at this window unknown here)."""
-        if "joint" not in boot:
-            boot["joint"] = None
-            problems = [prob for idx in sorted(boot["records"]) for _, prob in boot["records"][idx]]
-            first = self._steps[0]
-            pin = boot["pin"]
-            if problems and (pin is not None and int(pin[0]) == first or first == 0):
-                value = (rot2(float(pin[4])), np.array(pin[1:4])) if pin is not None and int(pin[0]) == first else None
-                try:
-                    boot["joint"] = solve_joint(problems, (self.config.reference, first), value)
-                except np.linalg.LinAlgError:
-                    # a set whose variables are tied by keys but not by factors (a step with neither odometry
-                    # nor detections, forms missing): no joint solution; the ADMM goes on from its own state
-                    self.counters["joint_failures"] += 1
-        return boot["joint"]
-
-    def _edges(self, boot: dict) -> set[tuple[int, int]]:
-        """The view graph's observing pairs ``(observer, target)`` the window's forms name (each pair form names
-        its observer first and its target last)."""
-        return {(keys[0][0], keys[-1][0]) for idx in boot["records"] for keys, _ in boot["records"][idx]
-                if keys[0][0] != keys[-1][0]}
-
-    def _placeable_of(self, boot: dict, joint) -> frozenset:
-        if "placeable" not in boot:
-            limit = self.config.max_yaw_std if self.config.noise.weighting == "information" else np.inf
-            boot["placeable"], boot["yaw_std"] = joint.placement((self.name, self._step), limit)
-        return boot["placeable"]
-
-    def _unplaced_reasons(self, boot: dict, joint) -> dict[str, str]:
-        """Why the joint placement test leaves an assembly out at this step (assembly -> reason code of
-        :func:`decentral.placement.unplaced_reasons`); call after :meth:`_placeable_of`."""
-        problems = [prob for idx in sorted(boot["records"]) for _, prob in boot["records"][idx]]
-        return unplaced_reasons(
-            self.config.assemblies, self.name, {name for name, _ in self._placeable_of(boot, joint)},
-            with_data={name for prob in problems if len({k[0] for k in prob.keys}) > 1 for name, _ in prob.keys},
-            connected={name for name, step in joint.index if step == self._step}, solved=True,
-            yaw_std=boot["yaw_std"])
 
     def _learn_graph(self, edges: set[tuple[int, int]]) -> None:
         """A complete window reveals the whole view graph: the neighbours' places in the tree (ready for the
         next window without waiting for the distance vector to cross the graph) and this agent's observers."""
         me = self._index[self.name]
-        hops, parents = tree_from_edges(edges, len(self.config.assemblies), self._index[self.config.reference])
-        # assemblies no longer adjacent leave the table (with no ADMM values to refresh it, a stale entry would
-        # make a former neighbour wait for a child that never reports)
-        self._tree = {}
+        self._sharing.tree.learn(edges, self._round, self._step)
         self._watchers = {self.config.assemblies[a] for a, b in edges if b == me and a != me}
-        for a, b in edges:
-            other = b if a == me else a if b == me else None
-            if other is not None and other != me and other in hops:
-                self._tree[self.config.assemblies[other]] = (hops[other], parents.get(other, -1), self._round,
-                                                             self._step)
 
     def _fill_table(self, poses: dict) -> None:
         """The joint solution's poses of the current step into the gossip table (its own row too: in an exact
@@ -951,46 +317,40 @@ class AssemblyAgent:
     def _fresh_admm(self) -> None:
         """A fresh ADMM start at the new window's fixed point: earlier values belong to the old window."""
         self._inbox.keep_from(self._step)
-        self._iter = 0
-        self._pair_iter, self._waiting, self._pair_out, self._last_dual = {}, {}, {}, {}
-        self._last_primal = None
+        self._rounds.restart()
         for pair in self._pairs.values():
             pair.y, pair.y_hat = {}, {}
 
     def _finish_bootstrap(self) -> None:
         """Solve the joint problem of the shared forms (:func:`decentral.admm.solve_joint`) and seed the ADMM,
         or adopt the joint solution the reference sent down (:class:`protocols.delta_messages.JointPoses`)."""
-        boot = self._boot
-        self._boot = None
-        self._hold = max(boot["start_at"], self._round + 1)  # the ADMM starts with a later round's pair phase
-        agg = boot["agg"]
-        self._late = None
-        if boot.get("solution") is not None:
-            self._adopt(boot["solution"])
+        sharing = self._sharing
+        share, partial = sharing.finish()
+        self._hold = max(share.start_at, self._round + 1)  # the ADMM starts with a later round's pair phase
+        if share.solution is not None:
+            self._adopt(share.solution)
             return
-        if boot["mode"] == "tree" and not agg.complete:
-            self._late = dict(boot, asked=0, last=self._round)
+        if partial:
             # values from a partial solution would pull the neighbours that have the whole set off the exact
             # fixed point (100-250 rounds per window at 50 % loss): stay silent while the rest may still come
             self._hold = self._round + self.config.share_timeout
-        joint = self._joint(boot)
+        joint = sharing.joint(share)
         if joint is None:
             return  # no forms, or the gauge's value at this window is unknown here: the ADMM goes on
         seeds = joint.poses
         # every agent's forms: the seeds are the joint estimate of this step (a fixed point of the ADMM),
         # and the centralized estimator's placement test can be run on them
-        self._seeds_complete = agg.complete  # every (live) agent's forms
-        if self._seeds_complete:
-            self._placeable = self._placeable_of(boot, joint)
-            self._why = self._unplaced_reasons(boot, joint)
+        self._start.complete = share.agg.complete  # every (live) agent's forms
+        if self._start.complete:
+            self._start.placeable = sharing.placeable(share, joint)
+            self._start.why = sharing.unplaced_reasons(share, joint)
             # the joint solution already gives every assembly's pose of this step: the gossip table need
             # not cross the view graph before the convergence flag can settle (rounds flat in the diameter)
             self._fill_table(seeds)
-            self._learn_graph(self._edges(boot))
+            self._learn_graph(share.edges())
         # the seeded duals balance only with every observer's contribution: wait for their first values
-        names, me = self.config.assemblies, self._index[self.name]
-        self._expected = {names[keys[0][0]] for idx in boot["records"] for keys, _ in boot["records"][idx]
-                          if len(keys) >= 2 and keys[1][0] == me and keys[0][0] != me}
+        names = self.config.assemblies
+        self._start.expected = {names[i] for i in share.observers_of(self._index[self.name])}
         if self.config.share_forms == "every":
             self._fresh_admm()
         self.seed(seeds)
@@ -1001,214 +361,52 @@ class AssemblyAgent:
         names, me, step = self.config.assemblies, self._index[self.name], solution.step
         newest = {(names[i], step): (rot2(theta), p) for i, (p, theta) in solution.pose_of().items()
                   if i < len(names)}
-        self._seeds_complete = True
+        self._start.complete = True
         ref = self._index[self.config.reference]
         placeable = set(solution.indices("placeable")) | {ref}
         # placed relative to the reference; relative to this agent when it is placed itself
-        self._placeable = frozenset((names[i], step) for i in placeable | {me} if i < len(names)) \
+        self._start.placeable = frozenset((names[i], step) for i in placeable | {me} if i < len(names)) \
             if me in placeable else frozenset()
         self._fill_table(newest)
         if len(solution.edges):
             self._learn_graph({(a, b) for a, b in solution.edge_set() if a != b})
-        self._expected = set()
+        self._start.expected = set()
         if self.config.share_forms == "every":
             self._fresh_admm()
         self.seed(newest)
-
-    def _on_solution(self, message: JointPoses) -> None:
-        """The reference's joint solution coming down: adopt it and forward it to the children."""
-        if message.n != len(self.config.assemblies):
-            self.counters["ignored"] += 1
-            return
-        boot, late = self._boot, self._late
-        if boot is None and late is not None and late["step"] == message.step == self._step:
-            self._late, self._boot = None, late  # a window that timed out here: complete after all
-            late["agg"].final = False
-            boot = late
-            self.counters["late_seeds"] += 1
-        if boot is None or boot["step"] != message.step or boot["agg"].final:
-            return
-        self._tree[message.sender] = (message.hop, message.parent, self._round, self._step)
-        boot["solution"] = message
-        boot["agg"].depth = max(boot["agg"].depth, message.depth)
-        self._tree_depth = max(1, message.depth)
-        # (not acknowledged: a child still without it after its bundle up was acknowledged sends the bundle again,
-        # and whoever has finished the window answers with the solution)
-        self._send_down(exclude=(self._index.get(message.sender),), start=message.start)
-        self._finish_bootstrap()
 
     def _pair_phase(self) -> None:
         """Phase 0: each owned pair iterates once the target's consensus of its iteration has arrived."""
         if self._dirty:
             self._rebuild()
-        me, cons, patience = self.name, self._consensus, self.config.patience
         self._request_unknown()
-        self._fresh_pairs = True
-        for target, pair in self._pairs.items():
-            inbound = self._inbox.targets.get(target)
-            i = self._pair_iter.get(target, 0)
-            waited = self._waiting.get(("pair", target), 0)
-            # not heard from for `patience` rounds: gone (crashed, cut off, or no longer watching) - go on
-            # iteration i + 1 uses both ends' consensus of iteration i (Boyd §7.1's synchronous order)
-            fresh = (inbound is None or inbound.iteration >= i or self._age(inbound) > patience) and self._iter >= i
-            due = fresh or waited >= patience
-            if due:
-                if not fresh:
-                    self.counters["timeouts"] += 1  # go on with the newest (stale) values
-                    self._fresh_pairs = False
-                z = {(me, k): v for k, v in cons.z.items()}
-                ready = {me: cons.ready, target: False}
-                if inbound is not None:
-                    z.update({(target, k): v for k, v in inbound.values.items() if k in cons.z})
-                    ready[target] = inbound.ready
-                elif any(key[0] == target for key in self._seeds):  # nothing heard yet: the seeded solution
-                    z.update({key: v for key, v in self._seeds.items() if key[0] == target and key[1] in cons.z})
-                    ready[target] = True
-                out, metrics = pair.iterate(z, ready)
-                if not pair.certified:
-                    self.counters["uncertified"] += 1
-                i = max(i, inbound.iteration if inbound is not None else 0) + 1
-                self._pair_iter[target] = i
-                self._waiting[("pair", target)] = 0
-                mine = {k[1]: v for k, v in out.items() if k[0] == me}
-                mine_m = {k[1]: v for k, v in metrics.items() if k[0] == me}
-                self._pair_out[target] = (mine, mine_m, cons.ready or ready[target], i)
-                theirs = sorted((k[1], v) for k, v in out.items() if k[0] == target)
-                w = np.array([packed_metric(metrics[(target, k)]) for k, _ in theirs], float).reshape(-1, 7)
-                self._last_dual[target] = value_blocks(theirs, cons.ready, i, rho=(pair.rho_R, pair.rho_p), w=w)
-            else:
-                self._waiting[("pair", target)] = waited + 1
-                self.counters["retransmits"] += 1
-            if target in self._last_dual:  # a new value, or the last one again (repairs a lost copy)
-                self._outbox.append(AdmmDual(sender=me, receiver=target, round=self._round, window=self._step,
-                                             rho=float(self._last_dual[target]["meta"][1]) or 1.0,
-                                             blocks=self._with_table(self._last_dual[target], target)))
+        self._outbox += self._rounds.pair_phase(self._view())
 
     def _consensus_phase(self) -> None:
         """Phase 1: the consensus update once every pair's copies of the next iteration are in."""
-        cons, cfg = self._consensus, self.config
-        self._step_rounds += 1
-        gone = cfg.window + 2 * cfg.patience + 10
-        ages, inputs = {}, []
-        for target in self._pairs:
-            ages[target] = self._age(self._inbox.targets.get(target))
-            if target in self._pair_out:
-                mine, mine_m, usable, it = self._pair_out[target]
-                inputs.append((it, usable, (mine, mine_m)))
-        for sender, inbound in self._inbox.observers.items():
-            age = self._age(inbound)
-            if age > gone:
-                continue  # an observer gone for long: its copies no longer count
-            ages[sender] = age
-            if not any(k in cons.z for k in inbound.values):
-                continue  # copies of steps that left the window
-            # an observer silent for `patience` rounds is not waited for (its newest copies still count)
-            it = inbound.iteration if age <= cfg.patience else 10**12
-            inputs.append((it, inbound.ready or cons.ready, (inbound.values, inbound.metrics)))
-        self._last_ages = ages
-        waited = self._waiting.get(("cons", ""), 0)
-        lowest = min((it for it, _, _ in inputs), default=self._iter + 1)
-        patience = cfg.patience
-        if any(a not in self._inbox.observers for a in self._expected):
-            lowest = -1  # a seeded start without an observer's contribution would leave the fixed point
-            if self._seeds_complete:
-                # the observer is most likely still getting the window's forms (late under loss): leaving the
-                # exact fixed point without it cost 100-250 rounds per window at 50 % loss; wait longer
-                patience = cfg.share_timeout
-        self._iter_before = self._iter
-        due = lowest >= self._iter + 1 or waited >= patience or cons.pinned and not inputs
-        if due:
-            if lowest < self._iter + 1:
-                self.counters["timeouts"] += 1
-            cons.update([c for _, usable, c in inputs if usable])
-            self._iter = max([self._iter + 1] + [it for it, _, _ in inputs if it < 10**12])
-            self._waiting[("cons", "")] = 0
-            last = self._steps[-1]
-            if cons.ready and cons.anchored(last, self._pair_steps | self._inbox.remote_steps()):
-                R, p = cons.z[last]
-                me = self._index[self.name]
-                self._gossip.set_own(pose_row(me, last, self._round, R, p), self._round)
-            self._last_primal = value_blocks(sorted(cons.z.items()), cons.ready, self._iter)
-        else:
-            self._waiting[("cons", "")] = waited + 1
-            self.counters["retransmits"] += 1
-        if self._last_primal is not None:
-            for observer in self._inbox.observers:
-                if ages.get(observer, gone + 1) <= gone:
-                    self._outbox.append(AdmmPrimal(sender=self.name, receiver=observer, round=self._round,
-                                                   window=self._step,
-                                                   blocks=self._with_table(self._last_primal, observer)))
-        if due:  # the flag describes the last completed iteration (kept while waiting for the next)
-            eps = cfg.admm
-            # nobody to agree with after `patience` rounds of this step and no unnamed detections:
-            # nothing left to do (counting it converged earlier ended lossy steps before discovery)
-            alone = (not self._pairs and not inputs and not self._unresolved()
-                     and self._step_rounds >= cfg.patience)
-            self._converged = alone or bool(
-                lowest >= self._iter_before + 1
-                and self._gossip.settled(self._round)  # the gossip of the others' poses has settled
-                and cons.ready
-                and all(p.converged() for p in self._pairs.values())
-                and cons.change <= max(eps.eps_rot, eps.eps_pos)
-                and (cons.remaining() <= eps.tail * max(eps.eps_rot, eps.eps_pos) or self._near_seeds())
-                and self._fresh_pairs
-                # nodes it sees but cannot name yet (lost announcements): their pair is still to come
-                and not self._unresolved()
-            )
+        self._outbox += self._rounds.consensus_phase(self._view())
+
+    def _view(self) -> RoundView:
+        """The window as the ADMM rounds see it at this round."""
+        place = None
+        if self.config.aggregation == "tree":
+            place = (-1 if self._hop is None else self._hop, -1 if self._parent is None else self._parent)
+        return RoundView(round=self._round, step=self._step, pairs=self._pairs, consensus=self._consensus,
+                         inbox=self._inbox, gossip=self._gossip, seeds=self._start.seeds,
+                         seeds_complete=self._start.complete, forms_current=self._start.form_sig == self._pair_sig,
+                         expected=frozenset(self._start.expected), pair_steps=frozenset(self._pair_steps),
+                         unresolved=bool(self._unresolved()), done=self.window_done, place=place)
 
     def _unresolved(self) -> set[int]:
-        """Unnamed nodes that an assembly whose configuration has not arrived here may still own.
-
-        Once every other assembly's configuration is in (announcements, answers to ``config_request``,
-        relays), a node none of them lists is a stray tag (CONTRACT §1: skipped): it neither holds the
-        convergence flag nor triggers requests. Until then an unnamed node may be a pair still to
-        come, and an agent that reported convergence without it would report the joint solution of
-        a view graph that lacks the pair (4-ring at 50 % loss: 20 mm off, flagged converged).
-        """
-        if len(self._configs) >= len(self.config.assemblies) - 1:
-            return set()
-        alive = self._alive_members(self._step or 0)
-        if alive is not None:
-            # a peer not heard from for two windows (down, or never started) cannot name its nodes: once every
-            # live assembly's configuration is in, the nodes left are its own or stray tags, skipped alike
-            names = self.config.assemblies
-            if all(names[i] in self._configs for i in alive if names[i] != self.name):
-                return set()
-        return set(self._unknown)
-
-    def _near_seeds(self) -> bool:
-        """With every agent's forms, the window started at the joint solution (the fixed point): the
-        consensus staying within the ADMM tolerances of it is convergence, whatever the tail estimate
-        (which, on changes at the solver's precision, ~1e-7, can predict a long way still to go)."""
-        if not self._seeds_complete or self._form_sig != self._pair_sig:
-            return False  # (a pair built or grown after the forms went out: the joint solution lacks it)
-        eps = self.config.admm
-        for k, (R, p) in self._consensus.z.items():
-            seed = self._seeds.get((self.name, k))
-            if seed is None:
-                return False
-            R0, p0 = seed
-            dyaw = abs(wrap_angle(np.arctan2(R[1, 0], R[0, 0]) - np.arctan2(R0[1, 0], R0[0, 0])))
-            if dyaw > eps.eps_rot or np.abs(p - p0).max() > eps.eps_pos:
-                return False
-        return True
-
-    def _with_table(self, blocks: dict, receiver: str) -> dict:
-        """``blocks`` plus the sender's place in the aggregation tree (``tree``: hop to the reference, parent;
-        -1 for none) and the gossip table if it changed since it last went to ``receiver`` (or is due)."""
-        if self.window_done:
-            blocks = dict(blocks, done=_DONE)
-        if self.config.aggregation == "tree":
-            blocks = dict(blocks, tree=np.array([-1 if self._hop is None else self._hop,
-                                                 -1 if self._parent is None else self._parent], float))
-        table = self._gossip.attach(receiver, self._round)
-        return blocks if table is None else dict(blocks, table=table)
+        """Unnamed nodes that an assembly whose configuration has not arrived here may still own
+        (:meth:`protocols.config_gossip.ConfigGossip.unresolved`)."""
+        return self._configs.unresolved(self._sharing.alive_members(self._step or 0))
 
     # ------------------------------------------------------------------ results
     @property
     def converged(self) -> bool:
         """Whether its pairs' residuals and its consensus change are below tolerance with fresh inputs."""
-        return self._converged
+        return self._rounds.converged
 
     @property
     def ready(self) -> bool:
@@ -1229,7 +427,7 @@ class AssemblyAgent:
     @property
     def ages(self) -> dict[str, int]:
         """Rounds since the newest value used from each neighbour (0 or 1: fresh)."""
-        return dict(self._last_ages)
+        return dict(self._rounds.ages)
 
     def unplaced(self, placed: dict[str, PlanarPose] | None = None) -> dict[str, str]:
         """Why each assembly missing from :meth:`estimates` (or ``placed``) is missing (a reason code of
@@ -1239,7 +437,7 @@ class AssemblyAgent:
         otherwise ``no_consensus`` (it cannot tell a lost row from an assembly nobody saw).
         """
         placed = self.estimates() if placed is None else placed
-        return {name: (self._why.get(name, "no_consensus") if self._seeds_complete else "no_consensus")
+        return {name: (self._start.why.get(name, "no_consensus") if self._start.complete else "no_consensus")
                 for name in self.config.assemblies if name != self.name and name not in placed}
 
     def estimates(self) -> dict[str, PlanarPose]:
@@ -1256,8 +454,8 @@ class AssemblyAgent:
         if me is None or int(me[1]) != self._step:
             return {}
         rows = {i: row for i, row in self._gossip.rows.items() if int(row[1]) == self._step}
-        if self._seeds_complete:
-            for (name, step), (R, p) in self._seeds.items():
+        if self._start.complete:
+            for (name, step), (R, p) in self._start.seeds.items():
                 i = self._index.get(name)
                 if step == self._step and i is not None and i not in rows:
                     rows[i] = np.array([i, step, 0, *p, np.arctan2(R[1, 0], R[0, 0])])
@@ -1266,20 +464,9 @@ class AssemblyAgent:
         for i, row in rows.items():
             if i == self._index[self.name]:
                 continue
-            if self._seeds_complete and (self.config.assemblies[i], self._step) not in self._placeable:
+            if self._start.complete and (self.config.assemblies[i], self._step) not in self._start.placeable:
                 continue  # its yaw relative to this agent is not determined: left out, never guessed
             d = row[3:6] - me[3:6]
             p = np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1], d[2]])  # seed 000 eq. (19)
             out[self.config.assemblies[i]] = PlanarPose(p, float(wrap_angle(row[6] - me[6])))
         return out
-
-
-_DONE = np.ones(1)
-
-
-def _yaw2(R: np.ndarray) -> float:
-    return float(np.arctan2(R[1, 0], R[0, 0]))
-
-
-def _same_config(a: dict, b: dict) -> bool:
-    return a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)

@@ -39,7 +39,7 @@ from __future__ import annotations
 
 from typing import Any, Callable, Iterable, Mapping
 
-__all__ = ["choose_parent", "tree_from_edges", "TreeAggregation", "DownRepair"]
+__all__ = ["choose_parent", "tree_from_edges", "TreeAggregation", "DownRepair", "NeighbourTree"]
 
 
 def choose_parent(neighbour_hops: Mapping[int, int], limit: int) -> tuple[int | None, int | None]:
@@ -283,3 +283,71 @@ class DownRepair:
                 self.pending[child] = (round_index, tries + 1)
                 out.append(child)
         return out
+
+
+class NeighbourTree:
+    """The distance vector an agent keeps: each neighbour's hop count to the root and parent, as last heard.
+
+    Entries come from the ``tree`` block of the neighbours' ADMM values and from the bundles they send
+    (:meth:`heard`), or all at once from a window's whole view graph (:meth:`learn`). An entry is
+    trusted while it is recent (:meth:`fresh`); the agent's own parent and hop follow from the trusted
+    entries (:meth:`position`, :func:`choose_parent`). Rounds and steps are passed in.
+
+    Parameters
+    ----------
+    names : sequence of str
+        Every agent's name (indices are positions in it).
+    me, root : int
+        Own index and the root's (the reference agent).
+    fresh_rounds : int
+        Rounds for which an entry is trusted (besides entries heard in this window or the one before).
+
+    Attributes
+    ----------
+    entries : dict
+        Neighbour name -> ``(hop, parent index, round heard, step heard)`` (parent -1: none).
+    """
+
+    def __init__(self, names, me: int, root: int, fresh_rounds: int):
+        self.names = tuple(names)
+        self.index = {name: i for i, name in enumerate(self.names)}
+        self.me, self.root, self.fresh_rounds = me, root, fresh_rounds
+        self.entries: dict[str, tuple[int, int, int, int | None]] = {}
+
+    def heard(self, neighbour: str, hop: int, parent: int, round_index: int, step: int | None) -> None:
+        """``neighbour`` says it is ``hop`` hops from the root, below ``parent`` (heard at this round and step)."""
+        self.entries[neighbour] = (hop, parent, round_index, step)
+
+    def drop(self, neighbour: str) -> None:
+        """Forget ``neighbour``'s entry (a parent that stayed silent: choose again)."""
+        self.entries.pop(neighbour, None)
+
+    def fresh(self, entry: tuple, round_index: int, step: int | None) -> bool:
+        """Whether an entry is recent: heard within ``fresh_rounds`` rounds, or in this window or the one
+        before (rounds between windows depend on the pace of the sensor steps, which a process does not
+        choose)."""
+        return round_index - entry[2] <= self.fresh_rounds or entry[3] is not None and entry[3] >= (step or 0) - 1
+
+    def position(self, round_index: int, step: int | None) -> tuple[int | None, int | None]:
+        """(parent index, hop count to the root) from the recent entries (distance vector)."""
+        if self.me == self.root:
+            return None, 0
+        hops = {self.index[a]: entry[0] for a, entry in self.entries.items() if self.fresh(entry, round_index, step)}
+        return choose_parent(hops, len(self.names))
+
+    def children(self, round_index: int, step: int | None) -> set[int]:
+        """Neighbours whose recent entry names this agent as their parent."""
+        return {self.index[a] for a, entry in self.entries.items()
+                if entry[1] == self.me and self.fresh(entry, round_index, step)}
+
+    def learn(self, edges, round_index: int, step: int | None) -> None:
+        """Replace the entries with the places the whole view graph ``edges`` (index pairs) gives the neighbours.
+
+        Assemblies no longer adjacent leave the table (with no ADMM values to refresh it, a stale entry
+        would make a former neighbour wait for a child that never reports)."""
+        hops, parents = tree_from_edges(edges, len(self.names), self.root)
+        self.entries = {}
+        for a, b in edges:
+            other = b if a == self.me else a if b == self.me else None
+            if other is not None and other != self.me and other in hops:
+                self.entries[self.names[other]] = (hops[other], parents.get(other, -1), round_index, step)

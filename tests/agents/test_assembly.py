@@ -132,7 +132,7 @@ def test_an_agent_missing_from_a_share_answers_with_its_own_forms(log):
 def test_answers_to_a_share_are_not_answered_again(log):
     """A unicast answer that lacks the receiver does not trigger another answer (no ping-pong)."""
     agents, a0 = _first_shares(log)
-    agents["A1"]._boot = None  # A1 is done: its answer lists only itself, so it lacks A0
+    agents["A1"]._sharing.share = None  # A1 is done: its answer lists only itself, so it lacks A0
     agents["A1"].handle(a0)
     answer = [m for m in agents["A1"].outbox() if isinstance(m, FactorShare)][0]
     assert 0 not in answer.have.tolist()
@@ -153,7 +153,7 @@ def test_after_the_shared_cold_start_every_agent_holds_the_same_joint_solution(l
                 a.handle(m)
         a.tick(0)
         a.tick(1)
-    seeds = [a._seeds for a in agents.values()]
+    seeds = [a._start.seeds for a in agents.values()]
     assert seeds[0] and all(s.keys() == seeds[0].keys() for s in seeds)
     for key in seeds[0]:
         for s in seeds[1:]:
@@ -258,12 +258,12 @@ def test_after_a_complete_window_the_forms_go_up_the_tree_not_by_broadcast(log):
     for m in ups:
         assert m.receiver == log.assemblies[agents[m.sender]._parent] and m.hop >= 1
     # the reference solves, the others start from its solution of the newest step (float32 on the wire)
-    root = agents["A0"]._seeds
+    root = agents["A0"]._start.seeds
     newest = {key: v for key, v in root.items() if key[1] == 1}
     for a in list(agents.values())[1:]:
-        assert a._seeds.keys() == newest.keys()
+        assert a._start.seeds.keys() == newest.keys()
         for key, (R, p) in newest.items():
-            assert np.allclose(a._seeds[key][1], p, atol=1e-5) and np.allclose(a._seeds[key][0], R, atol=1e-6)
+            assert np.allclose(a._start.seeds[key][1], p, atol=1e-5) and np.allclose(a._start.seeds[key][0], R, atol=1e-6)
 
 
 def test_a_bundle_from_below_after_the_window_is_answered_with_the_down_bundle(log):
@@ -288,17 +288,17 @@ def test_a_broadcast_from_its_parent_turns_a_tree_agent_to_broadcasting(log):
     child.on_step(own_step(log, child.name, 1))
     child.tick(200)
     child.outbox()
-    assert child._boot["mode"] == "tree"
+    assert child._sharing.share.mode == "tree"
     other = agents[parent]
     other.on_step(own_step(log, parent, 1))
-    other._tree, other._parent, other._hop = {}, None, None  # as if restarted: no route
-    other._boot["agg"].parent = other._boot["agg"].root = None
+    other._sharing.tree.entries, other._parent, other._hop = {}, None, None  # as if restarted: no route
+    other._sharing.share.agg.parent = other._sharing.share.agg.root = None
     other.tick(200)
     share = next(m for m in other.outbox() if isinstance(m, FactorShare) and m.receiver == BROADCAST)
     child.handle(share)
     child.tick(201)
     child.tick(202)
-    assert child._boot["mode"] == "broadcast"
+    assert child._sharing.share.mode == "broadcast"
     assert any(isinstance(m, FactorShare) and m.receiver == BROADCAST for m in child.outbox())
 
 
@@ -312,7 +312,7 @@ def test_configuration_is_re_announced_to_observers_only(log):
     assert observers
     a.on_step(own_step(log, "A1", 1))
     assert not [m for m in a.outbox() if isinstance(m, ConfigAnnounce)]
-    a._reannounced -= a.config.announce_every
+    a._configs._reannounced -= a.config.announce_every
     a.on_step(own_step(log, "A1", 1))
     anns = [m for m in a.outbox() if isinstance(m, ConfigAnnounce)]
     assert {m.receiver for m in anns} == observers
@@ -333,11 +333,11 @@ def test_a_request_for_another_assemblys_nodes_is_relayed_and_never_overrides_th
     fresh = _agent(log, "A0")
     fresh.on_step(own_step(log, "A0", 0))
     fresh.handle(relays[0])
-    assert node in fresh._configs["A2"][-1][1]
+    assert node in fresh._configs.table["A2"][-1][1]
     forged = ConfigAnnounce(sender="A1", receiver="A0", round=1, step=relays[0].step, ids=relays[0].ids,
                             centres=relays[0].centres + 1.0, owner="A2")
     agents["A0"].handle(forged)
-    assert np.array_equal(agents["A0"]._configs["A2"][-1][1][node], log.steps[0].config["A2"][node])
+    assert np.array_equal(agents["A0"]._configs.table["A2"][-1][1][node], log.steps[0].config["A2"][node])
 
 
 def test_an_agent_that_cannot_name_a_node_does_not_report_convergence_until_every_configuration_is_in(log):
@@ -397,13 +397,13 @@ def test_a_parent_that_cannot_rebuild_a_delta_gets_the_records_whole():
     agents, _ = _tree_agents(log)
     _drive(agents, 1, log, 12)
     for a in agents.values():
-        a._forms.clear()
+        a._sharing.forms.clear()
     sent = _drive(agents, 2, log, 20)
     assert any(isinstance(m, DeltaBundle) for m in sent)
     assert any(isinstance(m, FormBundle) and not m.down for m in sent)
-    root = agents["A0"]._seeds
+    root = agents["A0"]._start.seeds
     assert any(key[1] == 2 for key in root)
     for a in list(agents.values())[1:]:
         for key, (R, p) in root.items():
             if key[1] == 2:
-                assert np.allclose(a._seeds[key][1], p, atol=1e-5)
+                assert np.allclose(a._start.seeds[key][1], p, atol=1e-5)

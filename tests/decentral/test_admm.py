@@ -129,7 +129,7 @@ def test_per_step_forms_give_the_window_forms_joint_solution():
         agent = AssemblyAgent(_agent_config(log, name, "A0", AdmmRunConfig()))
         for k in range(4):
             agent.on_step(own_step(log, name, k))
-        agent._configs.history = {m: [(0, dict(log.steps[0].config[m]))] for m in log.assemblies if m != name}
+        agent._configs.table.history = {m: [(0, dict(log.steps[0].config[m]))] for m in log.assemblies if m != name}
         agent._rebuild()
         chain = agent._consensus.odometry_problem()
         for target, pair in agent._pairs.items():

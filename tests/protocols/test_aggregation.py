@@ -4,7 +4,7 @@ import networkx as nx
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from protocols.aggregation import DownRepair, TreeAggregation, choose_parent, tree_from_edges
+from protocols.aggregation import DownRepair, NeighbourTree, TreeAggregation, choose_parent, tree_from_edges
 
 
 def test_parent_is_the_neighbour_with_the_smallest_hop_ties_to_the_smallest_index():
@@ -190,3 +190,33 @@ def test_down_repair_drops_children_heard_from_or_acknowledging():
     assert repair.due(3, lambda child: child == 7) == [2]
     assert sorted(repair.pending) == [2]
     assert repair.due(6, lambda child: True) == [] and not repair
+
+
+def test_neighbour_tree_chooses_the_parent_among_recent_entries_only():
+    """A neighbour last heard long ago (and in an older window) no longer counts: the parent is the best recent one."""
+    tree = NeighbourTree(["A0", "A1", "A2", "A3"], me=3, root=0, fresh_rounds=10)
+    tree.heard("A1", 1, 0, 0, 0)  # the better hop, but heard at round 0 in window 0
+    tree.heard("A2", 2, 1, 95, 5)
+    assert tree.position(100, 5) == (2, 3)
+    assert tree.position(5, 5) == (1, 2)  # still fresh at round 5
+    assert tree.position(100, 1) == (1, 2)  # heard in the window before this one
+
+
+def test_neighbour_tree_root_and_children():
+    """The root has hop 0 and no parent; children are the recent entries naming this agent as parent."""
+    root = NeighbourTree(["A0", "A1", "A2"], me=0, root=0, fresh_rounds=10)
+    root.heard("A1", 1, 0, 50, 3)
+    root.heard("A2", 1, 1, 50, 3)
+    assert root.position(50, 3) == (None, 0)
+    assert root.children(50, 3) == {1}
+    root.drop("A1")
+    assert root.children(50, 3) == set()
+
+
+def test_neighbour_tree_learnt_from_a_graph_keeps_only_adjacent_agents():
+    """learn fills every neighbour's place from the view graph and forgets agents no longer adjacent."""
+    tree = NeighbourTree(["A0", "A1", "A2", "A3"], me=2, root=0, fresh_rounds=10)
+    tree.heard("A3", 1, 0, 0, 0)
+    tree.learn({(1, 0), (2, 1), (3, 2)}, 40, 4)
+    assert tree.entries == {"A1": (1, 0, 40, 4), "A3": (3, 2, 40, 4)}
+    assert tree.position(40, 4) == (1, 2)

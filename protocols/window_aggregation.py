@@ -1,0 +1,492 @@
+"""One agent's sharing of a window's cost forms: up and down the aggregation tree, or by broadcast.
+
+The role the assembly agent (:mod:`agents.assembly`) plays every window before its ADMM rounds
+(the agent's module docstring describes the protocol): it holds the window's records (every agent's
+forms seen here, :class:`protocols.aggregation.TreeAggregation`), sends its bundle up and the final set
+down, answers and repairs lost bundles, keeps a window that timed out without every agent's forms
+open for late records, and says when the window's sharing is finished. The agent feeds it messages
+(``on_*``), calls :meth:`WindowAggregation.progress` in its bootstrap phases, and takes the finished
+window (:meth:`WindowAggregation.finish`) to solve and seed its ADMM. The window's state is typed
+(:class:`protocols.window_share.WindowShare`); its joint solution (:func:`decentral.admm.solve_joint`,
+once per window) is asked for here, because the reference sends it down instead of the forms.
+
+How the forms travel:
+
+* **tree** (``aggregation="tree"``, default, once the agent has a route to the reference): a
+  convergecast up a spanning tree of the view graph to the reference agent and a broadcast back down
+  (:mod:`protocols.aggregation`, ``admm.bundle`` / ``admm.bundle_ack``). Its parent is the neighbour
+  with the smallest hop count to the reference (distance vector carried as the ``tree`` block of the
+  ADMM messages, and filled at once from the view graph the forms of a complete window reveal). The
+  reference's down bundle names the round at which every agent starts the ADMM, so agents near the
+  reference do not spend rounds waiting for the far ones. Per window and agent without loss: one
+  bundle up, and per child one acknowledgement and one bundle down.
+* **broadcast** (the cold start, a restarted agent, a side of a partition without the reference, or
+  ``aggregation="broadcast"``): ``admm.factors`` to everyone, with the list of agents whose forms it
+  has; agents missing from that list answer directly. Messages per agent grow with the number of
+  agents.
+
+Byte budget (``docs/processes.md``): forms are shared one per pair and step (and per odometry link),
+each built from its step's data alone, so a window adds one new step of forms; in the tree they go up
+as ``admm.delta`` (only what the parent lacks, a digest per record:
+:mod:`protocols.form_cache`), and once the reference holds every live agent's forms it sends its
+joint solution down as ``admm.solution`` (float32 poses of the newest step) instead of the forms.
+
+Nothing here reads a clock: the agent sets :attr:`WindowAggregation.round` and
+:attr:`WindowAggregation.step` (its round and log step), and every message goes out through the
+``send`` callable it passes in, in the order the protocol produces them.
+"""
+
+from __future__ import annotations
+
+import copy
+from typing import Callable, Iterable
+
+import numpy as np
+
+from decentral.admm import LocalProblem
+from protocols.admm_messages import FactorShare, FormAck, FormBundle, pack_forms
+from protocols.aggregation import DownRepair, NeighbourTree, TreeAggregation
+from protocols.delta_messages import DeltaBundle, JointPoses
+from protocols.form_cache import DeltaSender, FormCache
+from protocols.messages import BROADCAST, Message
+from protocols.window_share import NEVER, DownState, OwnForms, WindowShare
+
+__all__ = ["WindowAggregation"]
+
+
+class WindowAggregation:
+    """The sharing of every window's cost forms at one agent (send and receive halves).
+
+    Parameters
+    ----------
+    name : str
+        The agent's assembly.
+    assemblies : sequence of str
+        Every assembly's name (agent indices are positions in it).
+    reference : str
+        The assembly pinning the gauge: the root of the tree.
+    aggregation : {"tree", "broadcast"}
+        How the forms travel once the agent has a route to the reference.
+    window, share_timeout : int
+        Sliding-window length, and rounds after which a window goes on with the forms it has.
+    placement_limit : float
+        Largest Laplace yaw std of an assembly the joint placement test places (rad).
+    counters : dict
+        The agent's counters (``retransmits``, ``ignored``, ``late_seeds``, ``tree_windows``,
+        ``broadcast_windows``, ``joint_failures`` are counted here).
+    send : callable
+        Queues an outgoing message.
+
+    Attributes
+    ----------
+    share : WindowShare or None
+        The window whose forms are being shared (None once finished).
+    late : WindowShare or None
+        A finished window that timed out without every agent's forms: late records may complete it.
+    down : DownState or None
+        The final set of the last window as sent down.
+    own : OwnForms or None
+        The forms this agent shared for the current window.
+    tree : NeighbourTree
+        The neighbours' places in the tree.
+    """
+
+    def __init__(self, name: str, assemblies, reference: str, *, aggregation: str, window: int, share_timeout: int,
+                 placement_limit: float, counters: dict, send: Callable[[Message], None]):
+        self.name, self.names, self.reference = name, tuple(assemblies), reference
+        self.index = {a: i for i, a in enumerate(self.names)}
+        self.me = self.index[name]
+        self.aggregation, self.window, self.share_timeout = aggregation, window, share_timeout
+        self.placement_limit = placement_limit
+        self.counters, self._send = counters, send
+        self.tree = NeighbourTree(self.names, self.me, self.index[reference], 2 * share_timeout)
+        self.round = 0  # the agent's clock (set by the agent)
+        self.step: int | None = None  # the agent's current log step (set by the agent)
+        self.share: WindowShare | None = None
+        self.late: WindowShare | None = None
+        self.down: DownState | None = None
+        self.own: OwnForms | None = None
+        self.depth = 1  # depth of the aggregation tree in the last down bundle
+        self.forms = FormCache()  # every agent's forms seen here for the window (rebuilds deltas from below)
+        self._delta_sender = DeltaSender()  # per parent, the forms already sent up to it
+        self._edges_sent: set = set()  # the view graph in the last solution sent down (the reference)
+        self.alive: dict[int, int] = {}  # agent index -> last step at which it (or its records) was heard
+
+    # ------------------------------------------------------------------ windows
+    def heard(self, sender: int, step: int) -> None:
+        """Agent ``sender`` was heard from (directly or through its records) at log step ``step``."""
+        self.alive[sender] = step
+
+    def alive_members(self, step: int) -> set[int] | None:
+        """Agents heard from (directly or through their records) in this window or the one before: a set of
+        forms is complete once it holds theirs. ``None`` (every agent) without such a history (the first
+        two steps): an agent down for two windows, or one that never started, is then no longer waited
+        for, and the others' windows complete without it."""
+        if not self.alive or step < 2:
+            return None
+        return {i for i, seen in self.alive.items() if seen >= step - 1}
+
+    def open(self, step: int, parent: int | None, hop: int | None, wait: int) -> None:
+        """Start sharing window ``step`` below ``parent`` at ``hop`` hops from the reference (children: the
+        neighbours that named this agent as their parent lately; ``wait``: rounds to wait for them)."""
+        agg = TreeAggregation(self.me, len(self.names), root=self.name == self.reference, parent=parent,
+                              children=self.tree.children(self.round, self.step), start=self.round + 1, wait=wait,
+                              hop=hop or 0, expected=self.alive_members(step))
+        self.share = WindowShare(step=step, agg=agg)
+        self.own = None
+
+    def slide(self, first: int) -> None:
+        """Forms of steps before ``first`` left the window: they are no longer part of any record."""
+        self.forms.slide(first)
+        self._delta_sender.slide(first)
+
+    def share_own(self, forms: list, pin: np.ndarray) -> None:
+        """Share this agent's forms ``[(keys, M, b_z, c_z)]`` (keys as agent index and step) of the window,
+        by the tree when it has a route to the reference (or, at the reference, children), else by broadcast."""
+        share = self.share
+        agg = share.agg
+        keys, flat = pack_forms(forms)
+        self.own = OwnForms(share.step, keys, flat, pin)
+        tree = self.aggregation == "tree" and (agg.parent is not None or agg.root and bool(agg.children))
+        share.mode = "tree" if tree else "broadcast"
+        self.counters["tree_windows" if tree else "broadcast_windows"] += 1
+        # own forms go through the same packing as everyone else's, so all agents sum identical numbers
+        self.on_factors(self._factor_share(self.name))
+
+    def progress(self, parent: int | None) -> bool:
+        """One bootstrap phase: send what is owed; ``True`` when the window's sharing is finished (complete,
+        final, or timed out: then children that reported get what this agent ends with)."""
+        share = self.share
+        agg = share.agg
+        if share.start is None:
+            share.start = self.round
+        share.waited += 1
+        elapsed = self.round - share.start
+        if share.mode == "tree":
+            self._tree_progress()
+            # the root finishes (partial) at the timeout; below it, agents wait longer: an agent that starts the ADMM
+            # without the set pulls its seeded neighbours off the fixed point (200+ rounds per window at 50 % loss)
+            limit = self.share_timeout * (1 if agg.root else 2) + (agg.hop or 0)
+        else:
+            if self.own is not None and self.round - share.sent >= 3:
+                self._send(self._factor_share(BROADCAST))
+                share.sent = self.round
+            limit = self.share_timeout
+        if share.mode == "broadcast" and agg.complete or agg.final or elapsed >= limit:
+            if not agg.final:
+                if share.mode == "tree" and not agg.root and parent is not None:
+                    self.tree.drop(self.names[parent])  # a silent parent: choose again
+                self._send_down()
+            return True
+        return False
+
+    def finish(self) -> tuple[WindowShare, bool]:
+        """Close the window's sharing: the window, and whether it stays open for late records (the tree
+        timed out without every agent's forms and no joint solution came down)."""
+        share, self.share, self.late = self.share, None, None
+        partial = share.solution is None and share.mode == "tree" and not share.agg.complete
+        if partial:
+            # a shallow copy: the same records (late ones complete both), but its own timers, pin and a joint
+            # solution not yet computed (the finished window's is of the partial set)
+            self.late = copy.copy(share)
+            self.late.asked, self.late.last = 0, self.round
+        return share, partial
+
+    # ------------------------------------------------------------------ the joint solution
+    def joint(self, share: WindowShare):
+        """The joint solution of a window's forms (computed once per window, :meth:`WindowShare.solve`), or
+        ``None`` (no forms, the gauge's value at this window unknown here, or a failed solve)."""
+        if not share.solved and not share.solve(self.reference, max(0, self.step - self.window + 1)):
+            self.counters["joint_failures"] += 1
+        return share.joint
+
+    def placeable(self, share: WindowShare, joint) -> frozenset:
+        """``(assembly, step)`` keys the centralized placement test places on the joint solution (relative
+        to this agent at the current step)."""
+        return share.placeable_keys(joint, self.name, self.step, self.placement_limit)
+
+    def unplaced_reasons(self, share: WindowShare, joint) -> dict[str, str]:
+        """Why the joint placement test leaves an assembly out at this step (assembly -> reason code)."""
+        return share.unplaced(joint, self.names, self.name, self.step, self.placement_limit)
+
+    # ------------------------------------------------------------------ send half
+    def _tree_progress(self) -> None:
+        """Send what the tree protocol owes now: the bundle up (or a resend), or at the root the bundle down."""
+        share = self.share
+        agg = share.agg
+        if share.mode != "tree" or agg.final:
+            return
+        if agg.root:
+            if agg.complete:
+                self._send_down()
+            return
+        if agg.up_due(self.round):
+            self._send_up(agg.take_up(self.round))
+        elif agg.resend_due(self.round, 3, max(self.depth, agg.hop) + 3):
+            # (a parent that stays silent is dropped at the window's timeout; switching to the broadcast after
+            # a few unanswered resends instead cost 180-300 rounds per window at 50 % loss: it fired on loss alone)
+            self.counters["retransmits"] += 1
+            self._send_up(agg.take_resend(self.round), whole=True)
+
+    def _bundle(self, receiver: str, indices, down: bool, start: int = 0,
+                share: WindowShare | None = None) -> FormBundle:
+        return (share or self.share).bundle(self.name, receiver, indices, down=down, start=start,
+                                            round_index=self.round, reference=self.index[self.reference])
+
+    def _send_up(self, indices: list[int], whole: bool = False) -> None:
+        """Records ``indices`` to the parent: as a delta (what it lacks), or ``whole`` (a resend: it could not
+        rebuild them, or the bundle was lost)."""
+        agg = self.share.agg
+        delta = None if whole else self._delta(agg.parent, indices)
+        self._send(delta or self._bundle(self.names[agg.parent], indices, down=False))
+
+    def _delta(self, parent: int, indices: list[int]) -> DeltaBundle | None:
+        """Records ``indices`` for ``parent`` as a delta (:class:`protocols.form_cache.DeltaSender`): the forms
+        not yet sent to it, and each record's digest (``None``: the records go whole)."""
+        share = self.share
+        agg = share.agg
+        packed = self._delta_sender.delta(parent, {i: agg.records[i] for i in indices}, share.step)
+        if packed is None:
+            return None
+        carried, digests = packed
+        pin = share.pin if share.pin is not None and self.index[self.reference] in indices else np.zeros(0)
+        return DeltaBundle(sender=self.name, receiver=self.names[parent], round=self.round, step=share.step,
+                           hop=agg.hop, parent=parent, depth=agg.depth,
+                           members=np.array(sorted(indices), dtype=np.int16), pin=pin,
+                           digest=np.array(digests, dtype=np.int64).reshape(-1, 2),
+                           **DeltaBundle.pack(share.step, carried))
+
+    def _send_down(self, exclude=(), start: int | None = None) -> None:
+        """The final set of this window to the children (the root: when complete or on timeout)."""
+        share = self.share
+        agg = share.agg
+        agg.final = True
+        if start is None:  # the root: when the deepest agent will have it, everyone starts the ADMM at once
+            start = self.round + agg.depth // 2 + 2 if share.mode == "tree" and agg.root else 0
+        share.start_at = start
+        self.down = None
+        if self.aggregation != "tree":
+            return
+        targets = agg.down_targets(exclude)
+        # kept by every agent, so that any neighbour still waiting can be answered (packed when first asked)
+        self.down = DownState(share, start, DownRepair(targets, start, self.round))  # children that may lack it
+        for child in targets:
+            self._send(self._down_bundle(self.names[child]))
+
+    def _down_bundle(self, receiver: str) -> FormBundle | JointPoses:
+        """What goes down to ``receiver``: the reference's joint solution when the set was complete there
+        (:class:`protocols.delta_messages.JointPoses`, a few bytes per assembly), else the forms."""
+        down = self.down
+        share = down.share
+        solution = share.solution
+        if solution is None and self.name == self.reference and share.agg.complete:
+            joint = self.joint(share)
+            if joint is not None:
+                solution = share.solution_out = share.solution_out or self._solution_message(share, joint)
+        return down.to(self.name, receiver, self.round, solution, self.index[self.reference])
+
+    def _solution_message(self, share: WindowShare, joint) -> JointPoses:
+        """The reference's joint solution of the window as it goes down, with the view graph when it changed
+        since the last solution sent."""
+        edges = share.edges()
+        previous, self._edges_sent = self._edges_sent, edges
+        placeable = {self.index[a] for a, k in self.placeable(share, joint) if k == share.step}
+        return share.solution_message(self.name, joint, self.index, placeable, edges if edges != previous else None,
+                                      self.round, len(self.names))
+
+    def _factor_share(self, receiver: str) -> FactorShare:
+        own = self.own
+        have = [self.me]
+        if self.share is not None and self.share.step == own.step:
+            have = sorted(self.share.records)
+        return FactorShare(sender=self.name, receiver=receiver, round=self.round, step=own.step,
+                           have=np.array(have, dtype=np.int64), keys=own.keys, forms=own.forms, pin=own.pin)
+
+    def ask(self, neighbour: str, step: int) -> None:
+        """A neighbour sends ADMM values of window ``step``, so it has finished the sharing: ask it for the set
+        (at most every other round) by sending it this agent's records, which it answers with the down bundle."""
+        wait = self.share if self.share is not None else self.late
+        if (wait is None or wait.step != step or wait.mode != "tree" or wait.agg.parent is None
+                or self.round - wait.asked_at < 2):
+            return
+        wait.asked_at = self.round
+        self.counters["retransmits"] += 1
+        self._send(self._bundle(neighbour, sorted(wait.agg.records), down=False, share=wait))
+
+    def ask_down(self) -> None:
+        """After a timeout without every agent's forms, keep asking the parent for the down bundle (every
+        3 rounds, at most 10 times this window): a late complete set re-seeds the window exactly."""
+        late = self.late
+        if (late is None or late.step != self.step or late.asked >= 10 or self.round - late.last < 3
+                or late.agg.parent is None):
+            return
+        late.asked += 1
+        late.last = self.round
+        self.counters["retransmits"] += 1
+        self._send(self._bundle(self.names[late.agg.parent], sorted(late.agg.records), down=False, share=late))
+
+    def repair_down(self, heard: Callable[[str], bool]) -> None:
+        """Send the down bundle again to children not ``heard`` from in this window's ADMM (it was lost).
+
+        A child that has the down bundle starts the ADMM at its ``start`` round with everyone else, and its
+        first values reach this agent (a view-graph neighbour) a round later; a child still silent
+        2 rounds after that gets the bundle again, every 3 rounds, at most 4 times (it may no longer be a
+        neighbour; it also asks by itself)."""
+        down = self.down
+        if down is not None and (down.share.solution or down.share.solution_out):
+            return  # an exact window sends no ADMM values to tell it by: the children ask themselves
+        if down is None or down.step != self.step or not down.repair:
+            return
+        for child in down.repair.due(self.round, lambda c: heard(self.names[c])):
+            self.counters["retransmits"] += 1
+            self._send(self._down_bundle(self.names[child]))
+
+    # ------------------------------------------------------------------ receive half
+    def on_ack(self, message: FormAck) -> None:
+        """The parent acknowledges the bundle up, or a child says it has the down bundle."""
+        share, down = self.share, self.down
+        if share is not None and share.step == message.step and self.index.get(message.sender) == share.agg.parent:
+            share.agg.acknowledge(message.have.tolist(), self.round)
+        elif down is not None and down.step == message.step:
+            down.repair.have(self.index.get(message.sender))  # a child has the down bundle
+
+    def on_factors(self, message: FactorShare) -> None:
+        """An agent's forms by broadcast (or its direct answer): kept, and answered when it lacks this agent's."""
+        sender = self.index.get(message.sender)
+        n = len(self.names)
+        if sender is None or (len(message.keys) and message.keys[:, 1].max() >= n):
+            self.counters["ignored"] += 1
+            return
+        share = self.share
+        if share is not None and message.step == share.step:
+            agg = share.agg
+            if sender not in share.records:
+                forms = self._problems(message.unpack())
+                self.forms.remember(sender, forms)
+                agg.add({sender: forms}, forward=message.sender == self.name)
+                if len(message.pin):
+                    share.pin = np.array(message.pin)
+            if share.mode == "tree" and message.receiver == BROADCAST and agg.parent == sender and not agg.final:
+                share.mode, share.sent = "broadcast", NEVER  # the parent has no route: nor has this agent
+        own = self.own
+        # it lacks ours: answer directly (only broadcasts are answered, so answers never ping-pong)
+        if (own is not None and own.step == message.step and message.receiver == BROADCAST
+                and message.sender != self.name and self.me not in set(message.have.tolist())):
+            self._send(self._factor_share(message.sender))
+
+    def _problems(self, forms: Iterable) -> list:
+        """Unpacked forms ``(keys, M, b_z, c_z)`` as ``[(keys, LocalProblem)]``."""
+        return [(keys, LocalProblem(tuple((self.names[a], s) for a, s in keys), M, b_z, c_z))
+                for keys, M, b_z, c_z in forms]
+
+    def on_delta(self, message: DeltaBundle) -> bool:
+        """A delta bundle from a child: rebuild each member's record of the window from the forms carried and
+        those held here (:class:`protocols.form_cache.FormCache`); a member that cannot be rebuilt exactly is
+        left out (not acknowledged: the child sends it whole). ``True``: the window's sharing finished."""
+        n = len(self.names)
+        if (self.index.get(message.sender) is None or (len(message.pairs) and message.pairs.max() >= n)
+                or (len(message.members) and message.members.max() >= n)):
+            self.counters["ignored"] += 1
+            return False
+        for owner, keys, M, b_z, c_z in message.carried():
+            self.forms.remember(owner, self._problems([(keys, M, b_z, c_z)]))
+        first = message.step - self.window + 1
+        rebuilt = {}
+        for member, digest in zip(message.members.tolist(), message.digest.tolist()):
+            record = self.forms.rebuild(member, tuple(digest), first, message.step)
+            if record is not None:
+                rebuilt[member] = record
+        return self.on_bundle(message, rebuilt)
+
+    def on_bundle(self, message: FormBundle | DeltaBundle, rebuilt: dict | None = None) -> bool:
+        """A bundle from a child (records up) or from the parent (the final set, down); ``rebuilt``: the
+        records a delta bundle describes (:meth:`on_delta`). ``True``: the window's sharing finished."""
+        n = len(self.names)
+        down = bool(getattr(message, "down", False))
+        sender = self.index.get(message.sender)
+        if rebuilt is None and (sender is None or (len(message.keys) and message.keys[:, 1].max() >= n)
+                                or (len(message.members) and message.members.max() >= n)):
+            self.counters["ignored"] += 1
+            return False  # (a delta's indices were checked by on_delta)
+        self.tree.heard(message.sender, message.hop, message.parent, self.round, self.step)
+        for member in message.members.tolist():
+            self.heard(int(member), self.step if self.step is not None else 0)
+        if rebuilt is None:
+            records = {i: self._problems(forms) for i, forms in message.records().items()}
+            for i, forms in records.items():
+                self.forms.remember(i, forms)
+        else:
+            records = rebuilt
+        share, late = self.share, self.late
+        if share is None and late is not None and late.step == message.step == self.step:
+            return self._on_late(message, records, down, sender)
+        if share is None or message.step != share.step:
+            # finished with this window: a bundle from below means the down bundle was lost: send it again
+            if not down and self.down is not None and self.down.step == message.step:
+                self._send(self._down_bundle(message.sender))
+            return False
+        agg = share.agg
+        if len(message.pin):
+            share.pin = np.array(message.pin)
+        if down:
+            if agg.final:
+                return False
+            agg.add(records, depth=message.depth)
+            self.depth = max(1, message.depth)
+            lost = agg.missing_from(message.members.tolist())
+            if lost and agg.parent is not None:  # the root timed out without records from here: send them again
+                self._send(self._bundle(self.names[agg.parent], lost, down=False))
+            self._send_down(exclude=(sender,), start=message.start)  # forwarded at once: one hop per phase
+            # acknowledged: in an exact window no ADMM values come back to tell the parent it arrived
+            self._send(share.ack(self.name, message.sender, self.round))
+        else:
+            agg.add(records, child=sender, depth=message.depth)
+            if agg.final:  # already finished the window's sharing: the child missed the down bundle
+                if self.down is not None:
+                    self._send(self._down_bundle(message.sender))
+                return False
+            self._send(share.ack(self.name, message.sender, self.round))
+            self._tree_progress()
+        return False
+
+    def _on_late(self, message, records: dict, down: bool, sender: int) -> bool:
+        """Records of a window that finished here without every agent's forms: they may complete it."""
+        late = self.late
+        agg = late.agg
+        if len(message.pin):
+            late.pin = np.array(message.pin)
+        new = agg.add(records, child=None if down else sender)
+        if not down and new and agg.parent is not None:  # the root missed them too: pass them on
+            self._send(self._bundle(self.names[agg.parent], sorted(new), down=False, share=late))
+        if agg.complete:  # start again from the joint solution, and tell the children
+            self.late, self.share = None, late
+            agg.final = False
+            self._send_down(exclude=(sender,) if down else (), start=0)
+            self.counters["late_seeds"] += 1
+            return True
+        if not down and self.down is not None and self.down.step == message.step:
+            self._send(self._down_bundle(message.sender))
+        return False
+
+    def on_solution(self, message: JointPoses) -> bool:
+        """The reference's joint solution coming down: kept and forwarded to the children. ``True``: the
+        window's sharing finished (the agent adopts it)."""
+        if message.n != len(self.names):
+            self.counters["ignored"] += 1
+            return False
+        share, late = self.share, self.late
+        if share is None and late is not None and late.step == message.step == self.step:
+            self.late, self.share = None, late  # a window that timed out here: complete after all
+            late.agg.final = False
+            share = late
+            self.counters["late_seeds"] += 1
+        if share is None or share.step != message.step or share.agg.final:
+            return False
+        self.tree.heard(message.sender, message.hop, message.parent, self.round, self.step)
+        share.solution = message
+        share.agg.depth = max(share.agg.depth, message.depth)
+        self.depth = max(1, message.depth)
+        # (not acknowledged: a child still without it after its bundle up was acknowledged sends the bundle again,
+        # and whoever has finished the window answers with the solution)
+        self._send_down(exclude=(self.index.get(message.sender),), start=message.start)
+        return True
