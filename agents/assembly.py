@@ -341,6 +341,10 @@ class AssemblyAgent:
         # every agent's forms: the seeds are the joint estimate of this step (a fixed point of the ADMM),
         # and the centralized estimator's placement test can be run on them
         self._start.complete = share.agg.complete  # every (live) agent's forms
+        # (a set without some agent's forms is still the centralized problem of the data that arrived: its
+        # placements answer the step if the ADMM has not converged when the next sensor step comes; without
+        # them a window whose peer is down placed no one when that came before the wait for the forms ended)
+        self._start.fallback = self._placed(seeds, sharing.placeable(share, joint))
         if self._start.complete:
             self._start.placeable = sharing.placeable(share, joint)
             self._start.why = sharing.unplaced_reasons(share, joint)
@@ -367,6 +371,7 @@ class AssemblyAgent:
         # placed relative to the reference; relative to this agent when it is placed itself
         self._start.placeable = frozenset((names[i], step) for i in placeable | {me} if i < len(names)) \
             if me in placeable else frozenset()
+        self._start.fallback = self._placed(newest, self._start.placeable)
         self._fill_table(newest)
         if len(solution.edges):
             self._learn_graph({(a, b) for a, b in solution.edge_set() if a != b})
@@ -374,6 +379,11 @@ class AssemblyAgent:
         if self.config.share_forms == "every":
             self._fresh_admm()
         self.seed(newest)
+
+    def _placed(self, poses: dict, placeable) -> dict[str, tuple]:
+        """This step's poses of a joint solution ``(assembly, step) -> (R, p)`` that ``placeable`` names, and its own."""
+        return {name: pose for (name, step), pose in poses.items()
+                if step == self._step and ((name, step) in placeable or name == self.name)}
 
     def _pair_phase(self) -> None:
         """Phase 0: each owned pair iterates once the target's consensus of its iteration has arrived."""
@@ -446,26 +456,43 @@ class AssemblyAgent:
         From the gossip table's rows of the current step; an assembly whose row of this step has not
         arrived (lost copies) is taken from the joint solution of the step's shared forms when this
         agent holds every agent's forms (that solution is the ADMM's fixed point, restricted to the
-        assemblies tied to the gauge, the same placement rule as the consensus).
+        assemblies tied to the gauge, the same placement rule as the consensus). While the ADMM has not
+        converged, the joint solution this agent holds (of every live agent's forms, or of those that
+        came before the wait for them ended) gives the step's placements instead: an iterate on its way
+        is no estimate (a neighbour without the set pulls it off the fixed point for a while).
         """
-        if self._step is None or not self._consensus.ready:
+        if self._step is None:
             return {}
+        if self._start.fallback and not self.converged:
+            return self._relative_to_own(self._rows_of(self._start.fallback))
         me = self._gossip.rows.get(self._index[self.name])
-        if me is None or int(me[1]) != self._step:
+        if not self._consensus.ready or me is None or int(me[1]) != self._step:
             return {}
         rows = {i: row for i, row in self._gossip.rows.items() if int(row[1]) == self._step}
         if self._start.complete:
             for (name, step), (R, p) in self._start.seeds.items():
                 i = self._index.get(name)
                 if step == self._step and i is not None and i not in rows:
-                    rows[i] = np.array([i, step, 0, *p, np.arctan2(R[1, 0], R[0, 0])])
+                    rows[i] = pose_row(i, step, 0, R, p)
+            # (an assembly whose yaw relative to this agent is not determined is left out, never guessed)
+            rows = {i: row for i, row in rows.items()
+                    if i == self._index[self.name] or (self.config.assemblies[i], self._step) in self._start.placeable}
+        return self._relative_to_own(rows)
+
+    def _rows_of(self, poses: dict[str, tuple]) -> dict[int, np.ndarray]:
+        """Poses ``assembly -> (R, p)`` of this step as gossip-table rows (index, step, round, x, y, z, yaw)."""
+        return {self._index[name]: pose_row(self._index[name], self._step, 0, R, p) for name, (R, p) in poses.items()}
+
+    def _relative_to_own(self, rows: dict[int, np.ndarray]) -> dict[str, PlanarPose]:
+        """Rows of this step (root frames in the gauge) as poses in this agent's root frame (eq. (19))."""
+        me = rows.get(self._index[self.name])
+        if me is None:
+            return {}
         c, s = np.cos(me[6]), np.sin(me[6])
         out = {}
         for i, row in rows.items():
             if i == self._index[self.name]:
                 continue
-            if self._start.complete and (self.config.assemblies[i], self._step) not in self._start.placeable:
-                continue  # its yaw relative to this agent is not determined: left out, never guessed
             d = row[3:6] - me[3:6]
             p = np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1], d[2]])  # seed 000 eq. (19)
             out[self.config.assemblies[i]] = PlanarPose(p, float(wrap_angle(row[6] - me[6])))

@@ -65,6 +65,12 @@ class WindowRule:
         if not (self.budget >= 1 and self.settle >= 1 and self.min_rounds >= 0):
             raise InputError("need budget >= 1, settle >= 1, min_rounds >= 0", field="budget")
 
+    def share_timeout(self, default: int) -> int:
+        """The wait for a window's forms under this budget: ``default`` (:attr:`AgentConfig.share_timeout`),
+        at most half the budget and at least 4 rounds, so that a window whose peer is down still ends
+        with the others' forms before the next sensor step comes."""
+        return max(4, min(default, self.budget // 2))
+
 
 class LocalAgent:
     """An :class:`AssemblyAgent` plus the local window rule (what a runtime drives).

@@ -26,6 +26,10 @@ class WindowStart:
         Observers whose first values a seeded start waits for.
     form_sig : dict or None
         Target -> detections its pair used when this window's own forms were shared.
+    fallback : dict
+        Assembly -> ``(R, p)`` at this step of what the joint solution places (of every live agent's
+        forms, or of those that came before the wait for them ended): the step's answer while the ADMM
+        has not converged (its iterates on the way are not estimates).
     """
 
     seeds: dict = field(default_factory=dict)
@@ -34,3 +38,4 @@ class WindowStart:
     why: dict = field(default_factory=dict)
     expected: set = field(default_factory=set)
     form_sig: dict | None = None
+    fallback: dict = field(default_factory=dict)

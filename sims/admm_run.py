@@ -153,7 +153,13 @@ def _agent_config(log: ObservationLog, name: str, reference: str, config: AdmmRu
     return AgentConfig(name=name, assemblies=tuple(log.assemblies), reference=reference, cameras=cams,
                        node_radius=log.node_radius, noise=config.noise, window=config.window, admm=config.admm,
                        announce_every=config.announce_every, share_forms=config.share_forms,
-                       aggregation=config.aggregation)
+                       aggregation=config.aggregation,
+                       share_timeout=_rule(config).share_timeout(AgentConfig.share_timeout))
+
+
+def _rule(config: AdmmRunConfig) -> WindowRule:
+    """Each agent's local window rule (the same one a process runs, with the budget ``max_rounds``)."""
+    return WindowRule(min_rounds=config.min_rounds, settle=config.settle, budget=config.max_rounds)
 
 
 def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunConfig = AdmmRunConfig(),
@@ -185,7 +191,7 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
         link=LinkConfig(drop=config.loss, latency=config.latency, jitter=config.jitter, duplicate=config.duplicate),
         partitions=config.partitions, crashes=config.crashes, round_period=config.round_period,
     ), np.random.default_rng(seed))
-    rule = WindowRule(min_rounds=config.min_rounds, settle=config.settle, budget=config.max_rounds)
+    rule = _rule(config)
     position = {n: i for i, n in enumerate(names)}
     per_step: list[dict] = []  # per step: kind -> copies sent by each agent (names order)
     bytes_step: list[dict] = []  # the same in bytes

@@ -111,14 +111,12 @@ def process_agent_config(part: ObservationLog, name: str, reference: str, window
                          round_period: float) -> AgentConfig:
     """The configuration of agent ``name`` running its ``part`` at this pace.
 
-    Its waits are bounded by the rounds between two steps: the forms' ``share_timeout`` is half the
-    budget (at most the simulated default, 24), so that a window without a peer that is down still
-    ends with the forms of the others before the next step comes.
+    Its waits are bounded by the rounds between two steps (:meth:`agents.runtime.WindowRule.share_timeout`).
     """
-    budget = rounds_per_step(part, rate, round_period)
+    rule = WindowRule(budget=rounds_per_step(part, rate, round_period))
     return AgentConfig(name=name, assemblies=tuple(part.assemblies), reference=reference,
                        cameras=tuple(part.cameras.values()), node_radius=part.node_radius, window=window,
-                       share_timeout=max(4, min(AgentConfig.share_timeout, budget // 2)))
+                       share_timeout=rule.share_timeout(AgentConfig.share_timeout))
 
 
 def _counts(transport: Transport, name: str) -> dict:

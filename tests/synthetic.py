@@ -99,3 +99,15 @@ def true_relative(world, name: str, reference: str, k: int) -> tuple[np.ndarray,
     """Ground-truth pose of ``name`` in ``reference``'s root frame at step ``k`` (eq. (19))."""
     (yr, pr), (ya, pa) = world[reference][k], world[name][k]
     return rotz(yr).T @ (np.asarray(pa) - np.asarray(pr)), float(wrap_angle(ya - yr))
+
+
+def without(log: ObservationLog, name: str, *, config: bool = False) -> ObservationLog:
+    """The log as the others see it when ``name``'s agent sends nothing: no odometry or cameras of it, and
+    no configuration unless ``config`` (the others may know it from an announcement made earlier)."""
+    prefix = name + "/"
+    steps = tuple(Step(t=s.t, config={a: c for a, c in s.config.items() if a != name or config},
+                       odometry={a: o for a, o in s.odometry.items() if a != name},
+                       detections={k: d for k, d in s.detections.items() if not k.startswith(prefix)},
+                       mounts={k: m for k, m in s.mounts.items() if not k.startswith(prefix)}) for s in log.steps)
+    cams = {k: c for k, c in log.cameras.items() if c.assembly != name}
+    return ObservationLog(log.node_radius, log.assemblies, cams, steps)

@@ -18,11 +18,11 @@ import pytest
 
 from decentral.estimator import EstimatorConfig, estimate_log
 from decentral.metrics import estimate_gap, score_estimate
-from decentral.observations import ObservationLog, Step
 from sims.cli.main import main
 from sims.io.log_json import write_log
 from sims.launch import CrashPlan, LaunchConfig, launch, parse_crash
 from sims.scenarios import get_scenario, simulate
+from tests.synthetic import without
 
 POS_TOL, YAW_TOL = 1e-3, np.radians(0.05)
 #: 20 rounds of 25 ms per 0.2 s log step
@@ -151,26 +151,17 @@ def test_launch_under_receive_side_loss_stays_within_the_admm_tolerance(loss, tm
 
 @pytest.mark.slow
 def test_a_killed_agent_restarts_fresh_and_catches_up_within_ten_steps(tmp_path):
-    """A2 is SIGKILLed at step 6 and restarted 3 steps later: the estimate covers every step and from
-    10 steps after the restart on equals the centralized estimate again."""
+    """A2 is SIGKILLed at step 6 and restarted 3 steps later: the estimate covers every step, places
+    assemblies at every step (also while A2 is down), and from 10 steps after the restart on equals the
+    centralized estimate again."""
     sim = _sim(5, 24)
     central = estimate_log(sim.log, EstimatorConfig(window=5))
     est = launch(sim.log, LaunchConfig(crashes=(CrashPlan("A2", 6, 3),), **PACE), workdir=tmp_path).estimate
     assert len(est.steps) == 24 and [s.t for s in est.steps] == [s.t for s in sim.log.steps]
     assert est.stats["restarts"]["A2"] == 1 and est.stats["processes"] == 6
+    assert all(step.poses for step in est.steps), [sorted(step.unplaced.values()) for step in est.steps]
     dp, dth, mismatched = _gap_from(central, est, first=9 + 10)
     assert mismatched == 0 and dp < POS_TOL and dth < YAW_TOL, (dp, np.degrees(dth))
-
-
-def _without(log: ObservationLog, name: str) -> ObservationLog:
-    """The log as the others see it when ``name``'s agent never runs: no configuration, odometry or cameras of it."""
-    prefix = name + "/"
-    steps = tuple(Step(t=s.t, config={a: c for a, c in s.config.items() if a != name},
-                       odometry={a: o for a, o in s.odometry.items() if a != name},
-                       detections={k: d for k, d in s.detections.items() if not k.startswith(prefix)},
-                       mounts={k: m for k, m in s.mounts.items() if not k.startswith(prefix)}) for s in log.steps)
-    cams = {k: c for k, c in log.cameras.items() if c.assembly != name}
-    return ObservationLog(log.node_radius, log.assemblies, cams, steps)
 
 
 @pytest.mark.slow
@@ -182,7 +173,7 @@ def test_a_peer_that_never_starts_hangs_nobody(tmp_path):
     est = launch(sim.log, LaunchConfig(absent=("A3",), **PACE), workdir=tmp_path).estimate
     assert time.monotonic() - began < 60 and est.stats["status"] == "ok"
     assert est.stats["missing"] == ["A3"] and est.stats["processes"] == 4
-    central = estimate_log(_without(sim.log, "A3"), EstimatorConfig(window=5))
+    central = estimate_log(without(sim.log, "A3"), EstimatorConfig(window=5))
     dp, dth, mismatched = _gap_from(central, est, first=3)
     assert mismatched == 0 and dp < POS_TOL and dth < YAW_TOL, (dp, np.degrees(dth))
 
