@@ -167,10 +167,14 @@ class AssemblyAgent:
 
     # ------------------------------------------------------------------ messages
     def handle(self, message: Message) -> None:
-        """Route one received message by its type (anything else is counted and ignored)."""
+        """Route one received message by its type (anything else, or anything from a sender that is not one
+        of the log's assemblies, is counted and ignored)."""
         sender = self._index.get(message.sender)
+        if sender is None:
+            self.counters["ignored"] += 1  # (a real transport refuses such frames before; the agent never trusts it)
+            return
         sharing = self._sharing
-        if sender is not None and self._step is not None:
+        if self._step is not None:
             sharing.heard(sender, self._step)
         if isinstance(message, ConfigAnnounce):
             if self._configs.learn(message):

@@ -203,6 +203,23 @@ def test_older_or_duplicate_admm_values_do_not_replace_newer_ones(log):
     assert agent._inbox.targets["A1"].values[0][1][0] == 2.0
 
 
+def test_messages_from_a_sender_outside_the_log_are_ignored_and_harmless(log):
+    """ADMM values (with a tree entry) and a joint solution from a name that is not an assembly of the log are
+    counted as ignored and leave the agent able to run its rounds."""
+    agent = _agent(log, "A0", share_forms="every")
+    agent.on_step(own_step(log, "A0", 0))
+    row = np.array([[0, 1, 0, 0, 1, 0.5, 0, 0]], float)
+    agent.handle(AdmmPrimal(sender="Z9", receiver="A0", round=1, window=0,
+                            blocks={"x": row, "meta": np.array([1.0, 0, 0, 1]), "tree": np.array([1.0, 0.0])}))
+    before = agent.counters["ignored"]
+    agent.handle(AdmmDual(sender="Z9", receiver="A0", round=1, window=0, blocks={"tree": np.array([1.0, 0.0])}))
+    assert agent.counters["ignored"] == before + 1 >= 2
+    for r in range(1, 4):
+        agent.tick(r, 0)
+        agent.tick(r, 1)
+    assert "Z9" not in agent.neighbours
+
+
 def test_agents_do_not_import_the_simulator_or_ground_truth():
     """Importing the agent loads neither sims (where ground truth lives) nor cv2/pettingzoo."""
     code = "import sys, agents.assembly; print(any(m == 'sims' or m.startswith(('sims.', 'cv2', 'pettingzoo')) for m in sys.modules))"
