@@ -56,6 +56,9 @@ def write_part(path: str | os.PathLike, part: ObservationLog, name: str) -> None
     write_json_atomic(path, doc)
 
 
+_MAKE = "`decentral parts LOG.json -o DIR` makes each assembly's part of a log"
+
+
 def read_part(path: str | os.PathLike, name: str) -> ObservationLog:
     """Read a part and check it is ``name``'s: its ``part`` field (if any) names it and it holds no other
     assembly's cameras, configuration, odometry or detections."""
@@ -73,8 +76,9 @@ def read_part(path: str | os.PathLike, name: str) -> ObservationLog:
     for k, step in enumerate(log.steps):
         others = [a for a in (*step.config, *step.odometry) if a != name]
         if others:
-            raise InputError(f"holds {others[0]!r}'s data (a part has its owner's only)", source=str(path),
+            raise InputError(f"holds data of {others[0]!r}: a part has its owner's only ({_MAKE})", source=str(path),
                              field=f"steps[{k}]")
     if foreign:
-        raise InputError(f"holds another assembly's camera {foreign[0]!r}", source=str(path), field="assemblies")
+        raise InputError(f"holds another assembly's camera {foreign[0]!r} ({_MAKE})", source=str(path),
+                         field="assemblies")
     return log

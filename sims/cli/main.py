@@ -35,6 +35,7 @@ COMMANDS: dict[str, str] = {
     "export": "sims.cli.export",
     "build-log": "sims.cli.build_log",
     "keys": "sims.cli.keys",
+    "parts": "sims.cli.parts",
     "agent": "sims.cli.agent",
     "launch": "sims.cli.launch",
     "study": "sims.cli.study",

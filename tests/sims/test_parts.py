@@ -60,3 +60,19 @@ def test_reading_someone_elses_part_or_a_whole_log_is_refused(log, tmp_path):
     whole.write_text(json.dumps(log_to_dict(log)))
     with pytest.raises(InputError, match="steps\\[0\\]|camera"):
         read_part(whole, "A1")
+
+
+def test_cli_parts_writes_each_assemblys_part_that_its_agent_reads(log, tmp_path):
+    """`decentral parts LOG -o DIR` writes NAME.part.json per assembly, each what `read_part` accepts for NAME
+    and equal to the log's part; an unknown --only name exits 2 and writes nothing."""
+    from sims.cli.main import main
+    from sims.io.log_json import write_log
+
+    write_log(tmp_path / "log.json", log)
+    assert main(["parts", str(tmp_path / "log.json"), "-o", str(tmp_path / "parts"), "-q"]) == 0
+    assert sorted(p.name for p in (tmp_path / "parts").iterdir()) == [f"{n}.part.json" for n in sorted(log.assemblies)]
+    for name, expected in split_log(log).items():
+        got = read_part(tmp_path / "parts" / f"{name}.part.json", name)
+        assert log_to_dict(got) == log_to_dict(expected)
+    assert main(["parts", str(tmp_path / "log.json"), "-o", str(tmp_path / "none"), "--only", "A9", "-q"]) == 2
+    assert not (tmp_path / "none").exists()
