@@ -13,11 +13,12 @@ import numpy as np
 
 from agents.perception.hough import HoughCircleDetector, HoughConfig
 from agents.perception.rim import RimCircleDetector, RimConfig
+from agents.perception.symmetry import SymmetryCircleDetector, SymmetryConfig
 from agents.perception.types import CircleDetector
 
 __all__ = ["DETECTORS", "make_detector"]
 
-DETECTORS = ("hough", "rim")
+DETECTORS = ("hough", "rim", "symmetry")
 
 
 def make_detector(name: str = "hough", min_radius: float = 8.0, max_radius: float = 160.0) -> CircleDetector:
@@ -33,4 +34,6 @@ def make_detector(name: str = "hough", min_radius: float = 8.0, max_radius: floa
         return HoughCircleDetector(HoughConfig(min_radius=lo, max_radius=hi))
     if name == "rim":
         return RimCircleDetector(RimConfig(min_radius=lo, max_radius=hi))
+    if name == "symmetry":
+        return SymmetryCircleDetector(SymmetryConfig(min_radius=lo, max_radius=hi))
     raise ValueError(f"unknown detector {name!r} (expected one of {', '.join(DETECTORS)})")

@@ -1,0 +1,293 @@
+"""Circle candidates from colour edges voting for centres along their gradient (radial symmetry).
+
+A sphere's rim is an edge all around whose gradient points along the ray from the centre, whatever
+the sign of the step (a shaded sphere is darker than the floor on one side and brighter on the
+other) and whichever colour channel carries it (a sphere as bright as the floor differs in hue).
+So each edge pixel of a colour Canny map (the channel with the largest gradient at each pixel) votes
+at distance ``n`` on both sides along its gradient, for a ladder of radii ``n``; where the rim of a
+circle of radius about ``n`` lies, the votes pile up at its centre. The votes of radius ``n`` in a
+window of ``± window * n`` around a pixel, divided by the circle's perimeter ``2 pi n``, are the share
+of that circle's rim that is an edge facing its centre: the candidate's support, comparable across
+radii. This is the fast radial symmetry transform of Loy and Zelinsky ("Fast radial symmetry for
+detecting points of interest", IEEE TPAMI 2003) with sign-free votes counted on thin edges.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import cv2
+import numpy as np
+
+from agents.perception.circle_fit import circle_residuals
+from agents.perception.heap import keep_freed_memory
+from agents.perception.hough import _blur_float, _dedupe, suppress
+from agents.perception.refine import _nearest, _robust_fit, rim_points
+from agents.perception.rim_refine import RimRefineConfig, radial_edges, refine_circles
+from agents.perception.types import Circle
+
+__all__ = ["SymmetryCircleDetector", "SymmetryConfig", "radius_ladder", "symmetry_candidates", "verify_circles"]
+
+
+def radius_ladder(r_lo: float, r_hi: float, window: float) -> np.ndarray:
+    """Radii from ``r_lo`` to at least ``r_hi`` spaced so that windows of ``± window * n`` just meet."""
+    ratio = (1.0 + window) / (1.0 - window)
+    count = max(int(np.ceil(np.log(r_hi / r_lo) / np.log(ratio))) + 1, 1)
+    return r_lo * ratio ** np.arange(count)
+
+
+def _edge_normals(image: np.ndarray, canny: tuple[float, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Thin edges of a uint8 image (grey or BGR) and their unit gradients: x, y (E,) int, cos, sin (E,) float32.
+
+    On a colour image each pixel's gradient is that of its channel with the largest gradient (as
+    ``cv2.Canny`` takes it).
+    """
+    dx = cv2.Sobel(image, cv2.CV_16S, 1, 0)
+    dy = cv2.Sobel(image, cv2.CV_16S, 0, 1)
+    edges = cv2.Canny(dx, dy, canny[0], canny[1], L2gradient=True)
+    ys, xs = np.nonzero(edges)
+    gx, gy = dx[ys, xs].astype(np.float32), dy[ys, xs].astype(np.float32)
+    if gx.ndim == 2:  # (E, C): the strongest channel
+        c = np.argmax(gx * gx + gy * gy, axis=1)[:, None]
+        gx, gy = np.take_along_axis(gx, c, axis=1)[:, 0], np.take_along_axis(gy, c, axis=1)[:, 0]
+    mag = np.maximum(np.hypot(gx, gy), 1e-6)
+    return xs, ys, gx / mag, gy / mag
+
+
+def symmetry_candidates(
+    image: np.ndarray,
+    radii: np.ndarray,
+    *,
+    canny: tuple[float, float] = (20.0, 40.0),
+    window: float = 0.1,
+    min_support: float = 0.25,
+    max_candidates: int = 60,
+) -> np.ndarray:
+    """Circle candidates of a uint8 image (grey or BGR) at the radii ``radii`` (px of this image).
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W) or (H, W, 3), uint8
+        Usually a downscaled frame (candidates are rough; the rim is refined at full resolution).
+    radii : ndarray, shape (K,)
+        Increasing radii voted for (e.g. :func:`radius_ladder`).
+    canny : (float, float)
+        Hysteresis thresholds of the edge map (on the Sobel gradient of the strongest channel).
+    window : float
+        Votes within ``± window * n`` (at least 1 px) of a pixel count towards it.
+    min_support : float
+        Smallest share of a candidate's perimeter voting for it.
+    max_candidates : int
+        At most this many candidates, best supported first.
+
+    Returns
+    -------
+    ndarray, shape (N, 4)
+        (u, v, r, support) in this image's pixels, best supported first; candidates are local maxima
+        of the support over position and radius (the 3 x 3 x 3 neighbourhood).
+    """
+    h, w = image.shape[:2]
+    xs, ys, cx, cy = _edge_normals(image, canny)
+    if len(xs) == 0 or len(radii) == 0:
+        return np.zeros((0, 4))
+    support = np.empty((len(radii), h, w), np.float32)
+    # both signs of each edge's normal at once; votes off the image land on a one-pixel frame
+    # around it (the accumulator is padded), which is then cut away
+    x2 = np.concatenate([xs, xs]).astype(np.float32)
+    y2 = np.concatenate([ys, ys]).astype(np.float32)
+    c2, s2 = np.concatenate([cx, -cx]), np.concatenate([cy, -cy])
+    for k, n in enumerate(radii):
+        px = np.clip(np.rint(x2 + np.float32(n) * c2), -1, w).astype(np.int32) + 1
+        py = np.clip(np.rint(y2 + np.float32(n) * s2), -1, h).astype(np.int32) + 1
+        votes = np.bincount(py * (w + 2) + px, minlength=(h + 2) * (w + 2)).astype(np.float32)
+        votes = votes.reshape(h + 2, w + 2)[1:-1, 1:-1]
+        half = max(int(round(window * n)), 1)
+        side = 2 * half + 1
+        cv2.boxFilter(votes, -1, (side, side), dst=support[k], normalize=False, borderType=cv2.BORDER_CONSTANT)
+        # less the votes a window receives by chance where edges are dense (a textured floor):
+        # the mean over a window of the circle's size
+        wide = 2 * int(round(n)) + 1
+        support[k] -= cv2.boxFilter(votes, -1, (wide, wide), borderType=cv2.BORDER_REFLECT) * np.float32(side * side)
+        support[k] *= np.float32(1.0 / (2.0 * np.pi * n))
+    # peaks of the best support over radii (3 x 3 local maxima), then at each peak every radius
+    # whose support is a local maximum along the radius ladder (a rim and the tag inside it)
+    best = support.max(axis=0)
+    peak = (best >= cv2.dilate(best, np.ones((3, 3), np.uint8))) & (best >= min_support)
+    vs, us = np.nonzero(peak)
+    prof = support[:, vs, us]  # (K, P)
+    up = np.ones(prof.shape, dtype=bool)
+    up[1:] &= prof[1:] >= prof[:-1]
+    up[:-1] &= prof[:-1] > prof[1:]
+    ks, ps = np.nonzero(up & (prof >= min_support))
+    sup = prof[ks, ps]
+    order = np.argsort(-sup, kind="stable")[:max_candidates]
+    return np.column_stack([us[ps[order]], vs[ps[order]], np.asarray(radii)[ks[order]], sup[order]]).astype(float)
+
+
+@dataclass(frozen=True)
+class SymmetryConfig:
+    """Parameters of :class:`SymmetryCircleDetector`.
+
+    Attributes
+    ----------
+    levels : tuple of (scale, r_lo, r_hi)
+        Candidates of full-resolution radius in [r_lo, r_hi] are voted for on the frame resized by
+        ``scale`` (the vote's cost grows with the image and the radius ladder).
+    canny : (float, float)
+        Hysteresis thresholds of the colour edge map (Sobel units: 4 per grey level of a step).
+    window : float
+        Relative radius tolerance of a vote (:func:`symmetry_candidates`).
+    min_support : float
+        Smallest vote support of a candidate.
+    max_candidates : int
+        At most this many candidates per level, best supported first.
+    verify_band : (float, float)
+        The verification searches each candidate's rays between these multiples of its radius.
+    verify_edges : int
+        Edges per ray kept by the verification; the one nearest the candidate's circle is used.
+    verify_min_score : float
+        Candidates whose verified rim support (share of the coarse rays) is below this are dropped.
+    min_radius, max_radius : int
+        Radius range in pixels of the returned circles.
+    refine_blur : float
+        Gaussian sigma (px) of the full-resolution image the rim is refined on.
+    min_score : float
+        Circles whose refined rim support (share of the rays) is below this are dropped.
+    max_circles : int
+        At most this many circles are returned (best score first).
+    refine : RefineConfig
+        Rim search and fit parameters of the full-resolution refinement.
+    """
+
+    levels: tuple[tuple[float, float, float], ...] = ((0.5, 7.0, 40.0), (0.25, 34.0, 100.0), (0.125, 90.0, 170.0))
+    canny: tuple[float, float] = (30.0, 60.0)
+    window: float = 0.1
+    min_support: float = 0.2
+    max_candidates: int = 60
+    verify_band: tuple[float, float] = (0.7, 1.4)
+    verify_edges: int = 3
+    verify_min_score: float = 0.2
+    min_radius: int = 8
+    max_radius: int = 160
+    refine_blur: float = 1.0
+    min_score: float = 0.6
+    min_score_px: float = 0.75
+    outer_tie: float = 0.9
+    max_circles: int = 64
+    refine: RimRefineConfig = field(default_factory=RimRefineConfig)
+
+
+class SymmetryCircleDetector:
+    """Radial-symmetry candidates + rim verification and refinement; a :class:`~agents.perception.types.CircleDetector`."""
+
+    def __init__(self, config: SymmetryConfig | None = None):
+        self.config = config or SymmetryConfig()
+        self._fine: np.ndarray | None = None  # the blurred frame's buffer, reused (see HoughCircleDetector)
+        keep_freed_memory()
+
+    def candidates(self, image: np.ndarray) -> np.ndarray:
+        """Rough circles (N, 4) as (u, v, r, support) in full-image pixels over all levels."""
+        cfg = self.config
+        out = []
+        for s, r_lo, r_hi in cfg.levels:
+            lo, hi = max(r_lo, 0.9 * cfg.min_radius), min(r_hi, 1.1 * cfg.max_radius)
+            if hi <= lo:
+                continue
+            small = image if s == 1.0 else cv2.resize(image, None, fx=s, fy=s, interpolation=cv2.INTER_AREA)
+            found = symmetry_candidates(small, radius_ladder(lo * s, hi * s, cfg.window), canny=cfg.canny,
+                                        window=cfg.window, min_support=cfg.min_support,
+                                        max_candidates=cfg.max_candidates)
+            found[:, :2] = (found[:, :2] + 0.5) / s - 0.5
+            found[:, 2] /= s
+            out.append(found)
+        return np.concatenate(out) if out else np.zeros((0, 4))
+
+    def detect(self, image: np.ndarray) -> list[Circle]:
+        """Return the verified, refined, suppressed circles of ``image``, best score first."""
+        cfg = self.config
+        image = np.asarray(image)
+        if image.ndim == 3 and image.shape[2] == 4:
+            image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
+        elif image.ndim != 2 and not (image.ndim == 3 and image.shape[2] == 3):
+            raise ValueError(f"expected a (H, W), (H, W, 3) or (H, W, 4) image, got shape {image.shape}")
+        if image.size == 0:
+            return []
+        rough = self.candidates(image)
+        if len(rough) == 0:
+            return []
+        if self._fine is None or self._fine.shape != image.shape:
+            self._fine = np.empty(image.shape, np.float32)
+        fine_img = _blur_float(image, cfg.refine_blur, out=self._fine)
+        circles, scores, ok = verify_circles(fine_img, rough[:, :3], cfg.verify_band, cfg.verify_edges, cfg.refine)
+        ok &= (scores >= cfg.verify_min_score) & (circles[:, 2] >= 0.8 * cfg.min_radius) & (circles[:, 2] <= 1.2 * cfg.max_radius)
+        # repeats of one circle are merged (best first); nested circles all go on to the fine pass
+        cand = np.column_stack([circles[ok], scores[ok]])
+        coarse = _dedupe(cand[np.argsort(-cand[:, 3], kind="stable")][:, :3])
+        if len(coarse) == 0:
+            return []
+        circles, scores, ok = _refine_outward(fine_img, coarse, cfg.refine, cfg.min_score, cfg.outer_tie)
+        # a small circle's rim crosses few pixels: texture edges line up on it by chance more often
+        ok &= scores >= cfg.min_score + cfg.min_score_px / np.maximum(circles[:, 2], 1.0)
+        found = [Circle(*map(float, c), float(min(s, 1.0))) for c, s in zip(circles[ok], scores[ok])]
+        return suppress(found)[: cfg.max_circles]
+
+
+def verify_circles(image: np.ndarray, rough: np.ndarray, band: tuple[float, float], edges: int, cfg: RimRefineConfig
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """First pass on every candidate: on each of ``cfg.coarse_rays`` rays the ``edges`` outermost
+    edges between ``band`` times the radius; a robust fit (shrinking gates) to the edge nearest the
+    candidate's circle on each ray, and one to the outermost edges (the candidate's radius may be
+    that of an isophote inside a shaded limb).
+
+    Returns
+    -------
+    circles : ndarray, shape (2N, 3)
+        The fits to the nearest edges, then those to the outermost.
+    scores : ndarray, shape (2N,)
+        Share of the rays whose edge lies within the tolerance of the fitted circle and has a
+        radial gradient (:func:`agents.perception.rim_refine.radial_edges`).
+    ok : ndarray of bool, shape (2N,)
+    """
+    rough = np.asarray(rough, dtype=float).reshape(-1, 3)
+    if len(rough) == 0:
+        return rough.copy(), np.zeros(0), np.zeros(0, dtype=bool)
+    every, strength = rim_points(image, rough, band, cfg, rays=cfg.coarse_rays, samples=cfg.coarse_samples,
+                                 candidates=edges)
+    nearest = _nearest(every, strength, rough)
+    outermost = (every[:, :, 0], strength[:, :, 0])
+    out = [_fit_and_score(image, pts, st, rough, cfg) for pts, st in (nearest, outermost)]
+    return tuple(np.concatenate(parts) for parts in zip(*out))
+
+
+def _fit_and_score(image, pts, strength, rough, cfg: RimRefineConfig):
+    """A robust circle fit (shrinking gates) to one rim point per ray from ``rough``, and its score."""
+    r0 = rough[:, 2]
+    tol = cfg.tol + cfg.tol_rel * r0 + 0.02 * r0
+    circles, ok = _robust_fit(pts, strength, rough, [0.15 * r0, 0.08 * r0, tol])
+    inl = (strength > 0) & (np.abs(circle_residuals(pts, circles)) < tol[:, None])
+    inl &= radial_edges(image, pts, circles)
+    shift = np.hypot(circles[:, 0] - rough[:, 0], circles[:, 1] - rough[:, 1])
+    ok &= (inl.sum(axis=1) >= 4) & (shift <= cfg.max_shift * r0) & np.all(np.isfinite(circles), axis=1)
+    ok &= circles[:, 2] > 0
+    return circles, np.where(ok, inl.sum(axis=1) / cfg.coarse_rays, 0.0), ok
+
+
+def _refine_outward(image: np.ndarray, coarse: np.ndarray, cfg: RimRefineConfig, min_score: float, outer_tie: float):
+    """Each circle refined with the rim as the edge nearest it on each ray (a neighbour or floor texture
+    just outside cannot take it) and as the outermost strong edge (unbiased where the shaded limb
+    offers weaker edges nearer to a circle a little too small), then once more from the better one;
+    of nearly as well supported circles the larger wins. Returns (circles, scores, ok) as
+    :func:`agents.perception.rim_refine.refine_circles`."""
+    circles, scores, ok = coarse[:, :3], np.zeros(len(coarse)), np.zeros(len(coarse), dtype=bool)
+    circular = replace(cfg, max_axis_ratio=1.0)  # the ellipse fit (costly) in the last pass only
+    for start, nearest, fit in ((coarse[:, :3], True, circular), (coarse[:, :3], False, circular), (None, True, cfg)):
+        if start is None:
+            start = np.where(ok[:, None], circles, coarse[:, :3])
+        again, again_scores, again_ok = refine_circles(image, start, fit, nearest=nearest)
+        wider = again[:, 2] > circles[:, 2]
+        better = again_ok & np.where(wider, (again_scores >= outer_tie * scores)
+                                     & ((again_scores >= min_score) | (again_scores > scores)),
+                                     again_scores * outer_tie > scores)
+        circles, scores = np.where(better[:, None], again, circles), np.where(better, again_scores, scores)
+        ok |= again_ok
+    return circles, scores, ok
