@@ -147,6 +147,9 @@ class SymmetryConfig:
         Edges per ray kept by the verification; the one nearest the candidate's circle is used.
     verify_min_score : float
         Candidates whose verified rim support (share of the coarse rays) is below this are dropped.
+    dedupe : float
+        Verified circles within this share of a better one's radius in centre and radius are
+        dropped before the fine pass (a wide merge lost rims to a nearby circle on an isophote).
     min_radius, max_radius : int
         Radius range in pixels of the returned circles.
     refine_blur : float
@@ -159,19 +162,20 @@ class SymmetryConfig:
         Rim search and fit parameters of the full-resolution refinement.
     """
 
-    levels: tuple[tuple[float, float, float], ...] = ((0.5, 7.0, 40.0), (0.25, 34.0, 100.0), (0.125, 90.0, 170.0))
+    levels: tuple[tuple[float, float, float], ...] = ((0.5, 7.0, 24.0), (0.25, 20.0, 100.0), (0.125, 90.0, 170.0))
     canny: tuple[float, float] = (30.0, 60.0)
     window: float = 0.1
     min_support: float = 0.2
     max_candidates: int = 60
-    verify_band: tuple[float, float] = (0.7, 1.4)
-    verify_edges: int = 3
-    verify_min_score: float = 0.2
+    verify_band: tuple[float, float] = (0.8, 1.25)
+    verify_edges: int = 4
+    verify_min_score: float = 0.35
+    dedupe: float = 0.06
     min_radius: int = 8
     max_radius: int = 160
     refine_blur: float = 1.0
-    min_score: float = 0.6
-    min_score_px: float = 0.75
+    min_score: float = 0.5
+    min_score_px: float = 2.5
     outer_tie: float = 0.9
     max_circles: int = 64
     refine: RimRefineConfig = field(default_factory=RimRefineConfig)
@@ -222,7 +226,7 @@ class SymmetryCircleDetector:
         ok &= (scores >= cfg.verify_min_score) & (circles[:, 2] >= 0.8 * cfg.min_radius) & (circles[:, 2] <= 1.2 * cfg.max_radius)
         # repeats of one circle are merged (best first); nested circles all go on to the fine pass
         cand = np.column_stack([circles[ok], scores[ok]])
-        coarse = _dedupe(cand[np.argsort(-cand[:, 3], kind="stable")][:, :3])
+        coarse = _dedupe(cand[np.argsort(-cand[:, 3], kind="stable")][:, :3], cfg.dedupe)
         if len(coarse) == 0:
             return []
         circles, scores, ok = _refine_outward(fine_img, coarse, cfg.refine, cfg.min_score, cfg.outer_tie)
@@ -279,8 +283,9 @@ def _refine_outward(image: np.ndarray, coarse: np.ndarray, cfg: RimRefineConfig,
     of nearly as well supported circles the larger wins. Returns (circles, scores, ok) as
     :func:`agents.perception.rim_refine.refine_circles`."""
     circles, scores, ok = coarse[:, :3], np.zeros(len(coarse)), np.zeros(len(coarse), dtype=bool)
-    circular = replace(cfg, max_axis_ratio=1.0)  # the ellipse fit (costly) in the last pass only
-    for start, nearest, fit in ((coarse[:, :3], True, circular), (coarse[:, :3], False, circular), (None, True, cfg)):
+    # the first two passes on the coarse rays and without the (costly) ellipse fit
+    quick = replace(cfg, max_axis_ratio=1.0, rays=cfg.coarse_rays)
+    for start, nearest, fit in ((coarse[:, :3], True, quick), (coarse[:, :3], False, quick), (None, True, cfg)):
         if start is None:
             start = np.where(ok[:, None], circles, coarse[:, :3])
         again, again_scores, again_ok = refine_circles(image, start, fit, nearest=nearest)
