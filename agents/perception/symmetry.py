@@ -106,6 +106,8 @@ def symmetry_candidates(
         cv2.boxFilter(votes, -1, (side, side), dst=support[k], normalize=False, borderType=cv2.BORDER_CONSTANT)
         # less the votes a window receives by chance where edges are dense (a textured floor):
         # the mean over a window of the circle's size
+        # less the votes a window receives by chance where edges are dense (a textured floor):
+        # the mean over a window of the circle's size
         wide = 2 * int(round(n)) + 1
         support[k] -= cv2.boxFilter(votes, -1, (wide, wide), borderType=cv2.BORDER_REFLECT) * np.float32(side * side)
         support[k] *= np.float32(1.0 / (2.0 * np.pi * n))
@@ -145,8 +147,10 @@ class SymmetryConfig:
         The verification searches each candidate's rays between these multiples of its radius.
     verify_edges : int
         Edges per ray kept by the verification; the one nearest the candidate's circle is used.
-    verify_min_score : float
-        Candidates whose verified rim support (share of the coarse rays) is below this are dropped.
+    verify_min_score, verify_min_score_px : float
+        Candidates whose verified rim support (share of the coarse rays) is below
+        ``verify_min_score + verify_min_score_px / r`` are dropped (a small circle needs more
+        support: its rim crosses few pixels, and texture edges line up on it by chance more often).
     dedupe : float
         Verified circles within this share of a better one's radius in centre and radius are
         dropped before the fine pass (a wide merge lost rims to a nearby circle on an isophote).
@@ -169,7 +173,8 @@ class SymmetryConfig:
     max_candidates: int = 60
     verify_band: tuple[float, float] = (0.8, 1.25)
     verify_edges: int = 4
-    verify_min_score: float = 0.35
+    verify_min_score: float = 0.3
+    verify_min_score_px: float = 2.0
     dedupe: float = 0.06
     min_radius: int = 8
     max_radius: int = 160
@@ -223,14 +228,13 @@ class SymmetryCircleDetector:
             self._fine = np.empty(image.shape, np.float32)
         fine_img = _blur_float(image, cfg.refine_blur, out=self._fine)
         circles, scores, ok = verify_circles(fine_img, rough[:, :3], cfg.verify_band, cfg.verify_edges, cfg.refine)
-        ok &= (scores >= cfg.verify_min_score) & (circles[:, 2] >= 0.8 * cfg.min_radius) & (circles[:, 2] <= 1.2 * cfg.max_radius)
+        ok &= (scores >= cfg.verify_min_score + cfg.verify_min_score_px / np.maximum(circles[:, 2], 1.0)) & (circles[:, 2] >= 0.8 * cfg.min_radius) & (circles[:, 2] <= 1.2 * cfg.max_radius)
         # repeats of one circle are merged (best first); nested circles all go on to the fine pass
         cand = np.column_stack([circles[ok], scores[ok]])
         coarse = _dedupe(cand[np.argsort(-cand[:, 3], kind="stable")][:, :3], cfg.dedupe)
         if len(coarse) == 0:
             return []
         circles, scores, ok = _refine_outward(fine_img, coarse, cfg.refine, cfg.min_score, cfg.outer_tie)
-        # a small circle's rim crosses few pixels: texture edges line up on it by chance more often
         ok &= scores >= cfg.min_score + cfg.min_score_px / np.maximum(circles[:, 2], 1.0)
         found = [Circle(*map(float, c), float(min(s, 1.0))) for c, s in zip(circles[ok], scores[ok])]
         return suppress(found)[: cfg.max_circles]
