@@ -39,6 +39,8 @@ from sims.io.atomic import write_atomic
 import cv2
 import numpy as np
 
+from agents.perception.detectors import DETECTORS
+
 cv2.setNumThreads(1)
 
 
@@ -406,9 +408,9 @@ def main(argv=None) -> None:
                     help="which frames (default: varied)")
     ap.add_argument("--frames", type=int, default=30, help="frames per varied scene (default 30)")
     ap.add_argument("--tuning", action="store_true", help="also report the tuning seeds of the varied scenes")
-    ap.add_argument("--detectors", nargs="+", choices=("hough", "rim"), default=["hough", "rim"],
-                    help="circle detectors compared on the varied scenes (default: both)")
-    ap.add_argument("--rendered-detector", choices=("hough", "rim"), default="hough",
+    ap.add_argument("--detectors", nargs="+", choices=DETECTORS, default=list(DETECTORS),
+                    help="circle detectors compared on the varied scenes (default: all)")
+    ap.add_argument("--rendered-detector", choices=DETECTORS, default="hough",
                     help="circle detector of the rendered scenarios (default hough)")
     ap.add_argument("--scenes-max", type=int, default=0,
                     help="only the first N held-out varied scenes (default 0: all)")

@@ -182,6 +182,8 @@ class SymmetryConfig:
     min_score: float = 0.5
     min_score_px: float = 2.5
     outer_tie: float = 0.9
+    retry_score: float = 0.3
+    retries: int = 1
     max_circles: int = 64
     refine: RimRefineConfig = field(default_factory=RimRefineConfig)
 
@@ -235,6 +237,17 @@ class SymmetryCircleDetector:
         if len(coarse) == 0:
             return []
         circles, scores, ok = _refine_outward(fine_img, coarse, cfg.refine, cfg.min_score, cfg.outer_tie)
+        scores = _on_image_scores(circles, scores, image.shape, cfg.refine)
+        # a circle a little off a rim that a tag or a neighbour crowds converges over further passes
+        # (the first fits, with tight gates, hold to the rays already on the rim)
+        need = cfg.min_score + cfg.min_score_px / np.maximum(circles[:, 2], 1.0)
+        retry = ok & (scores < need) & (scores >= cfg.retry_score)
+        for _ in range(cfg.retries if retry.any() else 0):
+            again, again_scores, again_ok = refine_circles(fine_img, circles[retry], cfg.refine)
+            again_scores = _on_image_scores(again, again_scores, image.shape, cfg.refine)
+            better = again_ok & (again_scores > scores[retry])
+            idx = np.flatnonzero(retry)[better]
+            circles[idx], scores[idx] = again[better], again_scores[better]
         ok &= scores >= cfg.min_score + cfg.min_score_px / np.maximum(circles[:, 2], 1.0)
         found = [Circle(*map(float, c), float(min(s, 1.0))) for c, s in zip(circles[ok], scores[ok])]
         return suppress(found)[: cfg.max_circles]
@@ -278,6 +291,18 @@ def _fit_and_score(image, pts, strength, rough, cfg: RimRefineConfig):
     ok &= (inl.sum(axis=1) >= 4) & (shift <= cfg.max_shift * r0) & np.all(np.isfinite(circles), axis=1)
     ok &= circles[:, 2] > 0
     return circles, np.where(ok, inl.sum(axis=1) / cfg.coarse_rays, 0.0), ok
+
+
+def _on_image_scores(circles: np.ndarray, scores: np.ndarray, shape: tuple, cfg: RimRefineConfig) -> np.ndarray:
+    """Scores (shares of all rays) as shares of the rays whose rim band lies in the image, for
+    circles with at least half their rays there (a sphere cut by the image border); at most 1."""
+    h, w = shape[:2]
+    ang = np.linspace(0.0, 2.0 * np.pi, cfg.rays, endpoint=False)
+    reach = cfg.fine_band[1] * circles[:, 2, None]
+    x = circles[:, 0, None] + reach * np.cos(ang)[None, :]
+    y = circles[:, 1, None] + reach * np.sin(ang)[None, :]
+    inside = ((x >= 0) & (x <= w - 1) & (y >= 0) & (y <= h - 1)).mean(axis=1)
+    return np.minimum(np.where(inside >= 0.5, scores / np.maximum(inside, 0.5), scores), 1.0)
 
 
 def _refine_outward(image: np.ndarray, coarse: np.ndarray, cfg: RimRefineConfig, min_score: float, outer_tie: float):
