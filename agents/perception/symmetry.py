@@ -236,7 +236,7 @@ class SymmetryCircleDetector:
         coarse = _dedupe(cand[np.argsort(-cand[:, 3], kind="stable")][:, :3], cfg.dedupe)
         if len(coarse) == 0:
             return []
-        circles, scores, ok = _refine_outward(fine_img, coarse, cfg.refine, cfg.min_score, cfg.outer_tie)
+        circles, scores, ok = _refine_outward(fine_img, coarse, cfg.refine, cfg.min_score, cfg.outer_tie, cfg.retry_score)
         scores = _on_image_scores(circles, scores, image.shape, cfg.refine)
         # a circle a little off a rim that a tag or a neighbour crowds converges over further passes
         # (the first fits, with tight gates, hold to the rays already on the rim)
@@ -305,23 +305,35 @@ def _on_image_scores(circles: np.ndarray, scores: np.ndarray, shape: tuple, cfg:
     return np.minimum(np.where(inside >= 0.5, scores / np.maximum(inside, 0.5), scores), 1.0)
 
 
-def _refine_outward(image: np.ndarray, coarse: np.ndarray, cfg: RimRefineConfig, min_score: float, outer_tie: float):
+def _refine_outward(image: np.ndarray, coarse: np.ndarray, cfg: RimRefineConfig, min_score: float, outer_tie: float,
+                    floor: float):
     """Each circle refined with the rim as the edge nearest it on each ray (a neighbour or floor texture
     just outside cannot take it) and as the outermost strong edge (unbiased where the shaded limb
-    offers weaker edges nearer to a circle a little too small), then once more from the better one;
-    of nearly as well supported circles the larger wins. Returns (circles, scores, ok) as
+    offers weaker edges nearer to a circle a little too small), both on the coarse rays without the
+    ellipse fit; then the better one, if it scores at least ``floor``, on all rays. Of nearly as well
+    supported circles the larger wins. Returns (circles, scores, ok) as
     :func:`agents.perception.rim_refine.refine_circles`."""
-    circles, scores, ok = coarse[:, :3], np.zeros(len(coarse)), np.zeros(len(coarse), dtype=bool)
-    # the first two passes on the coarse rays and without the (costly) ellipse fit
+    circles, scores, ok = coarse[:, :3].copy(), np.zeros(len(coarse)), np.zeros(len(coarse), dtype=bool)
     quick = replace(cfg, max_axis_ratio=1.0, rays=cfg.coarse_rays)
-    for start, nearest, fit in ((coarse[:, :3], True, quick), (coarse[:, :3], False, quick), (None, True, cfg)):
-        if start is None:
-            start = np.where(ok[:, None], circles, coarse[:, :3])
-        again, again_scores, again_ok = refine_circles(image, start, fit, nearest=nearest)
-        wider = again[:, 2] > circles[:, 2]
-        better = again_ok & np.where(wider, (again_scores >= outer_tie * scores)
-                                     & ((again_scores >= min_score) | (again_scores > scores)),
-                                     again_scores * outer_tie > scores)
-        circles, scores = np.where(better[:, None], again, circles), np.where(better, again_scores, scores)
+    for nearest in (True, False):
+        again, again_scores, again_ok = refine_circles(image, coarse[:, :3], quick, nearest=nearest)
+        _keep_better(circles, scores, again, again_scores, again_ok, min_score, outer_tie)
         ok |= again_ok
+    todo = np.flatnonzero(ok & (scores >= floor))
+    if len(todo):
+        sub_c, sub_s = circles[todo], scores[todo]
+        again, again_scores, again_ok = refine_circles(image, sub_c, cfg)
+        _keep_better(sub_c, sub_s, again, again_scores, again_ok, min_score, outer_tie)
+        circles[todo], scores[todo] = sub_c, sub_s
     return circles, scores, ok
+
+
+def _keep_better(circles, scores, again, again_scores, again_ok, min_score: float, outer_tie: float) -> None:
+    """Replace (in place) circles by their refinements ``again`` where those are better: a larger one
+    with at least ``outer_tie`` of the score (and the threshold, or a higher score), a smaller one
+    with a score higher by more than a factor ``1 / outer_tie``."""
+    wider = again[:, 2] > circles[:, 2]
+    better = again_ok & np.where(wider, (again_scores >= outer_tie * scores)
+                                 & ((again_scores >= min_score) | (again_scores > scores)),
+                                 again_scores * outer_tie > scores)
+    circles[better], scores[better] = again[better], again_scores[better]
