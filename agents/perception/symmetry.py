@@ -274,21 +274,27 @@ def verify_circles(image: np.ndarray, rough: np.ndarray, band: tuple[float, floa
         return rough.copy(), np.zeros(0), np.zeros(0, dtype=bool)
     every, strength = rim_points(image, rough, band, cfg, rays=cfg.coarse_rays, samples=cfg.coarse_samples,
                                  candidates=edges)
-    nearest = _nearest(every, strength, rough)
-    outermost = (every[:, :, 0], strength[:, :, 0])
-    out = [_fit_and_score(image, pts, st, rough, cfg) for pts, st in (nearest, outermost)]
+    out = []
+    for pts, st in (_nearest(every, strength, rough), (every[:, :, 0], strength[:, :, 0])):
+        circles, _, ok = _fit_and_score(image, pts, st, rough, cfg)
+        # again with the edges nearest the fit (on a partly hidden rim the outermost edges of the
+        # hidden side belong to what hides it)
+        start = np.where(ok[:, None], circles, rough)
+        out.append(_fit_and_score(image, *_nearest(every, strength, start), start, cfg, rough))
     return tuple(np.concatenate(parts) for parts in zip(*out))
 
 
-def _fit_and_score(image, pts, strength, rough, cfg: RimRefineConfig):
-    """A robust circle fit (shrinking gates) to one rim point per ray from ``rough``, and its score."""
+def _fit_and_score(image, pts, strength, rough, cfg: RimRefineConfig, origin=None):
+    """A robust circle fit (shrinking gates) to one rim point per ray from ``rough``, and its score
+    (a centre more than ``cfg.max_shift`` radii from ``origin``, default ``rough``, fails)."""
+    origin = rough if origin is None else origin
     r0 = rough[:, 2]
     tol = cfg.tol + cfg.tol_rel * r0 + 0.02 * r0
     circles, ok = _robust_fit(pts, strength, rough, [0.15 * r0, 0.08 * r0, tol])
     inl = (strength > 0) & (np.abs(circle_residuals(pts, circles)) < tol[:, None])
     inl &= radial_edges(image, pts, circles)
-    shift = np.hypot(circles[:, 0] - rough[:, 0], circles[:, 1] - rough[:, 1])
-    ok &= (inl.sum(axis=1) >= 4) & (shift <= cfg.max_shift * r0) & np.all(np.isfinite(circles), axis=1)
+    shift = np.hypot(circles[:, 0] - origin[:, 0], circles[:, 1] - origin[:, 1])
+    ok &= (inl.sum(axis=1) >= 4) & (shift <= cfg.max_shift * origin[:, 2]) & np.all(np.isfinite(circles), axis=1)
     ok &= circles[:, 2] > 0
     return circles, np.where(ok, inl.sum(axis=1) / cfg.coarse_rays, 0.0), ok
 
