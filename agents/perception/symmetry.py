@@ -21,7 +21,8 @@ import numpy as np
 
 from agents.perception.circle_fit import circle_residuals
 from agents.perception.heap import keep_freed_memory
-from agents.perception.hough import _blur_float, _dedupe, suppress
+from agents.perception.hough import HoughCircleDetector, HoughConfig, _blur_float, _dedupe, suppress, to_grey
+from agents.perception.rim import _inner_contrast
 from agents.perception.refine import _nearest, _robust_fit, rim_points
 from agents.perception.rim_refine import RimRefineConfig, radial_edges, refine_circles
 from agents.perception.types import Circle
@@ -143,6 +144,9 @@ class SymmetryConfig:
         Smallest vote support of a candidate.
     max_candidates : int
         At most this many candidates per level, best supported first.
+    hough_proposals : int
+        The strongest proposals per level of the default detector's grey Hough transform
+        (:meth:`agents.perception.hough.HoughCircleDetector.proposals`) join the candidates (0: none).
     verify_band : (float, float)
         The verification searches each candidate's rays between these multiples of its radius.
     verify_edges : int
@@ -171,6 +175,7 @@ class SymmetryConfig:
     window: float = 0.1
     min_support: float = 0.2
     max_candidates: int = 30
+    hough_proposals: int = 12
     verify_band: tuple[float, float] = (0.8, 1.25)
     verify_edges: int = 4
     verify_min_score: float = 0.3
@@ -183,6 +188,8 @@ class SymmetryConfig:
     min_score_px: float = 2.5
     outer_tie: float = 0.9
     retry_score: float = 0.3
+    weak_score: float = 0.35
+    weak_contrast: float = 130.0
     retries: int = 1
     max_circles: int = 64
     refine: RimRefineConfig = field(default_factory=RimRefineConfig)
@@ -194,6 +201,9 @@ class SymmetryCircleDetector:
     def __init__(self, config: SymmetryConfig | None = None):
         self.config = config or SymmetryConfig()
         self._fine: np.ndarray | None = None  # the blurred frame's buffer, reused (see HoughCircleDetector)
+        cfg = self.config
+        self._hough = HoughCircleDetector(HoughConfig(min_radius=cfg.min_radius, max_radius=cfg.max_radius,
+                                                      max_proposals=cfg.hough_proposals))
         keep_freed_memory()
 
     def candidates(self, image: np.ndarray) -> np.ndarray:
@@ -211,6 +221,11 @@ class SymmetryCircleDetector:
             found[:, :2] = (found[:, :2] + 0.5) / s - 0.5
             found[:, 2] /= s
             out.append(found)
+        if cfg.hough_proposals:
+            # the grey Hough transform's strongest circles too: it finds rims broken up by tags
+            # printed all over a node (whose edges scatter the symmetry votes), at little cost
+            rough = self._hough.proposals(to_grey(image))
+            out.append(np.column_stack([rough, np.zeros(len(rough))]))
         return np.concatenate(out) if out else np.zeros((0, 4))
 
     def detect(self, image: np.ndarray) -> list[Circle]:
@@ -248,7 +263,13 @@ class SymmetryCircleDetector:
             better = again_ok & (again_scores > scores[retry])
             idx = np.flatnonzero(retry)[better]
             circles[idx], scores[idx] = again[better], again_scores[better]
-        ok &= scores >= cfg.min_score + cfg.min_score_px / np.maximum(circles[:, 2], 1.0)
+        need = cfg.min_score + cfg.min_score_px / np.maximum(circles[:, 2], 1.0)
+        # a weakly supported circle (a node whose rim is half hidden by its struts and neighbours)
+        # is kept with a print inside it: floor texture gives round rims of that support, but no tag
+        weak = ok & (scores < need) & (scores >= cfg.weak_score)
+        if weak.any():
+            weak[weak] = _inner_contrast(fine_img, circles[weak]) >= cfg.weak_contrast
+        ok &= (scores >= need) | weak
         found = [Circle(*map(float, c), float(min(s, 1.0))) for c, s in zip(circles[ok], scores[ok])]
         return suppress(found)[: cfg.max_circles]
 
