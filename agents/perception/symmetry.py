@@ -174,8 +174,8 @@ class SymmetryConfig:
     canny: tuple[float, float] = (30.0, 60.0)
     window: float = 0.1
     min_support: float = 0.2
-    max_candidates: int = 30
-    hough_proposals: int = 12
+    max_candidates: int = 20
+    hough_proposals: int = 8
     verify_band: tuple[float, float] = (0.8, 1.25)
     verify_edges: int = 4
     verify_min_score: float = 0.3
