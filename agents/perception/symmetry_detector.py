@@ -82,6 +82,9 @@ class SymmetryConfig:
         Only circles scoring at least ``retry_score`` on the coarse rays are refined on all rays;
         those that then fall short of the threshold but score at least ``retry_score`` are refined
         ``retries`` more times from their own result.
+    strong : float
+        Suppression (:func:`agents.perception.hough.suppress`): of nested circles scoring at least
+        this, the largest is kept (a rim around its tag); weaker ones are kept best first.
     max_circles : int
         At most this many circles are returned (best score first).
     refine : RimRefineConfig
@@ -109,6 +112,7 @@ class SymmetryConfig:
     weak_score: float = 0.35
     weak_contrast: float = 130.0
     retries: int = 1
+    strong: float = 0.45
     max_circles: int = 64
     refine: RimRefineConfig = field(default_factory=RimRefineConfig)
 
@@ -168,7 +172,7 @@ class SymmetryCircleDetector:
         circles, scores, ok = self._refined(fine_img, coarse)
         ok &= self._accepted(fine_img, circles, scores)
         found = [Circle(*map(float, c), float(min(s, 1.0))) for c, s in zip(circles[ok], scores[ok])]
-        return suppress(found)[: cfg.max_circles]
+        return suppress(found, cfg.strong)[: cfg.max_circles]
 
     def _threshold(self, circles: np.ndarray) -> np.ndarray:
         """The score each circle (N, 3) needs: ``min_score + min_score_px / r``."""
