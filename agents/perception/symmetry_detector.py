@@ -24,7 +24,7 @@ from agents.perception.circle_fit import circle_residuals
 from agents.perception.heap import keep_freed_memory
 from agents.perception.hough import HoughCircleDetector, HoughConfig, _blur_float, _dedupe, suppress, to_grey
 from agents.perception.refine import _nearest, _robust_fit, rim_points
-from agents.perception.rim import _inner_contrast
+from agents.perception.rim import _inner_contrast, keep_better
 from agents.perception.rim_refine import RimRefineConfig, radial_edges, refine_circles
 from agents.perception.symmetry import radius_ladder, symmetry_candidates
 from agents.perception.types import Circle
@@ -292,23 +292,12 @@ def _refine_outward(image: np.ndarray, coarse: np.ndarray, cfg: RimRefineConfig,
     quick = replace(cfg, max_axis_ratio=1.0, rays=cfg.coarse_rays)
     for nearest in (True, False):
         again, again_scores, again_ok = refine_circles(image, coarse[:, :3], quick, nearest=nearest)
-        _keep_better(circles, scores, again, again_scores, again_ok, min_score, outer_tie)
+        keep_better(circles, scores, again, again_scores, again_ok, min_score, outer_tie)
         ok |= again_ok
     todo = np.flatnonzero(ok & (scores >= floor))
     if len(todo):
         sub_c, sub_s = circles[todo], scores[todo]
         again, again_scores, again_ok = refine_circles(image, sub_c, cfg)
-        _keep_better(sub_c, sub_s, again, again_scores, again_ok, min_score, outer_tie)
+        keep_better(sub_c, sub_s, again, again_scores, again_ok, min_score, outer_tie)
         circles[todo], scores[todo] = sub_c, sub_s
     return circles, scores, ok
-
-
-def _keep_better(circles, scores, again, again_scores, again_ok, min_score: float, outer_tie: float) -> None:
-    """Replace (in place) circles by their refinements ``again`` where those are better: a larger one
-    with at least ``outer_tie`` of the score (and the threshold, or a higher score), a smaller one
-    with a score higher by more than a factor ``1 / outer_tie``."""
-    wider = again[:, 2] > circles[:, 2]
-    better = again_ok & np.where(wider, (again_scores >= outer_tie * scores)
-                                 & ((again_scores >= min_score) | (again_scores > scores)),
-                                 again_scores * outer_tie > scores)
-    circles[better], scores[better] = again[better], again_scores[better]
