@@ -6,8 +6,8 @@ Two sets of frames:
   with 5-10 spheres (floors of several kinds, colours close to the floor's, 15-90 px radius,
   highlights, lighting gradients, tags on the cap, occlusion by spheres and struts, smear), on the
   held-out scene seeds (no parameter was tuned on them; ``--tuning`` adds the tuning seeds), each
-  circle detector of ``--detectors`` side by side (default both: ``hough``, the default, and the
-  opt-in ``rim``). Per scene and detector: recall (a detection within max(2 px, 0.1 r) of a
+  circle detector of ``--detectors`` side by side (default all: ``hough``, the default, and the
+  opt-in ``rim`` and ``symmetry``). Per scene and detector: recall (a detection within max(2 px, 0.1 r) of a
   sphere's centre and 10 % of its radius; spheres at least half visible), radius error, false and double circles per sphere, wrong ids, ids carried
   through frames without a tag read (:mod:`sims.experiments.perception_scores`). Tag reads, ours
   (OpenCV's quads inside our circles, no tracking) against the AprilTag 3 C library on the whole
@@ -24,7 +24,7 @@ AprilTag 3 on the same frames, and OpenCV's ``HoughCircles(HOUGH_GRADIENT_ALT)``
 detector).
 
 Usage: ``python benchmarks/perception.py [--scenes varied rendered] [--frames 30] [--repeats 3]
-[--detectors hough rim] [--scenes-max N] [--out DIR]``; writes ``perception_varied.{json,md}`` and/or ``perception.{json,png}`` under ``--out``
+[--detectors hough rim symmetry] [--scenes-max N] [--out DIR]``; writes ``perception_varied.{json,md}`` and/or ``perception.{json,png}`` under ``--out``
 (default ``out/benchmarks``; pass ``--out benchmarks/results`` to replace the committed results).
 """
 
@@ -38,6 +38,8 @@ from sims.io.atomic import write_atomic
 
 import cv2
 import numpy as np
+
+from agents.perception.detectors import DETECTORS
 
 cv2.setNumThreads(1)
 
@@ -406,9 +408,9 @@ def main(argv=None) -> None:
                     help="which frames (default: varied)")
     ap.add_argument("--frames", type=int, default=30, help="frames per varied scene (default 30)")
     ap.add_argument("--tuning", action="store_true", help="also report the tuning seeds of the varied scenes")
-    ap.add_argument("--detectors", nargs="+", choices=("hough", "rim"), default=["hough", "rim"],
-                    help="circle detectors compared on the varied scenes (default: both)")
-    ap.add_argument("--rendered-detector", choices=("hough", "rim"), default="hough",
+    ap.add_argument("--detectors", nargs="+", choices=DETECTORS, default=list(DETECTORS),
+                    help="circle detectors compared on the varied scenes (default: all)")
+    ap.add_argument("--rendered-detector", choices=DETECTORS, default="hough",
                     help="circle detector of the rendered scenarios (default hough)")
     ap.add_argument("--scenes-max", type=int, default=0,
                     help="only the first N held-out varied scenes (default 0: all)")

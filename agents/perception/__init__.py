@@ -13,6 +13,7 @@ from agents.perception.onnx_head import OnnxCircleDetector, OnnxHeadConfig
 from agents.perception.pipeline import FrameResult, Perception, perceive_frames
 from agents.perception.refine import RefineConfig
 from agents.perception.rim import RimCircleDetector, RimConfig
+from agents.perception.symmetry_detector import SymmetryCircleDetector, SymmetryConfig
 from agents.perception.tracking import CircleTracker, TrackerConfig
 from agents.perception.types import Circle, CircleDetector, Identifier, TagRead, TrackedCircle, Tracker
 
@@ -34,6 +35,8 @@ __all__ = [
     "RefineConfig",
     "RimCircleDetector",
     "RimConfig",
+    "SymmetryCircleDetector",
+    "SymmetryConfig",
     "TagRead",
     "TrackedCircle",
     "Tracker",

@@ -187,11 +187,11 @@ def _blur_float(image: np.ndarray, sigma: float, out: np.ndarray | None = None) 
     return cv2.sepFilter2D(image, cv2.CV_32F, k, k, dst=out)
 
 
-def _dedupe(rough: np.ndarray) -> np.ndarray:
-    """Drop proposals within 15 % of an earlier (stronger) one's radius in centre and radius."""
+def _dedupe(rough: np.ndarray, within: float = 0.15) -> np.ndarray:
+    """Drop proposals within ``within`` of an earlier (stronger) one's radius in centre and radius."""
     d = np.hypot(rough[:, None, 0] - rough[None, :, 0], rough[:, None, 1] - rough[None, :, 1])
     big = np.maximum(rough[:, None, 2], rough[None, :, 2])
-    close = (d < 0.15 * big) & (np.abs(rough[:, None, 2] - rough[None, :, 2]) < 0.15 * big)
+    close = (d < within * big) & (np.abs(rough[:, None, 2] - rough[None, :, 2]) < within * big)
     keep = ~np.triu(close, k=1).T.any(axis=1)  # i is dropped if some j < i is close to it
     return rough[keep]
 

@@ -21,7 +21,7 @@ from agents.perception.hough import HoughCircleDetector, HoughConfig, _dedupe, f
 from agents.perception.rim_refine import RimRefineConfig, coarse_fit, refine_circles
 from agents.perception.types import Circle
 
-__all__ = ["RimConfig", "RimCircleDetector"]
+__all__ = ["RimConfig", "RimCircleDetector", "keep_better"]
 
 
 @dataclass(frozen=True)
@@ -132,18 +132,12 @@ class RimCircleDetector(HoughCircleDetector):
         # strong edge (unbiased where the shaded limb inside the rim offers weaker edges nearer
         # to a coarse circle a little too small), then once more from the better: its score (rays
         # on the circle with a radial gradient there) decides
-        circles, scores, ok = coarse[:, :3], np.zeros(len(coarse)), np.zeros(len(coarse), dtype=bool)
+        circles, scores, ok = coarse[:, :3].copy(), np.zeros(len(coarse)), np.zeros(len(coarse), dtype=bool)
         for start, nearest in ((coarse[:, :3], True), (coarse[:, :3], False), (None, True)):
             if start is None:
                 start = np.where(ok[:, None], circles, coarse[:, :3])
             again, again_scores, again_ok = refine_circles(fine_img, start, cfg.refine, nearest=nearest)
-            # the rim is the outermost of nearly as well supported circles: inside a shaded limb the
-            # isophotes are circles with radial gradients too
-            wider = again[:, 2] > circles[:, 2]
-            better = again_ok & np.where(wider, (again_scores >= cfg.outer_tie * scores)
-                                         & ((again_scores >= cfg.min_score) | (again_scores > scores)),
-                                         again_scores * cfg.outer_tie > scores)
-            circles, scores = np.where(better[:, None], again, circles), np.where(better, again_scores, scores)
+            keep_better(circles, scores, again, again_scores, again_ok, cfg.min_score, cfg.outer_tie)
             ok |= again_ok
         # a weakly supported circle (a node whose rim is half hidden by its neighbours, struts and
         # dark floor) is kept only with a print inside it: floor tiles and carpet give round rims of
@@ -165,6 +159,20 @@ class RimCircleDetector(HoughCircleDetector):
             scores = np.concatenate([scores, more_scores[more_ok]])
         found = [Circle(*map(float, c), float(min(s, 1.0))) for c, s in zip(circles, scores)]
         return suppress(found, strong=0.5)[: cfg.max_circles]
+
+
+def keep_better(circles: np.ndarray, scores: np.ndarray, again: np.ndarray, again_scores: np.ndarray,
+                again_ok: np.ndarray, min_score: float, outer_tie: float) -> None:
+    """Replace (in place) circles (N, 3) and their scores (N,) by refinements ``again`` where those
+    are better. The rim is the outermost of nearly as well supported circles (inside a shaded limb
+    the isophotes are circles with radial gradients too): a larger refinement wins with at least
+    ``outer_tie`` of the score (and ``min_score``, or a higher score), a smaller one only with a
+    score higher by more than a factor ``1 / outer_tie``."""
+    wider = again[:, 2] > circles[:, 2]
+    better = again_ok & np.where(wider, (again_scores >= outer_tie * scores)
+                                 & ((again_scores >= min_score) | (again_scores > scores)),
+                                 again_scores * outer_tie > scores)
+    circles[better], scores[better] = again[better], again_scores[better]
 
 
 def _inner_contrast(image: np.ndarray, circles: np.ndarray, grid: int = 9) -> np.ndarray:

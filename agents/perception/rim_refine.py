@@ -16,9 +16,20 @@ import cv2
 import numpy as np
 
 from agents.perception.circle_fit import circle_residuals, fit_circles_geometric
-from agents.perception.refine import RefineConfig, _ellipse_stage, _nearest, _robust_fit
+from agents.perception.refine import (
+    RefineConfig,
+    _edge_nearest,
+    _ellipse_stage,
+    _local_maxima,
+    _radial_steps,
+    _ray_points,
+    _robust_fit,
+    _sample,
+    _subsample,
+    rim_points,
+)
 
-__all__ = ["RimRefineConfig", "coarse_fit", "radial_edges", "refine_circles", "rim_points", "rim_votes"]
+__all__ = ["RimRefineConfig", "coarse_fit", "radial_edges", "refine_circles", "rim_votes"]
 
 
 @dataclass(frozen=True)
@@ -62,181 +73,6 @@ class RimRefineConfig(RefineConfig):
     vote_floor: float = 0.05
     vote_width: int = 2
     vote_keep: float = 0.6
-
-
-def _sample(image: np.ndarray, mx: np.ndarray, my: np.ndarray) -> np.ndarray:
-    """Bilinear samples of ``image`` at float32 maps (P, S), shape (P, S) or (P, S, C); edges replicated.
-
-    ``cv2.remap`` takes maps of fewer than 2^15 rows, so long maps are sampled in blocks.
-    """
-    rows = 32000
-    if len(mx) <= rows:
-        return cv2.remap(image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return np.concatenate([cv2.remap(image, mx[i:i + rows], my[i:i + rows], cv2.INTER_LINEAR,
-                                     borderMode=cv2.BORDER_REPLICATE) for i in range(0, len(mx), rows)])
-
-
-def _radial_steps(image: np.ndarray, circles: np.ndarray, radii: np.ndarray, n_rays: int):
-    """Absolute radial intensity steps along rays from each circle's centre.
-
-    Parameters
-    ----------
-    image : ndarray, shape (H, W) or (H, W, C), float32
-    circles : ndarray, shape (N, 3)
-        Centres (u, v) and radii (unused here) of the hypotheses.
-    radii : ndarray, shape (N, S)
-        Increasing sample distances from the centre along every ray (px).
-    n_rays : int
-        Rays per centre, at equally spaced angles from 0.
-
-    Returns
-    -------
-    deriv : ndarray, shape (N, n_rays, S - 1), float32
-        Step between samples i and i + 1 per pixel of distance (on a colour image the channels' steps
-        add: a grey sphere on a brown floor can have almost no step in brightness).
-    inside : ndarray of bool, shape (N, n_rays)
-        The whole ray lies inside the image.
-    cos, sin : ndarray, shape (n_rays,)
-    """
-    h, w = image.shape[:2]
-    n, n_samples = radii.shape
-    ang = np.linspace(0.0, 2.0 * np.pi, n_rays, endpoint=False)
-    cos, sin = np.cos(ang), np.sin(ang)
-    # sample positions in float32 (what remap takes); a ray lies inside the image iff both its ends do
-    c32, rad32 = circles.astype(np.float32), radii.astype(np.float32)
-    cos32, sin32 = cos.astype(np.float32), sin.astype(np.float32)
-    mx = c32[:, 0, None, None] + rad32[:, None, :] * cos32[None, :, None]  # (N, R, S)
-    my = c32[:, 1, None, None] + rad32[:, None, :] * sin32[None, :, None]
-    ends_x, ends_y = mx[:, :, [0, -1]], my[:, :, [0, -1]]
-    inside = ((ends_x >= 0) & (ends_x <= w - 1) & (ends_y >= 0) & (ends_y <= h - 1)).all(axis=2)
-    img = image if image.dtype == np.float32 else image.astype(np.float32)
-    ch = 1 if img.ndim == 2 else img.shape[2]
-    prof = _sample(img, mx.reshape(n * n_rays, n_samples), my.reshape(n * n_rays, n_samples)).reshape(
-        n * n_rays, n_samples * ch)
-    deriv = cv2.absdiff(prof[:, ch:], prof[:, :-ch])
-    if ch > 1:
-        deriv = cv2.transform(deriv.reshape(n * n_rays, n_samples - 1, ch), np.ones((1, ch), np.float32))
-    step = np.diff(radii, axis=1).astype(np.float32)  # (N, S - 1)
-    deriv = deriv.reshape(n, n_rays, n_samples - 1) / step[:, None, :]
-    return deriv, inside, cos, sin
-
-
-def _local_maxima(deriv: np.ndarray) -> np.ndarray:
-    """Bool mask of the local maxima of ``deriv`` along its last axis (plateaus: their first sample)."""
-    lm = np.ones(deriv.shape, dtype=bool)
-    lm[..., 1:] &= deriv[..., 1:] >= deriv[..., :-1]
-    lm[..., :-1] &= deriv[..., :-1] > deriv[..., 1:]
-    return lm
-
-
-def _subsample(deriv: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Peak value and sub-sample offset (-0.5..0.5, a parabola through 3 samples) at indices ``k`` (..., C)."""
-    last = deriv.shape[-1] - 1
-    kk = np.clip(k, 0, last)
-    peak = np.take_along_axis(deriv, kk, axis=-1)
-    ym = np.take_along_axis(deriv, np.clip(kk - 1, 0, last), axis=-1)
-    yp = np.take_along_axis(deriv, np.clip(kk + 1, 0, last), axis=-1)
-    denom = ym - 2.0 * peak + yp
-    interior = (kk > 0) & (kk < last) & (denom < 0)
-    off = np.where(interior, 0.5 * (ym - yp) / np.where(interior, denom, -1.0), 0.0)
-    return peak, np.clip(off, -0.5, 0.5)
-
-
-def _ray_points(circles, cos, sin, dist):
-    """Points (N, R, C, 2) at distances ``dist`` (N, R, C) along the rays of each circle."""
-    return np.stack([circles[:, 0, None, None] + dist * cos[None, :, None],
-                     circles[:, 1, None, None] + dist * sin[None, :, None]], axis=3)
-
-
-def _edge_nearest(deriv: np.ndarray, cand: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per ray, the qualifying edge (``cand``) nearest the sample index ``target`` (N,).
-
-    Returns its index (N, R, 1) and its distance from ``target`` in samples (N, R); rays without a
-    qualifying edge get a distance larger than any index.
-    """
-    last = deriv.shape[2] - 1
-    idx = np.arange(last + 1)
-    gap = np.where(cand, np.abs(idx[None, None, :] - np.asarray(target)[:, None, None]), last + 1)
-    k = np.argmin(gap, axis=2)[..., None]
-    return k, np.take_along_axis(gap, k, axis=2)[..., 0]
-
-
-def rim_points(
-    image: np.ndarray,
-    circles: np.ndarray,
-    band: tuple[float, float],
-    cfg: RimRefineConfig,
-    *,
-    rays: int | None = None,
-    samples: int | None = None,
-    candidates: int = 1,
-    nearest: bool = False,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Rim point on each ray of each circle, between ``band[0] * r`` and ``band[1] * r``.
-
-    Parameters
-    ----------
-    image : ndarray, shape (H, W) or (H, W, C), float32
-        Grey or colour image (lightly smoothed).
-    circles : ndarray, shape (N, 3)
-        Rough circles (u, v, r).
-    rays, samples : int, optional
-        Override ``cfg.rays`` and ``cfg.samples``.
-    candidates : int
-        With 1, the rim is the outermost qualifying edge of each ray; with C > 1, the C outermost
-        qualifying edges are returned (outermost first) and the fit chooses among them.
-    nearest : bool
-        Take the qualifying edge nearest the circle ``r`` instead of the outermost (for circles
-        whose radius is already known to a few per cent: floor texture or a shadow just outside a
-        node's rim would otherwise win over the rim).
-
-    Returns
-    -------
-    points : ndarray, shape (N, rays, 2), or (N, rays, C, 2)
-        Sub-pixel rim point on each ray (rays in increasing angle).
-    strength : ndarray, shape (N, rays) or (N, rays, C)
-        Edge strength (absolute radial derivative) at each rim point; 0 where not valid.
-    """
-    n_rays = rays or cfg.rays
-    n_samples = samples or cfg.samples
-    frac = np.linspace(band[0], band[1], n_samples)
-    rad = circles[:, 2, None] * frac[None, :]  # (N, S)
-    step = rad[:, 1] - rad[:, 0]  # (N,)
-    deriv, inside, cos, sin = _radial_steps(image, circles, rad, n_rays)
-    last = deriv.shape[2] - 1
-    # the outermost local maximum with at least ``outer_frac`` of the ray's strongest step: a node's
-    # rim is the outermost edge of the node, while its sticker's edges (often stronger) lie inside
-    strongest = deriv.max(axis=2, keepdims=True)
-    cand = _local_maxima(deriv) & (deriv >= np.maximum(cfg.outer_frac * strongest, cfg.min_step))
-    if nearest:
-        target = (1.0 - band[0]) / (band[1] - band[0]) * (n_samples - 1) - 0.5  # the step index at r
-        k, _ = _edge_nearest(deriv, cand, np.full(len(circles), target))
-        none = ~cand.any(axis=2)
-        k[..., 0] = np.where(none, np.argmax(deriv, axis=2), k[..., 0])
-    elif candidates == 1:
-        # the last qualifying index as the maximum of (index + 1) over the qualifying samples (0: none;
-        # one uint8 pass instead of an argmax over a reversed view); rays with none fall back to
-        # their strongest step
-        kk1 = (cand.view(np.uint8) * np.arange(1, last + 2, dtype=np.uint8 if last < 255 else np.intp)).max(axis=2)
-        k = kk1.astype(np.intp) - 1
-        none = kk1 == 0
-        if none.any():
-            k[none] = np.argmax(deriv[none], axis=1)
-        k = k[..., None]
-    else:
-        # the ``candidates`` outermost qualifying maxima, outermost first (-1: none)
-        count = np.cumsum(cand[..., ::-1], axis=2)[..., ::-1]  # qualifying maxima at or beyond each sample
-        ks = [np.where((m := cand & (count == j + 1)).any(axis=2), np.argmax(m, axis=2), -1) for j in range(candidates)]
-        k = np.stack(ks, axis=2)
-        k[..., 0] = np.where(k[..., 0] < 0, np.argmax(deriv, axis=2), k[..., 0])
-    peak, off = _subsample(deriv, k)
-    dist = rad[:, :1, None] + (np.clip(k, 0, last) + 0.5 + off) * step[:, None, None]  # (N, R, C)
-    pts = _ray_points(circles, cos, sin, dist)
-    valid = inside[..., None] & (peak >= cfg.min_step) & (k >= 0)
-    strength = np.where(valid, peak, 0.0)
-    if candidates == 1 or nearest:
-        return pts[:, :, 0], strength[:, :, 0]
-    return pts, strength
 
 
 def rim_votes(image: np.ndarray, centres: np.ndarray, cfg: RimRefineConfig, band: tuple[float, float] | None = None,

@@ -43,9 +43,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--tag-table", metavar="TABLE.json", help='JSON object tag id -> node id (default: node id = tag id)')
     parser.add_argument("--min-radius", type=float, default=8.0, help="smallest node radius in pixels (default: 8)")
     parser.add_argument("--max-radius", type=float, default=160.0, help="largest node radius in pixels (default: 160)")
-    parser.add_argument("--detector", choices=("hough", "rim"), default="hough",
-                        help="circle detector: hough (fast; default: hough) or rim (finds the rim where hough fits "
-                             "the tag on large low-contrast or partly hidden spheres; about 3x slower)")
+    parser.add_argument("--detector", choices=("hough", "rim", "symmetry"), default="hough",
+                        help="circle detector: hough (fast; default: hough), rim (finds the rim where hough fits "
+                             "the tag on large low-contrast or partly hidden spheres; about 3x slower) or symmetry "
+                             "(colour-edge symmetry votes: the best recall on varied frames; about 3x slower)")
     parser.add_argument("--motion", choices=("auto", "flow", "odometry", "none"), default="auto",
                         help="camera-motion compensation for tracking: auto (default: the observer's "
                              "odometry when --log-template has it, else image registration), flow (image "

@@ -1,4 +1,4 @@
-"""The detector is a choice: ``"hough"`` (the default, the earlier pipeline unchanged) or ``"rim"``."""
+"""The detector is a choice: ``"hough"`` (the default, the earlier pipeline unchanged), ``"rim"`` or ``"symmetry"``."""
 
 import subprocess
 import sys
@@ -73,14 +73,15 @@ def test_default_detector_reproduces_the_earlier_detections_on_rendered_table1()
 
 
 def test_perceive_help_documents_the_detector_choice():
-    """`decentral perceive --help` names --detector with hough as the default and rim as the option."""
+    """`decentral perceive --help` names --detector with hough as the default and rim and symmetry as options."""
     out = subprocess.run([sys.executable, "-m", "sims.cli.main", "perceive", "--help"], capture_output=True, text=True,
                          check=True).stdout
-    assert "--detector" in out and "hough" in out and "rim" in out
+    assert "--detector" in out and "hough" in out and "rim" in out and "symmetry" in out
 
 
-def test_perceive_runs_the_rim_detector_when_asked(tmp_path):
-    """`decentral perceive --detector rim` writes detections with both tagged nodes found and named."""
+@pytest.mark.parametrize("detector", ["rim", "symmetry"])
+def test_perceive_runs_the_opt_in_detector_when_asked(tmp_path, detector):
+    """`decentral perceive --detector rim|symmetry` writes detections with both tagged nodes found and named."""
     import json
 
     import cv2
@@ -96,7 +97,7 @@ def test_perceive_runs_the_rim_detector_when_asked(tmp_path):
         paths.append(str(tmp_path / f"f{k}.png"))
         cv2.imwrite(paths[-1], img)
     out = tmp_path / "dets.json"
-    assert main(["perceive", *paths, "-o", str(out), "--detector", "rim"]) == 0
+    assert main(["perceive", *paths, "-o", str(out), "--detector", detector]) == 0
     last = json.loads(out.read_text())["frames"][-1]["detections"]
     found = {d["id"]: (d["u"], d["v"], d["r"]) for d in last if d["id"] is not None}
     assert set(found) == {5, 9}

@@ -1,15 +1,16 @@
-"""The rim detector (`detector="rim"`) on fixed varied frames: the rim, not the tag, where the default fails."""
+"""The rim-finding detectors (`detector="rim"`, `"symmetry"`) on fixed varied frames: the rim, not the tag."""
 
 import numpy as np
 import pytest
 
-from agents.perception import RimCircleDetector
+from agents.perception import make_detector
 from agents.perception.types import Circle, TagRead, TrackedCircle
 from sims.experiments.perception_scores import SequenceScore, score_frame
 from sims.experiments.varied_scenes import HELD_OUT_SEEDS, TUNING_SEEDS, Look, Sphere, Strut, render, sequence
 from sims.render.surfaces import SURFACES, lighting_gradient, surface
 
 W, H = 640, 480
+RIM_DETECTORS = ("rim", "symmetry")
 LOOK = Look(light=(-0.4, -0.5, 0.77), ambient=0.35, noise=2.0, blur=0.6)
 
 
@@ -27,38 +28,41 @@ def _matches(c, s):
     return np.hypot(c.u - s.u, c.v - s.v) <= max(2.0, 0.1 * s.r) and abs(c.r - s.r) <= 0.1 * s.r
 
 
+@pytest.mark.parametrize("detector", RIM_DETECTORS)
 @pytest.mark.parametrize("radius,delta", [(60.0, 0.0), (85.0, 0.02), (85.0, -0.03)])
-def test_large_sphere_coloured_like_the_floor_gets_its_rim_not_its_tag(radius, delta):
+def test_large_sphere_coloured_like_the_floor_gets_its_rim_not_its_tag(radius, delta, detector):
     """A 60-85 px sphere within 3 % of a carpet's colour gets one circle on its rim, not on its tag."""
     _, floor = _frame([], kind="carpet")
     grey = floor[H // 3:].reshape(-1, 3).mean(axis=0)
     s = Sphere(11, 320.0, 250.0, radius, tuple(float(c) for c in np.clip(grey + delta, 0, 1)),
                tag_normal=(0.15, -0.2, 0.97), tag_half_angle=0.45, paper=True, specular=0.2)
     fr, _ = _frame([s], kind="carpet")
-    circles = _on(RimCircleDetector().detect(fr.image), s)
+    circles = _on(make_detector(detector).detect(fr.image), s)
     assert len(circles) == 1, circles
     assert _matches(circles[0], s), circles[0]
 
 
-def test_tag_squeezed_at_the_limb_gives_no_second_circle():
+@pytest.mark.parametrize("detector", RIM_DETECTORS)
+def test_tag_squeezed_at_the_limb_gives_no_second_circle(detector):
     """A large sphere whose tag sits near its limb gives exactly one circle, its rim (no concentric double)."""
     normal = np.array([0.75, 0.35, 0.56])
     s = Sphere(42, 300.0, 240.0, 70.0, (0.45, 0.5, 0.55), tag_normal=tuple(normal / np.linalg.norm(normal)),
                tag_half_angle=0.45, paper=True, specular=0.4)
     fr, _ = _frame([s], kind="tiles", seed=5)
-    circles = [c for c in RimCircleDetector().detect(fr.image) if np.hypot(c.u - s.u, c.v - s.v) < s.r]
+    circles = [c for c in make_detector(detector).detect(fr.image) if np.hypot(c.u - s.u, c.v - s.v) < s.r]
     assert len(circles) == 1, circles
     assert _matches(circles[0], s), circles[0]
 
 
-def test_partly_hidden_sphere_radius_comes_from_its_visible_rim():
+@pytest.mark.parametrize("detector", RIM_DETECTORS)
+def test_partly_hidden_sphere_radius_comes_from_its_visible_rim(detector):
     """A sphere a third hidden behind a nearer one and crossed by a strut keeps its radius within 10 %."""
     far = Sphere(7, 260.0, 240.0, 48.0, (0.2, 0.35, 0.75), tag_normal=(-0.3, 0.2, 0.93), specular=0.3)
     near = Sphere(8, 340.0, 260.0, 66.0, (0.65, 0.55, 0.3), tag_normal=(0.2, -0.1, 0.97), specular=0.3)
     strut = Strut((180.0, 150.0), (300.0, 330.0), 9.0, (0.15, 0.15, 0.15))
     fr, _ = _frame([far, near], [strut], kind="wood", seed=7)
     assert 0.5 < fr.visible[0] < 0.8  # the farther (smaller) sphere is drawn first
-    circles = RimCircleDetector().detect(fr.image)
+    circles = make_detector(detector).detect(fr.image)
     for s in (far, near):
         found = _on(circles, s, tol=0.3)
         assert found and _matches(found[0], s), (s, found)
