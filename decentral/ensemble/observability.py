@@ -22,10 +22,11 @@ from __future__ import annotations
 
 import networkx as nx
 import numpy as np
+from scipy import sparse
 
-from decentral.ensemble.problem import EnsembleProblem
+from decentral.ensemble.problem import EnsembleProblem, connected_components
 
-__all__ = ["hinge_pairs"]
+__all__ = ["hinge_pairs", "hinged_parts"]
 
 
 def hinge_pairs(problem: EnsembleProblem) -> np.ndarray:
@@ -50,3 +51,20 @@ def hinge_pairs(problem: EnsembleProblem) -> np.ndarray:
         return np.zeros((0, 2), dtype=np.int64)
     out = np.asarray(found, dtype=np.int64)
     return out[np.lexsort((out[:, 1], out[:, 0]))]
+
+
+def hinged_parts(problem: EnsembleProblem, hinges: np.ndarray) -> np.ndarray:
+    """Label (n,) of the part each module is in once the ``hinges`` (H, 2) are cut; 0 is the largest part.
+
+    Each part is held together by more than single contacts; the parts other than 0 are what may
+    turn against the largest (ties go to the part of the smallest module id).
+    """
+    pairs = problem.pairs()
+    cut = np.isin(pairs[:, 0] * problem.n + pairs[:, 1], hinges[:, 0] * problem.n + hinges[:, 1])
+    kept = pairs[~cut]
+    graph = sparse.coo_matrix((np.ones(len(kept)), (kept[:, 0], kept[:, 1])), shape=(problem.n, problem.n))
+    _, label = connected_components(graph.tocsr())
+    order = np.argsort(-np.bincount(label), kind="stable")  # largest first
+    rank = np.empty_like(order)
+    rank[order] = np.arange(order.size)
+    return rank[label]

@@ -177,15 +177,16 @@ def _report(problem, res, args: argparse.Namespace, seconds: float) -> None:
 
 def _warn_hinges(problem) -> None:
     """Warn when single observation pairs join parts of a 3D ensemble (the likelihood is flat about them)."""
-    from decentral.ensemble.observability import hinge_pairs
+    from decentral.ensemble.observability import hinge_pairs, hinged_parts
 
     hinges = hinge_pairs(problem)
     if len(hinges):
         shown = ", ".join(f"{i}-{j}" for i, j in hinges[:3]) + (", ..." if len(hinges) > 3 else "")
+        loose = int(np.count_nonzero(hinged_parts(problem, hinges)))
         feedback.warn(f"{len(hinges)} observation pair(s) are the only contact between two parts of the "
-                      f"ensemble (modules {shown}): in 3D the rotation of one part about such a contact is "
-                      "unobservable, so the parts may be turned against each other by any angle (each part "
-                      "is right in itself)")
+                      f"ensemble (modules {shown}; {loose} module(s) outside the largest rigid part): in 3D "
+                      "the rotation of one part about such a contact is unobservable, so the parts may be "
+                      "turned against each other by any angle (each part is right in itself)")
 
 
 def _summarize(problem, res, args: argparse.Namespace, seconds: float) -> None:

@@ -4,7 +4,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from decentral.ensemble.model import negative_log_likelihood
-from decentral.ensemble.observability import hinge_pairs
+from decentral.ensemble.observability import hinge_pairs, hinged_parts
 from decentral.ensemble.problem import EnsembleProblem
 from decentral.ensemble.rotation import angle_to_matrix, matrix_to_angle, matrix_to_quat, so3_exp
 
@@ -91,3 +91,11 @@ def test_a_single_contact_fixes_the_relative_rotation_in_2d():
     R2[j:] = Q @ R[j:]
     before = negative_log_likelihood(prob, x, matrix_to_angle(R))
     assert negative_log_likelihood(prob, c2, matrix_to_angle(R2)) > before + 1e-3 * R_MOD**2
+
+
+def test_cutting_the_hinges_leaves_the_blocks_and_the_file_modules_as_parts():
+    """Cut at its hinges, two blocks on a file of three fall into the two blocks and three single modules."""
+    prob, x, R, block = _blocks_on_a_file(file_length=3)
+    label = hinged_parts(prob, hinge_pairs(prob))
+    assert np.bincount(label).tolist() == [block, block, 1, 1, 1]
+    assert np.unique(label[:block]).size == 1 and np.unique(label[block + 3:]).size == 1

@@ -164,17 +164,11 @@ def test_twin_clusters_are_joined_only_by_a_few_observations():
 
 def _hinged_parts(ens):
     """Sizes of the parts left when the hinges of a 3D ensemble are cut, largest first."""
-    from scipy import sparse
-    from scipy.sparse.csgraph import connected_components
-
     from decentral.ensemble import EnsembleProblem
-    from decentral.ensemble.observability import hinge_pairs
+    from decentral.ensemble.observability import hinge_pairs, hinged_parts
 
     prob = EnsembleProblem(3, ens.n, ens.radius, ens.i, ens.j, ens.z)
-    pairs, hinges = prob.pairs(), hinge_pairs(prob)
-    kept = pairs[~(pairs[:, None, :] == hinges[None, :, :]).all(axis=2).any(axis=1)]
-    graph = sparse.coo_matrix((np.ones(len(kept)), (kept[:, 0], kept[:, 1])), shape=(ens.n, ens.n))
-    return np.sort(np.bincount(connected_components(graph, directed=False)[1]))[::-1]
+    return np.bincount(hinged_parts(prob, hinge_pairs(prob)))
 
 
 # sizes at which the rasterizer left the rods of hcp `triple3d` a single file of modules (2.2-radius floor)
