@@ -15,7 +15,9 @@ method keeps its defaults (centralized: levels 1e-3, top 1e-6; distributed: leve
 
 A progress bar follows the hierarchy (modules placed by leaves, then the top refinement; with
 ``--distributed``, each stage and the messages so far); one summary line closes the run, and a
-warning says when a refinement stopped at its iteration cap instead of at the tolerance.
+warning says when a refinement stopped at its iteration cap instead of at the tolerance, and another
+when a 3D ensemble has hinges (:func:`decentral.ensemble.observability.hinge_pairs`: single
+observation pairs about which a part can turn without changing the likelihood).
 """
 
 from __future__ import annotations
@@ -169,6 +171,26 @@ def run(args: argparse.Namespace) -> int:
 
 def _report(problem, res, args: argparse.Namespace, seconds: float) -> None:
     """The summary line and warnings of a finished run."""
+    _summarize(problem, res, args, seconds)
+    _warn_hinges(problem)
+
+
+def _warn_hinges(problem) -> None:
+    """Warn when single observation pairs join parts of a 3D ensemble (the likelihood is flat about them)."""
+    from decentral.ensemble.observability import hinge_pairs, hinged_parts
+
+    hinges = hinge_pairs(problem)
+    if len(hinges):
+        shown = ", ".join(f"{i}-{j}" for i, j in hinges[:3]) + (", ..." if len(hinges) > 3 else "")
+        loose = int(np.count_nonzero(hinged_parts(problem, hinges)))
+        feedback.warn(f"{len(hinges)} observation pair(s) are the only contact between two parts of the "
+                      f"ensemble (modules {shown}; {loose} module(s) outside the largest rigid part): in 3D "
+                      "the rotation of one part about such a contact is unobservable, so the parts may be "
+                      "turned against each other by any angle (each part is right in itself)")
+
+
+def _summarize(problem, res, args: argparse.Namespace, seconds: float) -> None:
+    """The summary line, and the warnings about refinements that stopped at their cap."""
     head = f"{problem.n} modules ({problem.dim}D), {_method_label(args)}: cost {res.cost:.4g}"
     if args.distributed:
         sent = res.messages

@@ -16,17 +16,27 @@ from decentral.errors import InputError
 __all__ = ["SHAPES_3D", "LATTICES", "lattice_sites", "rasterize"]
 
 
-def _sphere(p, m):
+#: Least radius of a thin part (the rods of ``triple3d``, the bar of ``dumbbell``) on each lattice, in
+#: module radii. :func:`rasterize` keeps the deepest sites, which shaves about a layer of modules off
+#: every surface; what is left of a thinner rod can be a single file of modules, and in 3D each
+#: contact of a single file is a hinge whose rotation the observations cannot fix
+#: (:mod:`decentral.ensemble.observability`). With these, no size from 200 to 30,000 modules left
+#: more than a bump of a few modules on a hinge (the cubic lattice's layers are thicker: 2 radii
+#: apart against 1.63, and 3.5 still left single-file rods at 9,500-10,000 cubic modules).
+THIN_PART_RADIUS = {"hcp": 3.5, "cubic": 4.5}
+
+
+def _sphere(p, t):
     return 1.0 - np.linalg.norm(p, axis=1)
 
 
-def _box(p, m=0.0):
+def _box(p, t=0.0):
     q = np.abs(p) - 1.0
     outside = np.linalg.norm(np.maximum(q, 0.0), axis=1)
     return -(outside + np.minimum(q.max(axis=1), 0.0))
 
 
-def _torus(p, m):
+def _torus(p, t):
     ring = np.hypot(p[:, 0], p[:, 1]) - 1.0
     return 0.4 - np.hypot(ring, p[:, 2])
 
@@ -37,21 +47,22 @@ def _capsule(p, a, b, r):
     return r - np.linalg.norm(p - (a + t[:, None] * ab), axis=1)
 
 
-def _dumbbell(p, m):
+def _dumbbell(p, t):
     left = 0.8 - np.linalg.norm(p - [-1.4, 0, 0], axis=1)
     right = 0.8 - np.linalg.norm(p - [1.4, 0, 0], axis=1)
-    bar = _capsule(p, np.array([-1.4, 0, 0]), np.array([1.4, 0, 0]), max(0.25, 2.2 * m))
+    bar = _capsule(p, np.array([-1.4, 0, 0]), np.array([1.4, 0, 0]), max(0.25, t))
     return np.maximum(np.maximum(left, right), bar)
 
 
-def _triple3d(p, m):
-    # three cubes in a row joined by thin rods (at least a module thick): a 3D "sparse" triple
+def _triple3d(p, t):
+    # three cubes in a row joined by thin rods (several modules across): a 3D "sparse" triple
     cubes = [_box((p - [x, 0, 0]) / 0.6) * 0.6 for x in (-1.8, 0.0, 1.8)]
-    rod = _capsule(p, np.array([-1.8, 0, -0.45]), np.array([1.8, 0, -0.45]), max(0.12, 2.2 * m))
+    rod = _capsule(p, np.array([-1.8, 0, -0.45]), np.array([1.8, 0, -0.45]), max(0.12, t))
     return np.maximum(np.maximum.reduce(cubes), rod)
 
 
-#: name -> (signed distance f(p, m) on unit coordinates, m the module radius there; half extent)
+#: name -> (signed distance f(p, t) on unit coordinates, t the least radius of a thin part there
+#: (:data:`THIN_PART_RADIUS`); half extent)
 SHAPES_3D: dict[str, tuple[Callable[[np.ndarray], np.ndarray], np.ndarray]] = {
     "sphere": (_sphere, np.array([1.0, 1.0, 1.0])),
     "box": (_box, np.array([1.0, 1.0, 1.0])),
@@ -105,7 +116,7 @@ def rasterize(
     scale = (n / (density * volume)) ** (1.0 / 3.0) * 1.08
     for _ in range(8):
         sites = lattice_sites(lattice, spacing, half * scale + spacing)
-        depth = sdf(sites / scale, radius / scale) * scale
+        depth = sdf(sites / scale, THIN_PART_RADIUS[lattice] * radius / scale) * scale
         if np.count_nonzero(depth > 0) >= n:
             break
         scale *= 1.1

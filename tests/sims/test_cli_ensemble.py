@@ -141,3 +141,14 @@ def test_sdp_size_guard_is_a_clear_error(tmp_path, capsys, monkeypatch):
     assert main(["ensemble", obs, "-o", str(out), "--method", "sdp"]) == 2
     assert "limited to 10 modules" in capsys.readouterr().err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("dim, shape, warned", [(3, (7, 1, 1), True), (3, (3, 3, 3), False), (2, (7, 1), False)])
+def test_hinges_of_a_3d_ensemble_are_warned_about(tmp_path, capsys, dim, shape, warned):
+    """A single file of 3D modules is a chain of hinges and is warned about; a block or a 2D file is not."""
+    obs = _save(tmp_path / "obs.npz", **_valid(dim, shape))
+    assert main(["ensemble", obs, "-o", str(tmp_path / "est.npz")]) == 0
+    err = capsys.readouterr().err
+    # a file of 7 has 6 contacts; the two at its ends hold one module each, which turns in place
+    assert ("warning: 4 observation pair(s) are the only contact between two parts" in err) == warned
+    assert ("unobservable" in err) == warned

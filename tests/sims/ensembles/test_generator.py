@@ -160,3 +160,34 @@ def test_twin_clusters_are_joined_only_by_a_few_observations():
     a = normalized_cut(prob.adjacency()).in_a
     assert 1 <= np.count_nonzero(a[prob.i] & ~a[prob.j]) <= 6
     assert min(a.sum(), (~a).sum()) > 0.4 * ens.n
+
+
+def _hinged_parts(ens):
+    """Sizes of the parts left when the hinges of a 3D ensemble are cut, largest first."""
+    from decentral.ensemble import EnsembleProblem
+    from decentral.ensemble.observability import hinge_pairs, hinged_parts
+
+    prob = EnsembleProblem(3, ens.n, ens.radius, ens.i, ens.j, ens.z)
+    return np.bincount(hinged_parts(prob, hinge_pairs(prob)))
+
+
+# sizes at which the rasterizer left the rods of hcp `triple3d` a single file of modules (2.2-radius floor)
+@pytest.mark.parametrize("n", [2300, 2500, 4375, 6750, 7000, 7500, 8000])
+def test_triple3d_rods_are_no_chain_of_hinges(n):
+    """At every size the rods of hcp ``triple3d`` hold the cubes rigidly: the ensemble has no hinge."""
+    ens = generate(EnsembleSpec(shape="triple3d", n=n), np.random.default_rng(0))
+    assert len(_hinged_parts(ens)) == 1
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("lattice", ["hcp", "cubic"])
+@pytest.mark.parametrize("shape", SHAPES_3D)
+def test_no_3d_shape_turns_on_a_hinge_at_any_size(shape, lattice):
+    """From 200 to 30,000 modules no 3D shape has more than a bump of a few modules hanging on a hinge.
+
+    (The bumps are where ties at the deepest-site cut leave a partial outer layer of a cubic lattice.)
+    """
+    sizes = [*range(200, 3000, 100), *range(3000, 12001, 250), *range(13000, 30001, 1000)]
+    for n in sizes:
+        parts = _hinged_parts(generate(EnsembleSpec(shape=shape, n=n, lattice=lattice), np.random.default_rng(0)))
+        assert parts[1:].max(initial=0) <= 5, (n, parts[:4])
