@@ -5,10 +5,11 @@ the default ADMM and network parameters (round period 10 ms, latency 0.5 ms, jit
 seed 1. Two ways to run the agents (``AdmmRunConfig.share_forms``):
 
 * ``every`` (the default of ``decentral localize --mode admm``): every window starts at the joint
-  solution of every agent's forms; they travel up and down a spanning tree of the view graph
-  (``aggregation="tree"``, default) once the agents know their routes to the reference (from the
-  second window on), by broadcast at the cold start. ``every/broadcast`` (``aggregation="broadcast"``,
-  the previous session's default) broadcasts them every window: the reference for the traffic;
+  solution of every agent's forms; once the agents know their routes to the reference (from the
+  second window on) the newest step's forms travel up a spanning tree of the view graph
+  (``admm.delta``) and the reference's joint solution comes back down (``admm.solution``;
+  ``aggregation="tree"``, default); at the cold start the forms are broadcast. ``every/broadcast`` (``aggregation="broadcast"``,
+  the earlier default) broadcasts them every window: the reference for the traffic;
 * ``first``: the cold start shares the first step's forms and every later window is plain
   consensus-ADMM, warm-started.
 
@@ -19,7 +20,8 @@ steady-state windows (later steps), median and max over agents, with a log-log f
 steady-state messages per neighbour against the number of assemblies (slope 0: flat), bytes per
 agent per second at 5 Hz (one window per 0.2 s frame), wall and CPU time per round (all agents, one
 process), and the centralized estimator's time per window on the same log in the same run (the
-reference).
+reference); the load average before and after each run (wall times depend on what else the machine
+runs; CPU times much less).
 
 Run ``OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python benchmarks/admm.py [--quick]``; writes
 ``OUT/admm.json`` and ``OUT/admm.png``.
@@ -44,8 +46,9 @@ from sims.admm_run import AdmmRunConfig, run_admm  # noqa: E402
 from sims.io.atomic import write_json_atomic  # noqa: E402
 from sims.scenarios import get_scenario, simulate  # noqa: E402
 
-KINDS = {"admm": ("admm.primal", "admm.dual"), "forms": ("admm.factors", "admm.bundle", "admm.bundle_ack"),
-         "config": ("admm.config", "admm.config_request")}
+KINDS = {"admm": ("admm.primal", "admm.dual"),
+         "forms": ("admm.factors", "admm.bundle", "admm.bundle_ack", "admm.delta"),
+         "solution": ("admm.solution",), "config": ("admm.config", "admm.config_request")}
 
 
 def _windows(run, names: list[str], degree: np.ndarray, steps: list[int]) -> dict | None:

@@ -7,13 +7,13 @@ Configurations, measured in the same run (``--configs``):
 
 - ``default``: :class:`HierarchyConfig` defaults (L-BFGS refiner, seam-only refinement below the
   top, 2 hops; Laplacian orderings by ``decentral.ensemble.ordering.choose_ordering``);
-- ``no_coarse`` (session 4's defaults): the same without the two-level initial inverse Hessian of
+- ``no_coarse`` (the earlier default): the same without the two-level initial inverse Hessian of
   the top refinement (``RefineConfig(coarse_size=0)``: 4 L^-1 alone, no rigid motions of clusters);
-- ``mmd_order`` (session 3's ordering): the same with every Laplacian ordered by SuperLU's minimum
+- ``mmd_order`` (the earlier ordering rule): the same with every Laplacian ordered by SuperLU's minimum
   degree (``RefineConfig(ordering="mmd")``) instead of the default rule (METIS nested dissection for
   3D Laplacians of 4,000 modules or more, Algorithm 1's cuts as the elimination order of the other
   full-level Laplacians);
-- ``full_levels`` (the defaults before session 3): every level refined in full by Anderson-mixed
+- ``full_levels`` (the original defaults): every level refined in full by Anderson-mixed
   alternating sweeps (``seam_hops=0``, ``method="alternating"``, history 6), same tolerances.
 
 Every size is generated once by a child process. Then, for each 4x pair (2D 2,500 -> 10,000 and
@@ -35,7 +35,7 @@ sizes' medians and as the median (and range) of the per-repeat ratios of back-to
 - on the first repeat (up to 30,000 modules), the CPU time below the top level (cuts, leaves, lower
   merges and their refinements), from a second run whose top refinement is skipped.
 
-It prints and writes ``OUT/<name>.json`` and ``<name>.png``. Targets (issue 5):
+It prints and writes ``OUT/<name>.json`` and ``<name>.png``. Targets:
 10,000 modules <= 5 s, 100,000 <= 120 s under 4 GB, and 4x the modules for at most 4.6x the time.
 BLAS is pinned to one thread; the machine is shared, so CPU time is the figure of merit and the load
 is recorded per run.

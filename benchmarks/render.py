@@ -8,7 +8,7 @@ Fixed inputs: the ``table1`` scenario (one camera, three targets + the observer:
 - ``reference``: the same geometry ray-cast naively, every sphere and strut against every pixel
   of the frame (no per-object region of interest), measured in the same run.
 
-Target (issue 3): < 100 ms per 1024x768 frame. The machine is shared, so besides wall time each
+Target: < 100 ms per 1024x768 frame. The machine is shared, so besides wall time each
 frame's CPU time (``time.process_time``, one thread) is reported: on a loaded machine it is the
 single-core cost, while wall time also counts waiting for a core. Also reports the tag read rate of OpenCV's
 ``ArucoDetector`` (36h11, default parameters) on clean frames of one sphere at several distances,

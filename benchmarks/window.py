@@ -6,7 +6,7 @@ and deciding placeability) for both solvers, as windows per second; plus, on a w
 with K = 5, the ratio against a naive loop that builds a fresh cvxpy problem of seed 000's P3 as
 printed for every window. Single core (BLAS threads pinned to 1).
 
-Targets (issue 2): pairwise K=5 >= 500 windows/s with certificate; >= 15x the naive loop on a whole
+Targets: pairwise K=5 >= 500 windows/s with certificate; >= 15x the naive loop on a whole
 log; a 20-assembly joint window well under a second.
 
 Usage: ``python benchmarks/window.py [--quick]``; writes ``OUT/window.json``.

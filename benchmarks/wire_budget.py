@@ -15,7 +15,8 @@ Measured, per ring size (``multi`` for n <= 16, ``ring64`` above, scenario seed 
   largest gap to the centralized estimate (the accuracy check);
 * **real processes** (``decentral launch``, small rings): bytes counted by the socket transport at
   the senders (envelope included), same ratios, and the wall time from a sensor step to the agent's
-  own end of the window (median over agents and steady windows), with 4, 8 and 16 processes.
+  own end of the window (median over agents and steady windows), with 4, 8 and 16 processes, and
+  the load average before and after each run (wall times depend on what else the machine runs).
 
 Targets (steady state): total <= 1.0x the flood at 5 assemblies, <= 0.5x at 16, <= 0.25x at 64,
 busiest agent within 3x its flood share, frames per agent per window growing no faster than its
@@ -148,6 +149,7 @@ def pace(n: int, round_period: float | None, rounds_per_step: int, step_dt: floa
 
 
 def processes(n: int, steps: int, raw_cls, rate: float, round_period: float) -> dict:
+    import os
     import tempfile
 
     import numpy as np
@@ -156,8 +158,10 @@ def processes(n: int, steps: int, raw_cls, rate: float, round_period: float) -> 
 
     sim = _ring(n, steps)
     names = list(sim.log.assemblies)
+    load = [list(os.getloadavg())]
     with tempfile.TemporaryDirectory() as tmp:
         result = launch(sim.log, LaunchConfig(rate=rate, round_period=round_period), workdir=tmp)
+    load.append(list(os.getloadavg()))
     cum = np.zeros((steps, len(names)))
     windows = []
     for i, a in enumerate(names):
@@ -174,7 +178,7 @@ def processes(n: int, steps: int, raw_cls, rate: float, round_period: float) -> 
             "window_seconds": {"median": float(np.median(windows)) if windows else None,
                                "max": float(np.max(windows)) if windows else None, "windows": len(windows)},
             "step_period_wall": float(np.median(np.diff([s.t for s in sim.log.steps]))) / rate,
-            "rate": rate, "round_period": round_period}
+            "rate": rate, "round_period": round_period, "loadavg": load}
 
 
 def plot(result: dict, path: Path) -> None:
@@ -215,6 +219,7 @@ def plot(result: dict, path: Path) -> None:
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     import json
+    import os
 
     from _common import machine
     from sims.io.atomic import write_json_atomic
@@ -238,14 +243,17 @@ def main(argv=None) -> int:
             out["processes"].append(row)
         if n in args.wall_sizes:
             out["wall"].append({"processes": n, **row["window_seconds"], "step_period_wall": row["step_period_wall"],
-                                "round_period": row["round_period"],
-                                "converged_steps": sum(row["converged_per_step"]), "steps": row["steps"]})
+                                "round_period": row["round_period"], "loadavg": row["loadavg"],
+                                "converged_steps": sum(row["converged_per_step"]), "steps": row["steps"],
+                                "converged_per_step": row["converged_per_step"],
+                                "steady_bytes_over_flood": row["steady"]["ratio_total"]})
         print(f"processes n={n}: steady {row['steady']['ratio_total']:.3f}x flood, window "
               f"{row['window_seconds']['median']} s median", flush=True)
     targets = {5: 1.0, 16: 0.5, 64: 0.25}
     out["targets"] = {str(n): {"target": t, "measured": next((r["steady"]["ratio_total"] for r in out["simulated"]
                                                               if r["n"] == n), None)} for n, t in targets.items()}
     out["targets"]["busiest_within_3x"] = all(r["steady"]["busiest_vs_fair_share"] <= 3 for r in out["simulated"])
+    out["machine"]["loadavg_end"] = list(os.getloadavg())
     args.out.mkdir(parents=True, exist_ok=True)
     write_json_atomic(args.out / "wire_budget.json", out)
     plot(out, args.out / "wire_budget.png")

@@ -1,4 +1,4 @@
-"""PettingZoo parallel env for decentralized relative localization (issue 4 part 5).
+"""PettingZoo parallel env for decentralized relative localization.
 
 Agents are assemblies; in the ``"swarm"`` scenario (seed 004) each assembly is a one-node robot with
 a camera, running the on-board agent of :mod:`sims.swarm.robot` (EKF tracks of every other robot,

@@ -14,7 +14,7 @@ from sims.scenarios import get_scenario, simulate  # noqa: E402
 
 @pytest.fixture(scope="module")
 def clean_run():
-    # the session-1 table1 geometry (targets 2.5 m away on average, nodes of 17-27 px): the pixel
+    # the wider table1 geometry of the ranges below (targets 2.5 m away on average, nodes of 17-27 px): the pixel
     # thresholds below were set for it; the default geometry (1.85 m, as in the seed) is measured
     # by benchmarks/perception.py
     sim = simulate(get_scenario("table1", steps=6, noise=False, ranges=(1.8, 2.5, 2.0)), seed=4)
