@@ -264,11 +264,13 @@ class AssemblyAgent:
             return
         if self._dirty:
             self._rebuild()  # (a configuration that arrived may add a pair the joint solution lacks)
-        if self._exact() and self._round - self._busy_seen > 2:
+        if self._exact() and self._round - self._busy_seen > self.config.patience:
             # every live agent's forms and this agent's pairs as they described them: the joint solution is the
-            # ADMM's fixed point, and every agent holding the set has it too; no round would change it
+            # ADMM's fixed point, and every agent holding the set has it too; no round would change it (unless a
+            # neighbour without the set has sent values lately: under loss they come every few rounds)
             self._rounds.converged = True
         elif self._phase == 0:
+            self._start.admm_ran = True
             self._pair_phase()
         else:
             self._consensus_phase()
@@ -461,13 +463,17 @@ class AssemblyAgent:
         arrived (lost copies) is taken from the joint solution of the step's shared forms when this
         agent holds every agent's forms (that solution is the ADMM's fixed point, restricted to the
         assemblies tied to the gauge, the same placement rule as the consensus). While the ADMM has not
-        converged, the joint solution this agent holds (of every live agent's forms, or of those that
-        came before the wait for them ended) gives the step's placements instead: an iterate on its way
-        is no estimate (a neighbour without the set pulls it off the fixed point for a while).
+        converged, or when it ran no ADMM round in this window, the joint solution this agent holds (of every live agent's
+        forms, or of those that came before the wait for them ended) gives the step's placements instead:
+        an iterate on its way is no estimate (a neighbour without the set pulls it off the fixed point for
+        a while, and its rows reach this agent's table).
         """
         if self._step is None:
             return {}
-        if self._start.fallback and not self.converged:
+        if self._start.fallback and (not self.converged or not self._start.admm_ran):
+            # (without an ADMM round of its own here, the joint solution is this window's answer: rows that other
+            # agents' ADMM wrote into the gossip table while they ran without the set are iterates on their way,
+            # once 11 km off at 50 % loss)
             return self._relative_to_own(self._rows_of(self._start.fallback))
         me = self._gossip.rows.get(self._index[self.name])
         if not self._consensus.ready or me is None or int(me[1]) != self._step:

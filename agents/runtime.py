@@ -19,7 +19,7 @@ consecutive rounds (after at least ``min_rounds``), or when the round budget bet
 steps is spent. It then goes *quiet*: it still handles every message (answers to configuration
 requests, lost bundles and acknowledgements come out of the handlers), but runs ADMM half rounds
 only to answer a neighbour whose window is not done yet (ADMM values without the ``done`` block in
-two rounds running), so a late neighbour is never left waiting for values, and two quiet agents
+two of the last four rounds), so a late neighbour is never left waiting for values, and two quiet agents
 exchange nothing. An answer that moves it off its own convergence test makes it busy again.
 
 A simulation therefore predicts what processes do: the simulated runner starts the next step when
@@ -105,11 +105,13 @@ class LocalAgent:
         """Done with its window and nobody to answer: it sends nothing of its own accord.
 
         A neighbour's values without the ``done`` block in one round after this agent was done may be its
-        last ones (it finished in the same round); in the two rounds before this one, it is still at work
-        and waiting for this agent's values, so the agent runs this whole round (both phases) to answer.
+        last ones (it finished in the same round); in two of the four rounds before this one, it is still
+        at work and waiting for this agent's values (behind a lossy link that drops every other copy), so
+        the agent runs this whole round (both phases) to answer. (Requiring two rounds running instead left
+        neighbours at work alone under 50 % loss: 6 of 8 cold starts of a 4-ring hit the 600-round cap.)
         """
         r = self.rounds  # index of the round under way (rounds completed in this window)
-        return self.done and not (r - 1 in self._heard and r - 2 in self._heard)
+        return self.done and len({r - 1, r - 2, r - 3, r - 4} & self._heard) < 2
 
     def on_step(self, own: OwnStep, round_index: int | None = None) -> None:
         """A new sensor step at round ``round_index``: the previous window ends here."""

@@ -26,6 +26,8 @@ class WindowStart:
         Observers whose first values a seeded start waits for.
     form_sig : dict or None
         Target -> detections its pair used when this window's own forms were shared.
+    admm_ran : bool
+        The agent has run an ADMM round in this window (its estimate is then the consensus once converged).
     fallback : dict
         Assembly -> ``(R, p)`` at this step of what the joint solution places (of every live agent's
         forms, or of those that came before the wait for them ended): the step's answer while the ADMM
@@ -39,3 +41,4 @@ class WindowStart:
     expected: set = field(default_factory=set)
     form_sig: dict | None = None
     fallback: dict = field(default_factory=dict)
+    admm_ran: bool = False
