@@ -5,7 +5,7 @@ detections (never ground truth), plus what arrives in its inbox. It is a thin co
 protocol roles, each a small state machine in :mod:`protocols` with its own tests (house style 8-9).
 Per log step it
 
-1. back-projects its own detections (seed 000 eq. (1), (4), :func:`decentral.pair_forms.own_detections`)
+1. back-projects its own detections (Liu et al. 2024 eq. (1), (4), :func:`decentral.pair_forms.own_detections`)
    and announces its configuration (:class:`protocols.config_gossip.ConfigGossip`: ``admm.config``, a
    broadcast when it changes, every ``announce_every`` steps a unicast to its current observers);
 2. names the owner of every node it sees from the announced configurations and builds one
@@ -31,7 +31,7 @@ Per log step it
 Both ADMM kinds also carry (when it changed, see ``gossip_refresh``) a small gossip table
 (:class:`protocols.pose_gossip.PoseGossip`: the newest consensus pose of every assembly at its latest
 step) so every agent learns the poses of assemblies it does not talk to; :meth:`AssemblyAgent.estimates`
-turns it into poses relative to the agent (seed 000 eq. (19)). With every agent's forms in hand,
+turns it into poses relative to the agent (Liu et al. 2024 eq. (19)). With every agent's forms in hand,
 the joint solution only counts as the fixed point while its pairs are the ones its forms described.
 A window that starts at the joint solution of every live agent's forms is exact and runs no ADMM
 round (:meth:`AssemblyAgent._exact`); an agent joins the ADMM only while a neighbour runs it. Peers
@@ -504,6 +504,6 @@ class AssemblyAgent:
             if i == self._index[self.name]:
                 continue
             d = row[3:6] - me[3:6]
-            p = np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1], d[2]])  # seed 000 eq. (19)
+            p = np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1], d[2]])  # Liu et al. 2024 eq. (19)
             out[self.config.assemblies[i]] = PlanarPose(p, float(wrap_angle(row[6] - me[6])))
         return out

@@ -1,6 +1,6 @@
-"""Seed 000 Table I on the geometry simulator: windowed estimator vs per-frame fit vs bearing baseline.
+"""Liu et al. 2024 Table I on the geometry simulator: windowed estimator vs per-frame fit vs bearing baseline.
 
-One observer on a 0.75 m table, three moving targets of different configurations at the seed's distances (mean about 1.85 m),
+One observer on a 0.75 m table, three moving targets of different configurations at the paper's distances (mean about 1.85 m),
 5 Hz frames, realistic noise (scenario ``table1``), several seeds. Writes
 ``OUT/accuracy_table1.json``, ``.md`` (the README table) and ``.png``.
 

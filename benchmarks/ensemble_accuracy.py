@@ -1,17 +1,17 @@
-"""Accuracy study reproducing seed 003 Fig. 10: normalized cut vs. MDS, SDP, incremental, bottom-up.
+"""Accuracy study reproducing Funiak et al. 2008 Fig. 10: normalized cut vs. MDS, SDP, incremental, bottom-up.
 
 Declared inputs: the ``triple``, ``sparse`` and ``open`` 2D scenarios of part B's generator
 (settled under gravity, 12 IR transceivers, quantized directions, 20 % threshold) at 1,000
 requested modules, instances with generator seeds 0..R-1 (R = 5 by default; the seed used 10).
 
-Methods (seed 003 §VI-E): (i) classical MDS of hop counts, (ii) the regularized SDP (inequality
+Methods (Funiak et al. 2008 §VI-E): (i) classical MDS of hop counts, (ii) the regularized SDP (inequality
 form, Clarabel), (iii) the incremental breadth-first method of §III-B, (iv) bottom-up merging in
 order of algebraic connectivity, (v) Algorithm 1 with exact normalized cut.
 
 Two refinement protocols, both applied to every method:
 
 ``seed``
-    The seed's refiner everywhere: preconditioned nonlinear conjugate gradient
+    The paper's refiner everywhere: preconditioned nonlinear conjugate gradient
     (``RefineConfig(method="pcg")``), each intermediate estimate (every breadth-first layer of the
     incremental method, every merge of bottom-up, every level of Algorithm 1) refined until the
     Euclidean norm of the gradient is below ``--gtol`` (0.1, in module radii; §VI-B, Fig. 6 used
@@ -31,15 +31,15 @@ so the SDP runs on a documented subsample: ``--sdp-modules`` (400) modules, ``--
 instances per shape, all methods on the same instances (like for like), each SDP solve capped at
 180 s of wall time (a capped solve is recorded as failed, never as a result).
 
-Every instance also records what makes it hard (is it lacking the seed's weak regions, is the
+Every instance also records what makes it hard (is it lacking the paper's weak regions, is the
 noise kind?): the observation pairs crossing the exact top normalized cut and its value, the mean
 angular error of the observed sensor direction, and the share of observed pairs not touching.
 
 Writes ``OUT/ensemble_accuracy.json`` and ``ensemble_accuracy.png``.
 Usage: ``python benchmarks/ensemble_accuracy.py [--instances R] [--sdp-instances K] [--modules N]``;
-``--replot [NAME]`` redraws the figure from the saved JSON. The study with the seed's looser
+``--replot [NAME]`` redraws the figure from the saved JSON. The study with the paper's looser
 threshold is ``--gtol 1.0 --sdp-modules 0 --name ensemble_accuracy_gtol1``; ``--shapes`` adds
-``twin`` (seed 003 Fig. 3's two clusters joined by a pair of thin bridges). The shape-capture
+``twin`` (Funiak et al. 2008 Fig. 3's two clusters joined by a pair of thin bridges). The shape-capture
 reading of Fig. 5 (docs/ensemble.md, "Reading of Fig. 5") is
 ``--shapes capture-triple,capture-sparse,capture-open --instances 10 --name ensemble_accuracy_capture``
 (and ``--gtol 1.0 --sdp-modules 0 --name ensemble_accuracy_capture_gtol1``). The JSON's ``mle``
@@ -306,7 +306,7 @@ def mle(rows: list[dict]) -> dict:
 
 
 def plot(payload: dict, path) -> None:
-    """Seed 003 Fig. 10 (a) global and (b) local RMS after 300 iterations, per protocol (from the JSON)."""
+    """Funiak et al. 2008 Fig. 10 (a) global and (b) local RMS after 300 iterations, per protocol (from the JSON)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -341,7 +341,7 @@ def plot(payload: dict, path) -> None:
         ax.set_title(f"{label}, {n} modules\n{titles[protocol]}", fontsize=10)
         ax.grid(True, axis="y", which="both", alpha=0.3)
         ax.legend(fontsize=7)
-    fig.suptitle("seed 003 Fig. 10 on part B's generator (mean +- std over instances)")
+    fig.suptitle("Funiak et al. 2008 Fig. 10 on part B's generator (mean +- std over instances)")
     fig.tight_layout()
     save_figure(fig, path, dpi=100)
 

@@ -1,11 +1,11 @@
-"""Message complexity of the distributed localization (seed 003 §VI-F, Fig. 11 and 12).
+"""Message complexity of the distributed localization (Funiak et al. 2008 §VI-F, Fig. 11 and 12).
 
 For ensembles of growing size (2D ``triple`` scenario, settled under gravity, fixed seeds) it runs
 :func:`sims.ensembles.distributed.run_distributed` over the lossless simulated network, records the
 messages sent per module and per phase, fits messages per module against ``a + b ln N`` (least
 squares, R^2 reported), and saves ``OUT/NAME.json`` and ``.png`` (``--out``, default
 ``out/benchmarks``; ``--name``, default ``ensemble_messages``).
-Each level's refinement stops at the same gradient tolerance (seed 003 §VI-B: "each estimate reaches
+Each level's refinement stops at the same gradient tolerance (Funiak et al. 2008 §VI-B: "each estimate reaches
 a fixed level of accuracy, as measured by the norm of the gradient"), ``--gtol`` module radii on
 the largest entry, with a convergence check every 5 iterations: the configuration of
 ``decentral ensemble OBS.npz -o EST.npz --distributed --tol GTOL --check-every 5``, so one row is one
@@ -147,7 +147,7 @@ def run(sizes, shape, gtol, budget, seed, save=None):
 
 
 def run_cubes(sides, gtol, seed) -> list[dict]:
-    """Seed 003 Fig. 12's test cases: cubic lattices of side^3 modules (a box on the cubic lattice)."""
+    """Funiak et al. 2008 Fig. 12's test cases: cubic lattices of side^3 modules (a box on the cubic lattice)."""
     out = []
     for side in sides:
         n = side ** 3

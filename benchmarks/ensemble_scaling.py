@@ -1,6 +1,6 @@
-"""Scalability of seed 003's Algorithm 1 (``decentral.ensemble.normcut_localize``) on one core.
+"""Scalability of Funiak et al.'s Algorithm 1 (``decentral.ensemble.normcut_localize``) on one core.
 
-Declared inputs: the ``triple`` 2D scenario of seed 003 §VI-B (part B's generator, settled under
+Declared inputs: the ``triple`` 2D scenario of Funiak et al. 2008 §VI-B (part B's generator, settled under
 gravity, 12 IR transceivers) at 1,000 to 100,000 modules, and the ``triple3d`` 3D solid rasterized
 into an hcp lattice (50 sensors) at 1,000 to 20,000 modules; generator seed 0, localization seed 0.
 Configurations, measured in the same run (``--configs``):
@@ -29,7 +29,7 @@ sizes' medians and as the median (and range) of the per-repeat ratios of back-to
 - after a warm-up call on a 300-module piece of the graph (so lazily imported code paths are not
   timed), Algorithm 1 (repeated in the same process until 4 s of CPU or 7 runs, median taken, so
   that sub-second sizes are not one noisy sample): CPU time (``time.process_time``) and wall time, the process's peak
-  resident memory, the mean refinement iterations per module (seed 003 Fig. 6), the depth of the
+  resident memory, the mean refinement iterations per module (Funiak et al. 2008 Fig. 6), the depth of the
   hierarchy, the top refinement's iterations, the final cost and the global/local RMS error (module
   radii) against the truth, and the load average;
 - on the first repeat (up to 30,000 modules), the CPU time below the top level (cuts, leaves, lower

@@ -1,4 +1,4 @@
-"""Seed 004's swarm: on-board EKF accuracy and radio traffic vs message loss.
+"""Kanovsky's swarm: on-board EKF accuracy and radio traffic vs message loss.
 
 Fixed inputs: 6 robots in a 5 m arena, 150 steps at 5 Hz (30 s), wander policy, seeds 0-4, radio
 with 5 ms latency and 10 ms jitter, i.i.d. loss in {0, 10, 30, 50} % plus 5 % duplication when lossy.
@@ -86,7 +86,7 @@ def plot(path_json, path_png) -> None:
     ax[2].plot(loss, [r["nees3_mean"] for r in rows], "o-")
     ax[2].axhline(3.0, color="grey", lw=0.8)
     ax[2].set(xlabel="message loss [%]", ylabel="mean NEES (3 = consistent)", title="filter consistency")
-    fig.suptitle(f"seed 004 swarm: {data['parameters']['n_robots']} robots, {len(data['parameters']['seeds'])} seeds")
+    fig.suptitle(f"Kanovsky swarm: {data['parameters']['n_robots']} robots, {len(data['parameters']['seeds'])} seeds")
     fig.tight_layout()
     save_figure(fig, path_png)
 

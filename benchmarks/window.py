@@ -1,9 +1,9 @@
-"""Window throughput of seed 000's estimator: low-rank + certificate vs the Clarabel SDP vs a naive loop.
+"""Window throughput of Liu et al.'s estimator: low-rank + certificate vs the Clarabel SDP vs a naive loop.
 
 For 2, 5 and 20 assemblies and windows K in {1, 3, 5, 10}, the time of one full window (building
 its quadratic form, eliminating positions, solving the relaxation, certifying, recovering positions
 and deciding placeability) for both solvers, as windows per second; plus, on a whole pairwise log
-with K = 5, the ratio against a naive loop that builds a fresh cvxpy problem of seed 000's P3 as
+with K = 5, the ratio against a naive loop that builds a fresh cvxpy problem of Liu et al.'s P3 as
 printed for every window. Single core (BLAS threads pinned to 1).
 
 Targets: pairwise K=5 >= 500 windows/s with certificate; >= 15x the naive loop on a whole

@@ -4,7 +4,7 @@ Splitting
 ---------
 A window (steps ``k-K+1 .. k``) has one pose variable ``x_{a,j} = (R_{a,j}, p_{a,j})`` per assembly
 ``a`` and step ``j`` (yaw ``R`` in SO(2), ``p`` in R^3). The joint cost of
-:mod:`decentral.window` is a sum of visual factors (seed 000 eq. (4)) and odometry factors
+:mod:`decentral.window` is a sum of visual factors (Liu et al. 2024 eq. (4)) and odometry factors
 (eq. (7)). We split it by *directed observing pair*: ``e = (o -> a)`` holds every visual factor of
 observer ``o``'s cameras seeing target ``a`` inside the window, and each assembly keeps its own
 odometry chain:
@@ -242,7 +242,7 @@ class LocalProblem:
 
 
 def quadratic_form(keys, visual=None, odometry=None) -> LocalProblem:
-    """Sum of weighted factor outer products over ``keys`` (seed 000 eq. (5), (8), (11)).
+    """Sum of weighted factor outer products over ``keys`` (Liu et al. 2024 eq. (5), (8), (11)).
 
     Parameters
     ----------
@@ -264,7 +264,7 @@ def quadratic_form(keys, visual=None, odometry=None) -> LocalProblem:
         io, ia, q, t, w = (np.asarray(a) for a in visual)
         C = np.zeros((len(io), 3 * n))
         r = np.arange(len(io))
-        # seed 000 eq. (4): e = R_a q + p_a - p_o - R_o t
+        # Liu et al. 2024 eq. (4): e = R_a q + p_a - p_o - R_o t
         np.add.at(C, (r, ia), 1.0)
         np.add.at(C, (r, io), -1.0)
         np.add.at(C, (r, n + 2 * ia), q[:, 0])
@@ -276,13 +276,13 @@ def quadratic_form(keys, visual=None, odometry=None) -> LocalProblem:
         iv, iu, dp, dth, w_p, w_R = (np.asarray(a) for a in odometry)
         C = np.zeros((len(iv), 3 * n))
         r = np.arange(len(iv))
-        # seed 000 eq. (7), position: e = p_u - p_v - R_v dp
+        # Liu et al. 2024 eq. (7), position: e = p_u - p_v - R_v dp
         np.add.at(C, (r, iu), 1.0)
         np.add.at(C, (r, iv), -1.0)
         np.add.at(C, (r, n + 2 * iv), -dp[:, 0])
         np.add.at(C, (r, n + 2 * iv + 1), -dp[:, 1])
         rows_C.append(C), rows_w.append(np.asarray(w_p, float)), rows_s.append(-dp[:, 2])
-        # seed 000 eq. (7), rotation: ||R_u - R_v R̂||_F^2
+        # Liu et al. 2024 eq. (7), rotation: ||R_u - R_v R̂||_F^2
         B = M[n:, n:].reshape(n, 2, n, 2)  # a view into M
         Rh = rot2(np.asarray(dth, float))
         for j in range(len(iv)):
@@ -484,7 +484,7 @@ def solve_prox_metric(problem: LocalProblem, P: np.ndarray, G: np.ndarray, w_z: 
     A, B, C = Mf[:nf, :nf], Mf[:nf, nf:], Mf[nf:, nf:]
     Lp, LR = L_f[:, :nf], L_f[:, nf:]
     AiB = np.linalg.solve(A, B)
-    Q = C - B.T @ AiB  # positions eliminated (Schur complement, cf. seed 000 after eq. (14))
+    Q = C - B.T @ AiB  # positions eliminated (Schur complement, cf. Liu et al. 2024 after eq. (14))
     Q = 0.5 * (Q + Q.T)
     Gr = LR - Lp @ AiB  # linear term in the rotations: 2 sum_i tr(R_i^T G_i)
     gamma = (Gr[0, 0::2] + Gr[1, 1::2]) + 1j * (Gr[1, 0::2] - Gr[0, 1::2])
@@ -497,7 +497,7 @@ def solve_prox_metric(problem: LocalProblem, P: np.ndarray, G: np.ndarray, w_z: 
     th = res.theta[1:] - res.theta[0]  # divide out the homogenizing rotation
     th = np.arctan2(np.sin(th), np.cos(th))
     Y = rot2(th).transpose(1, 0, 2).reshape(2, 2 * nf)
-    Pxy = -np.linalg.solve(A, B @ Y.T + Lp.T)  # seed 000 eq. (18) with the prox terms, (nf, 2)
+    Pxy = -np.linalg.solve(A, B @ Y.T + Lp.T)  # Liu et al. 2024 eq. (18) with the prox terms, (nf, 2)
     pz = np.linalg.solve(Az_f, bz_f)
     theta[free] = th
     position[free, :2] = Pxy
@@ -985,7 +985,7 @@ class JointSolution:
     index : dict
         key -> index into ``theta`` and the rows of ``Q``.
     Q : ndarray, shape (2m, 2m)
-        The rotation-only cost after eliminating positions (seed 000 eq. (14)); empty for one variable.
+        The rotation-only cost after eliminating positions (Liu et al. 2024 eq. (14)); empty for one variable.
     theta : ndarray, shape (m,)
         The yaws at the optimum.
     """
@@ -1017,7 +1017,7 @@ def solve_joint(problems: list[LocalProblem], fixed_key, fixed_value: Pose2 | No
     The cold start of the ADMM: the pair forms of one step, shared by every agent, summed into the
     joint problem (their sum is the joint cost, as for :func:`decentral.window.build_window`),
     restricted to the connected component of the gauge variable, solved gauge-free like the
-    centralized window (rotations eliminated per seed 000 eq. (14), the certified low-rank solve,
+    centralized window (rotations eliminated per Liu et al. 2024 eq. (14), the certified low-rank solve,
     positions per eq. (18)) and moved rigidly so that the gauge variable takes its value (identity by
     default). Deterministic in its inputs, so agents that hold the same forms get bit-identical answers.
 
@@ -1041,7 +1041,7 @@ def solve_joint(problems: list[LocalProblem], fixed_key, fixed_value: Pose2 | No
     if len(keys) == 1:
         return JointSolution({fixed_key: fixed_value}, index, np.zeros((0, 0)), np.zeros(1))
     n = len(keys)
-    # gauge-free, as the centralized window (seed 000 eq. (14)-(18)), then moved onto the fixed value
+    # gauge-free, as the centralized window (Liu et al. 2024 eq. (14)-(18)), then moved onto the fixed value
     Q = reduce_rotations(M, n)
     res = solve_low_rank(Q)
     position = recover_positions(M, res.theta, b_z)

@@ -1,4 +1,4 @@
-"""Bearing-only baseline (seed 000 §V-C 2, after Wang et al. [1]_): bearings plus odometry, no radius.
+"""Bearing-only baseline (Liu et al. 2024 §V-C 2, after Wang et al. [1]_): bearings plus odometry, no radius.
 
 For the reference observer ``o`` and each target ``a``, odometry is integrated over the window into
 each one's start-of-window frame (taken as exact, as [1]_ does), leaving one unknown: the planar
@@ -10,7 +10,7 @@ sits at ``R(alpha) x_k + tau`` with ``x_k`` known, and each bearing ``b_k`` seen
 
 linear in ``(cos alpha, sin alpha, tau)``. ``tau`` is eliminated in closed form and ``alpha``
 minimized globally on the circle (a dense grid refined by Newton), which is exact for this
-one-rotation problem. Only the target's root node is used by default, as in the seed's baseline.
+one-rotation problem. Only the target's root node is used by default, as in the paper's baseline.
 
 References
 ----------
@@ -37,7 +37,7 @@ __all__ = ["BearingConfig", "estimate_log_bearing", "solve_bearing_window"]
 
 @dataclass(frozen=True)
 class BearingConfig:
-    """``window`` steps per solve; ``nodes`` is ``"root"`` (the seed's baseline) or ``"all"``."""
+    """``window`` steps per solve; ``nodes`` is ``"root"`` (the paper's baseline) or ``"all"``."""
 
     window: int = 5
     nodes: str = "root"
@@ -118,7 +118,7 @@ def solve_bearing_window(x: np.ndarray, c: np.ndarray, b: np.ndarray) -> tuple[f
 
 def estimate_log_bearing(log: ObservationLog, config: BearingConfig = BearingConfig(),
                          reference: str | None = None, progress: Callable[..., None] | None = None) -> Estimate:
-    """Bearing-only estimates of every target the reference observes (seed 000 §V-C 2).
+    """Bearing-only estimates of every target the reference observes (Liu et al. 2024 §V-C 2).
 
     ``progress``, when given, is called after each step as ``progress(steps_done, steps_total)``.
     """
@@ -172,7 +172,7 @@ def _estimate_target(measurements, reference, target, k, config) -> PlanarPose |
     if solved is None:
         return "yaw_unobservable"
     alpha, tau = solved
-    # target root at the last step, in the observer's frame at the last step (seed 000 eq. (19))
+    # target root at the last step, in the observer's frame at the last step (Liu et al. 2024 eq. (19))
     p_world = rotz(alpha) @ pos_a[-1] + tau
     p_rel = rotz(yaw_o[-1]).T @ (p_world - pos_o[-1])
     return PlanarPose(p_rel, float(wrap_angle(alpha + yaw_a[-1] - yaw_o[-1])))

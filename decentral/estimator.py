@@ -1,9 +1,9 @@
-"""Seed 000's windowed relative-pose estimator, for any number of assemblies and cameras.
+"""Liu et al.'s windowed relative-pose estimator, for any number of assemblies and cameras.
 
 For every step ``k`` of a log, the window ``[k-K+1, k]`` is built (:mod:`decentral.window`), the
 positions are eliminated and the rotation relaxation solved (:mod:`decentral.relaxation`), and
 every assembly that the window places relative to the reference is reported at step ``k`` by
-seed 000 eq. (19):
+Liu et al. 2024 eq. (19):
 
 .. math:: R_{H_1}^{H_0} = R_{H_0}^T R_{H_1}, \\qquad p_{H_1}^{H_0} = R_{H_0}^T (p_{H_1} - p_{H_0}).
 
@@ -42,7 +42,7 @@ class EstimatorConfig:
     Attributes
     ----------
     window : int
-        Number of steps K in the sliding window (1 = per-frame fit). Seed 000 uses K = 5.
+        Number of steps K in the sliding window (1 = per-frame fit). Liu et al. 2024 uses K = 5.
     solver : {"low-rank", "sdp"}
         Low-rank with certificate (SDP fallback) or the cvxpy/Clarabel reference.
     noise : NoiseModel
@@ -86,7 +86,7 @@ class WindowEstimate:
     yaw_std: dict
 
     def relative(self, key: tuple[str, int], reference: tuple[str, int]) -> PlanarPose:
-        """Pose of variable ``key`` in the frame of ``reference`` (seed 000 eq. (19))."""
+        """Pose of variable ``key`` in the frame of ``reference`` (Liu et al. 2024 eq. (19))."""
         index = self.problem.index()
         i, r = index[key], index[reference]
         c, s = np.cos(self.theta[r]), np.sin(self.theta[r])
@@ -102,7 +102,7 @@ def placeable_yaws(Q: np.ndarray, theta: np.ndarray, index: dict, reference: tup
     Parameters
     ----------
     Q : ndarray, shape (2m, 2m)
-        The rotation-only cost after eliminating positions (seed 000 eq. (14)).
+        The rotation-only cost after eliminating positions (Liu et al. 2024 eq. (14)).
     theta : ndarray, shape (m,)
         The yaws at the optimum (any common offset: the test looks at differences only).
     index : dict
@@ -140,7 +140,7 @@ def solve_window(problem: WindowProblem, reference: tuple[str, int], config: Est
     """Eliminate positions, solve the relaxation, recover positions and decide what is placeable."""
     Q = reduce_rotations(problem.M, problem.m)
     result = solve_relaxation(Q, config.solver, theta0)
-    position = recover_positions(problem.M, result.theta, problem.b_z)  # seed 000 eq. (18)
+    position = recover_positions(problem.M, result.theta, problem.b_z)  # Liu et al. 2024 eq. (18)
     limit = config.max_yaw_std if config.noise.weighting == "information" else np.inf
     placeable, stds = placeable_yaws(Q, result.theta, problem.index(), reference, limit)
     return WindowEstimate(problem, result, result.theta, position, placeable, stds)

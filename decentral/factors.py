@@ -1,9 +1,9 @@
-"""Visual and odometry factors of seed 000 §IV-A/B, generalized to many assemblies and cameras.
+"""Visual and odometry factors of Liu et al. 2024 §IV-A/B, generalized to many assemblies and cameras.
 
 A *variable* is one assembly's root horizontal frame at one step, ``(assembly, step)``: a yaw
 rotation ``R = blkdiag(R2, 1)`` and a position ``p`` in an arbitrary common horizontal frame.
 
-Visual factor (seed 000 eq. (2)-(4)), camera on observer ``o`` seeing node ``n`` of target ``a``:
+Visual factor (Liu et al. 2024 eq. (2)-(4)), camera on observer ``o`` seeing node ``n`` of target ``a``:
 
 .. math:: e = R_a q_n + p_a - p_o - R_o t_n,
 
@@ -20,7 +20,7 @@ the rotations at all: the cost splits exactly into an xy part over ``[P_xy, R2_1
 planar SE-Sync form handled by :mod:`decentral.relaxation`) and a z part over ``P_z`` alone, a
 weighted Laplacian least-squares problem that shares its matrix with the xy positions.
 
-Weights: ``unit`` reproduces the seed's unweighted sums; ``information`` (default) scales each
+Weights: ``unit`` reproduces the paper's unweighted sums; ``information`` (default) scales each
 residual by an isotropic inverse variance (a detection's variance grows with depth as the radius
 cue weakens), which keeps the quadratic structure intact.
 """
@@ -59,7 +59,7 @@ class NoiseModel:
     sigma_odom_theta : float
         Std. of the odometry yaw increment per step, radians.
     weighting : {"information", "unit"}
-        ``unit`` gives every residual weight 1, as seed 000 eq. (5) and (8) do.
+        ``unit`` gives every residual weight 1, as Liu et al. 2024 eq. (5) and (8) do.
     """
 
     sigma_pixel: float = 1.0
@@ -176,7 +176,7 @@ def measure_log(log: ObservationLog, noise: NoiseModel = NoiseModel()) -> list[S
             u = np.array([d.u for d, _ in keep])
             v = np.array([d.v for d, _ in keep])
             r = np.array([d.r for d, _ in keep])
-            p_cam = backproject(camera.K, u, v, r, log.node_radius)  # seed 000 eq. (1)
+            p_cam = backproject(camera.K, u, v, r, log.node_radius)  # Liu et al. 2024 eq. (1)
             pose = log.camera_pose(key, step)
             rows["t"].append(pose.apply(p_cam))  # eq. (4): t_i in the observer's root frame
             rays = p_cam / np.linalg.norm(p_cam, axis=1, keepdims=True)

@@ -1,4 +1,4 @@
-"""Extended Kalman filtering of planar poses for one-node robots (seed 004's future work, §5).
+"""Extended Kalman filtering of planar poses for one-node robots (Kanovsky's future work, §5).
 
 A planar pose ``s = (x, y, theta)`` of frame B in frame A maps ``x_A = R(theta) x_B + (x, y)``
 (CONTRACT.md conventions, yaw about z). Composition and inverse:
@@ -12,14 +12,14 @@ Two filters are built from these, each a pure function over arrays:
 
 * **Own motion** (:func:`predict_pose`): a robot's pose in the frame it started in, driven by its
   odometry ``u = (dx, dy, dtheta)``, the root's motion since the previous step written in the previous
-  root frame (seed 000 eq. (6)): :math:`x_k = x_{k-1} \\oplus u_k`.
+  root frame (Liu et al. 2024 eq. (6)): :math:`x_k = x_{k-1} \\oplus u_k`.
 * **Ego-centric tracks** (:func:`predict_relative`, :func:`update_detection`): robot i keeps, for each
-  other robot j, the pose ``s`` of j's frame in i's *current* frame (seed 004 §3: "each robot
+  other robot j, the pose ``s`` of j's frame in i's *current* frame (Kanovsky §3: "each robot
   maintains ... its own position (assuming itself to be point 0, 0) with the relational data of every
   other robot"). When i moves by ``u``, :math:`s_k = \\ominus u_k \\oplus s_{k-1}` plus process noise
   for j's own (unknown) motion. Measurements are pixel circles ``(u, v, r)``: i's camera seeing j, or
   j's camera seeing i (shared over the network), through the pinhole model whose inverse is
-  seed 000 eq. (1): a node centre at depth ``z_c`` projects to ``r = f r_0 / z_c``.
+  Liu et al. 2024 eq. (1): a node centre at depth ``z_c`` projects to ``r = f r_0 / z_c``.
 
 A sphere looks the same from every side, so i's own detections of j fix only j's position; j's yaw
 relative to i becomes observable from j's detections of i (mutual observation), and
@@ -112,7 +112,7 @@ def predict_pose(mean: np.ndarray, cov: np.ndarray, odometry: np.ndarray, odomet
 
     .. math:: x_k = x_{k-1} \\oplus u_k, \\quad P_k = F P_{k-1} F^T + G U G^T
 
-    with ``u`` the root's motion since k-1 in the root frame at k-1 (seed 000 eq. (6)).
+    with ``u`` the root's motion since k-1 in the root frame at k-1 (Liu et al. 2024 eq. (6)).
 
     Parameters
     ----------
@@ -153,7 +153,7 @@ def predict_relative(
         Pose of the target in the observer's frame at k-1.
     cov : ndarray, shape (3, 3)
     odometry : ndarray, shape (3,)
-        Observer's motion ``u`` (pose of its frame at k in its frame at k-1, seed 000 eq. (6)).
+        Observer's motion ``u`` (pose of its frame at k in its frame at k-1, Liu et al. 2024 eq. (6)).
     odometry_cov : ndarray, shape (3, 3)
     target_motion : ndarray, shape (3,), optional
         The target's own motion ``w`` over the step in its frame at k-1 (its shared odometry);
@@ -193,7 +193,7 @@ def project_target(
 ) -> tuple[np.ndarray, np.ndarray, float]:
     """Pixel circle of a node centred at ``(x, y, 0)`` in the camera's root frame, and its Jacobian.
 
-    ``(u, v)`` is the pinhole projection and ``r = f r_0 / z_c`` (seed 000 eq. (1) inverted).
+    ``(u, v)`` is the pinhole projection and ``r = f r_0 / z_c`` (Liu et al. 2024 eq. (1) inverted).
 
     Parameters
     ----------

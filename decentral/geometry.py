@@ -1,7 +1,7 @@
 """Planar-yaw geometry shared by the estimators.
 
 Conventions (CONTRACT.md): a pose "of B in A" maps ``x_A = R x_B + p``; horizontal frames have z up;
-a yaw-only rotation is ``R = blkdiag(R2, 1)`` with ``R2`` in SO(2) (seed 000 eq. (16)).
+a yaw-only rotation is ``R = blkdiag(R2, 1)`` with ``R2`` in SO(2) (Liu et al. 2024 eq. (16)).
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ def rot2(theta: float | np.ndarray) -> np.ndarray:
 
 
 def rotz(theta: float | np.ndarray) -> np.ndarray:
-    """Yaw rotation(s) about z, shape (3, 3) or (..., 3, 3) (seed 000 eq. (16))."""
+    """Yaw rotation(s) about z, shape (3, 3) or (..., 3, 3) (Liu et al. 2024 eq. (16))."""
     theta = np.asarray(theta, dtype=float)
     R = np.zeros(theta.shape + (3, 3))
     R[..., :2, :2] = rot2(theta)
@@ -49,7 +49,7 @@ def project_so2(Y: np.ndarray) -> np.ndarray:
 
     .. math:: \\underline{R} = U \\operatorname{diag}(1, \\det(U V^T)) V^T, \\quad Y = U \\Sigma V^T
 
-    seed 000 eq. (17).
+    Liu et al. 2024 eq. (17).
     """
     U, _, Vt = np.linalg.svd(Y)
     d = np.sign(np.linalg.det(U @ Vt))
@@ -65,7 +65,7 @@ def backproject(K: np.ndarray, u: np.ndarray, v: np.ndarray, r: np.ndarray, node
 
     .. math:: \\hat p^c_{N_i} = K^{-1} \\frac{f r_0}{r_i} [u_i, v_i, 1]^T
 
-    seed 000 eq. (1), with ``f`` the mean of the two focal lengths (they are equal for square pixels).
+    Liu et al. 2024 eq. (1), with ``f`` the mean of the two focal lengths (they are equal for square pixels).
 
     Parameters
     ----------

@@ -1,4 +1,4 @@
-"""Scores of a relative-pose estimate against ground truth, as seed 000 Table I defines them.
+"""Scores of a relative-pose estimate against ground truth, as Liu et al. 2024 Table I defines them.
 
 For every step and every assembly A other than the reference assembly O, the true relative pose is
 the pose of A's root horizontal frame in O's at the same time,
@@ -7,11 +7,11 @@ the pose of A's root horizontal frame in O's at the same time,
 
     p^{O}_{A} = R_O^{T} (p_A - p_O), \\qquad \\theta^{O}_{A} = \\mathrm{yaw}(R_O^{T} R_A),
 
-(seed 000 eq. (19) applied to the true world poses). Over the steps where the estimate places A:
+(Liu et al. 2024 eq. (19) applied to the true world poses). Over the steps where the estimate places A:
 
 - positional error [m]: mean of :math:`\\lVert \\hat p - p \\rVert`;
 - relative positional error [%]: mean of :math:`100 \\lVert \\hat p - p \\rVert / \\lVert p \\rVert`, the error
-  divided by the current observer-target distance (seed 000 §V-D);
+  divided by the current observer-target distance (Liu et al. 2024 §V-D);
 - angular error [deg]: mean of :math:`|\\mathrm{wrap}(\\hat\\theta - \\theta)|`;
 - coverage: fraction of the truth steps at which A is placed.
 
@@ -21,7 +21,7 @@ Estimate steps are matched to truth steps by time.
 References
 ----------
 .. [1] Y. Liu et al., "Configuration-Adaptive Visual Relative Localization for Spherical Modular
-   Self-Reconfigurable Robots" (seed 000), §V-D, Table I.
+   Self-Reconfigurable Robots" (Liu et al. 2024), §V-D, Table I.
 """
 
 from __future__ import annotations
@@ -131,7 +131,7 @@ def relative_truth(truth: GroundTruth, reference: str, target: str) -> tuple[np.
         Yaw of R_{H_target}^{H_reference} [rad], in (-pi, pi].
     """
     R0, p0 = truth.R[reference], truth.p[reference]
-    # seed 000 eq. (19) on true poses: R_1^0 = R_0^T R_1, p_1^0 = R_0^T (p_1 - p_0)
+    # Liu et al. 2024 eq. (19) on true poses: R_1^0 = R_0^T R_1, p_1^0 = R_0^T (p_1 - p_0)
     p = np.einsum("tji,tj->ti", R0, truth.p[target] - p0)
     R = np.einsum("tji,tjk->tik", R0, truth.R[target])
     return p, _yaw(R)
@@ -142,7 +142,7 @@ def _mean(values: list[float]) -> float | None:
 
 
 def score_estimate(truth: GroundTruth, estimate: Estimate, *, time_tol: float = 1e-6) -> Score:
-    """Score ``estimate`` against ``truth`` (seed 000 Table I metrics, see the module docstring).
+    """Score ``estimate`` against ``truth`` (Liu et al. 2024 Table I metrics, see the module docstring).
 
     Parameters
     ----------

@@ -92,7 +92,7 @@ class Detection:
 class Odometry:
     """Root motion since the previous step, written in the root frame at the previous step.
 
-    ``dp`` (3,) is p̂_{H_r,k}^{H_r,k-1}; ``dtheta`` the yaw of R̂_{H_r,k}^{H_r,k-1} (seed 000 §II).
+    ``dp`` (3,) is p̂_{H_r,k}^{H_r,k-1}; ``dtheta`` the yaw of R̂_{H_r,k}^{H_r,k-1} (Liu et al. 2024 §II).
     """
 
     dp: np.ndarray

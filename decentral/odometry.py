@@ -2,7 +2,7 @@
 
 A robot records its odometry as a trajectory: poses ``(p, yaw)`` of its root horizontal frame in an
 odometry frame O at its own sample times. The log needs, per step k, the root's motion since step
-k-1 written in the root frame at k-1 (seed 000 §II; contract ``steps[k].odometry``):
+k-1 written in the root frame at k-1 (Liu et al. 2024 §II; contract ``steps[k].odometry``):
 
 .. math:: dp_k = R_z(\\psi_{k-1})^T (p_k - p_{k-1}), \\qquad d\\theta_k = \\mathrm{wrap}(\\psi_k - \\psi_{k-1}),
 

@@ -1,7 +1,7 @@
 """One observer's own factors: its detections in its root frame, and the quadratic forms of its pairs.
 
 What an assembly agent computes from its own sensors alone (:mod:`agents.assembly`): the
-back-projected centres of the nodes its cameras see (seed 000 eq. (1), (4)) with their weights, and,
+back-projected centres of the nodes its cameras see (Liu et al. 2024 eq. (1), (4)) with their weights, and,
 once it knows which assembly owns each node, the cost form of every directed pair ``observer ->
 target`` over the window (for its ADMM subproblem) and the same factors step by step (the forms it
 shares: a step's form is built from that step's detections alone, so it is bit-identical from window
@@ -45,7 +45,7 @@ def own_detections(cameras: Sequence[Camera], detections: Mapping[str, Sequence[
     Returns
     -------
     list of (int, ndarray, float)
-        Node id, its centre in the observer's root frame (3,) (seed 000 eq. (1), (4)), isotropic weight.
+        Node id, its centre in the observer's root frame (3,) (Liu et al. 2024 eq. (1), (4)), isotropic weight.
     """
     out = []
     for cam in cameras:
@@ -53,7 +53,7 @@ def own_detections(cameras: Sequence[Camera], detections: Mapping[str, Sequence[
         if not dets:
             continue
         u, v, r = (np.array([getattr(d, a) for d in dets]) for a in ("u", "v", "r"))
-        p_cam = backproject(cam.K, u, v, r, node_radius)  # seed 000 eq. (1)
+        p_cam = backproject(cam.K, u, v, r, node_radius)  # Liu et al. 2024 eq. (1)
         pose = cam.in_root(mounts.get(cam.key))
         t = pose.apply(p_cam)  # eq. (4): t_i in the own root frame
         f = 0.5 * (cam.K[0, 0] + cam.K[1, 1])
@@ -63,7 +63,7 @@ def own_detections(cameras: Sequence[Camera], detections: Mapping[str, Sequence[
 
 
 def pair_forms(observer: str, target: str, facts) -> tuple[LocalProblem, list[LocalProblem]]:
-    """The cost forms of the directed pair ``observer -> target`` (seed 000 eq. (4), (5)).
+    """The cost forms of the directed pair ``observer -> target`` (Liu et al. 2024 eq. (4), (5)).
 
     Parameters
     ----------

@@ -2,7 +2,7 @@
 
 Given the window's xy quadratic form ``M`` over ``[P_xy | R2_1..R2_m]`` (:mod:`decentral.window`):
 
-1. positions are eliminated by the Schur complement with the pseudo-inverse (seed 000 after
+1. positions are eliminated by the Schur complement with the pseudo-inverse (Liu et al. 2024 after
    eq. (14)): ``Q = M_RR - M_pR^T M_pp^+ M_pR``;
 2. the rotations solve the relaxation ``min tr(Q Z)`` over ``Z ⪰ 0`` with identity 2x2 diagonal
    blocks (eq. (15a)-(15b); eq. (15c) reduces the 3x3 blocks to their free 2x2 parts exactly, since
@@ -26,7 +26,7 @@ Two solvers give the same optimum:
   Newton method on the angles, followed by the optimality certificate
   ``S = W - Diag(Re(conj(z) ∘ W z)) ⪰ 0`` (SE-Sync's ``Q - SymBlockDiag(Q Y^T Y)`` in Hermitian form);
   when the certificate fails it falls back to the SDP.
-* :func:`solve_literal_primal` — seed 000's P3 exactly as printed (3m x 3m primal, O(2) blocks),
+* :func:`solve_literal_primal` — Liu et al.'s P3 exactly as printed (3m x 3m primal, O(2) blocks),
   the naive reference of the window benchmark. :func:`certificate_o2` tells whether that weaker
   relaxation is tight at a given solution.
 
@@ -123,14 +123,14 @@ def _anchored_pinv_apply(L: np.ndarray, B: np.ndarray) -> np.ndarray:
 
 
 def reduce_rotations(M: np.ndarray, m: int) -> np.ndarray:
-    """Eliminate positions: ``Q = M_RR - M_pR^T M_pp^+ M_pR`` (2m, 2m), seed 000 after eq. (14)."""
+    """Eliminate positions: ``Q = M_RR - M_pR^T M_pp^+ M_pR`` (2m, 2m), Liu et al. 2024 after eq. (14)."""
     M_pp, M_pR, M_RR = M[:m, :m], M[:m, m:], M[m:, m:]
     Q = M_RR - M_pR.T @ _anchored_pinv_apply(M_pp, M_pR)
     return 0.5 * (Q + Q.T)
 
 
 def recover_positions(M: np.ndarray, theta: np.ndarray, b_z: np.ndarray) -> np.ndarray:
-    """Positions (m, 3) in closed form given the yaws (seed 000 eq. (18)) plus the z solve.
+    """Positions (m, 3) in closed form given the yaws (Liu et al. 2024 eq. (18)) plus the z solve.
 
     .. math:: P_{xy}^* = -\\underline{\\mathfrak R}^* M_{pR}^T M_{pp}^+, \\qquad M_{pp} p_z = b_z
     """
@@ -162,7 +162,7 @@ def certificate(Q: np.ndarray, theta: np.ndarray) -> float:
 def certificate_o2(Q: np.ndarray, theta: np.ndarray) -> float:
     """Smallest eigenvalue of SE-Sync's ``S = Q - SymBlockDiag(Q Y^T Y)`` (2m, 2m) at ``theta``.
 
-    Non-negative when the rotations are optimal even for seed 000's literal P3, which relaxes O(2).
+    Non-negative when the rotations are optimal even for Liu et al.'s literal P3, which relaxes O(2).
     """
     m = len(theta)
     Y = _stack(theta)
@@ -306,7 +306,7 @@ def round_gram(Z: np.ndarray) -> np.ndarray:
     blocks = Y.reshape(2, m, 2).transpose(1, 0, 2)  # (m, 2, 2)
     if np.sum(np.linalg.det(blocks) > 0) < m / 2:
         blocks = blocks * np.array([1.0, -1.0])[None, :, None]
-    R = project_so2(blocks)  # seed 000 eq. (17)
+    R = project_so2(blocks)  # Liu et al. 2024 eq. (17)
     return np.arctan2(R[:, 1, 0], R[:, 0, 0])
 
 
@@ -391,7 +391,7 @@ class SdpSolver:
 
 
 def solve_literal_primal(Q: np.ndarray) -> RelaxationResult:
-    """Seed 000 P3 exactly as written: a fresh cvxpy problem over the 3m x 3m primal ``Z``.
+    """Liu et al. 2024 P3 exactly as written: a fresh cvxpy problem over the 3m x 3m primal ``Z``.
 
     Constraints (15b) (identity diagonal blocks) and (15c) (the fixed z entries of every block);
     the 2x2 free parts of ``Q`` are embedded in 3x3 blocks. This is the naive reference of the

@@ -1,4 +1,4 @@
-"""The sliding-window problem: variables, connectivity and the quadratic form (seed 000 eq. (9)-(14)).
+"""The sliding-window problem: variables, connectivity and the quadratic form (Liu et al. 2024 eq. (9)-(14)).
 
 A window covers ``K`` consecutive steps (``K = 1`` is a per-frame fit). Its variables are the root
 frames ``(assembly, step)`` of every assembly that takes part in a visual factor inside the window,
@@ -10,7 +10,7 @@ column per variable, shared by x, y) then the two columns of each rotation's fre
 
 .. math:: \\text{cost}_{xy} = \\operatorname{tr}(X M X^T), \\quad X = [P_{xy}, \\underline{\\mathfrak{R}}] \\in \\mathbb{R}^{2 \\times 3m}
 
-is seed 000 eq. (11)/(13) after the permutation ``T`` of eq. (13), restricted to the free parts
+is Liu et al. 2024 eq. (11)/(13) after the permutation ``T`` of eq. (13), restricted to the free parts
 (eq. (15c) makes the z rows rotation-free). The z positions solve ``L p_z = b_z`` with ``L = M_pp``.
 """
 
@@ -125,7 +125,7 @@ def _assemble(measurements, variables, vis, odo) -> WindowProblem:
         t = np.array([measurements[k].visual.t[i] for k, _, _, i in vis])
         w[:n_v] = [measurements[k].visual.weight[i] for k, _, _, i in vis]
         rows = np.arange(n_v)
-        # seed 000 eq. (4): e = R_a q + p_a - p_o - R_o t
+        # Liu et al. 2024 eq. (4): e = R_a q + p_a - p_o - R_o t
         C[rows, ia] += 1.0
         C[rows, io] -= 1.0
         C[rows, m + 2 * ia] += q[:, 0]
@@ -141,13 +141,13 @@ def _assemble(measurements, variables, vis, odo) -> WindowProblem:
         dp = np.array([o.dp for o in meas])
         w[n_v:] = [o.weight_p for o in meas]
         rows = n_v + np.arange(n_o)
-        # seed 000 eq. (7), position: e = p_u - p_v - R_v dp
+        # Liu et al. 2024 eq. (7), position: e = p_u - p_v - R_v dp
         C[rows, iu] += 1.0
         C[rows, iv] -= 1.0
         C[rows, m + 2 * iv] -= dp[:, 0]
         C[rows, m + 2 * iv + 1] -= dp[:, 1]
         s[n_v:] = -dp[:, 2]
-        # seed 000 eq. (7), rotation: ||R_u - R_v R̂||_F^2 = tr(R C C^T R^T), C = [.., I (u), .., -R̂ (v), ..]
+        # Liu et al. 2024 eq. (7), rotation: ||R_u - R_v R̂||_F^2 = tr(R C C^T R^T), C = [.., I (u), .., -R̂ (v), ..]
         kappa = np.array([o.weight_R for o in meas])
         Rh = rot2(np.array([o.dtheta for o in meas]))
         B = M_rot.reshape(m, 2, m, 2)

@@ -2,7 +2,7 @@
 
 ``admm.config``: an assembly announces its node configuration (node id -> centre in its root
 frame) valid from a step on, so that observers can name the owner of a node they detect and use its
-centre ``q`` in their visual factors (seed 000 eq. (4)). Broadcast only when the configuration
+centre ``q`` in their visual factors (Liu et al. 2024 eq. (4)). Broadcast only when the configuration
 changes; re-announced every few steps by unicast to the agent's current observers, and unicast in
 answer to an ``admm.config_request``: an observer that detects node ids it cannot name broadcasts one
 (again every few rounds while they stay unknown), so a lost announcement is repaired without
@@ -103,7 +103,7 @@ def form_length(m: int) -> int:
 class FactorShare(Message):
     """The sender's cost forms over the current window, so that every agent can solve the joint problem.
 
-    The forms are the quadratic forms of :class:`decentral.admm.LocalProblem` (seed 000 eq. (4), (5),
+    The forms are the quadratic forms of :class:`decentral.admm.LocalProblem` (Liu et al. 2024 eq. (4), (5),
     (7)): one per directed pair the sender observes (its visual factors) and one for its own odometry
     chain. Form ``f`` is over the poses listed in the rows of ``keys`` with first column ``f`` (in
     order); its packed floats are the upper triangle (row-major) of its ``3m x 3m`` xy form ``M``, then

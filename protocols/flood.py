@@ -33,7 +33,7 @@ class RawStep(Message):
     uvr : ndarray, shape (d, 3), float64
         Detection centre (u, v) and radius r (pixels).
     odometry : ndarray, shape (0,) or (4,), float64
-        ``(dx, dy, dz, dtheta)`` since the previous step (seed 000 eq. (6)), or empty.
+        ``(dx, dy, dz, dtheta)`` since the previous step (Liu et al. 2024 eq. (6)), or empty.
     """
 
     KIND: ClassVar[str] = "raw.step"

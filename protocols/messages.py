@@ -625,7 +625,7 @@ class Tracks(Message):
 @register
 @dataclass(frozen=True, slots=True, eq=False, kw_only=True)
 class PoseEstimates(Message):
-    """The sender's planar estimates of other agents relative to itself (seed 004 §3).
+    """The sender's planar estimates of other agents relative to itself (Kanovsky §3).
 
     Attributes
     ----------
@@ -756,7 +756,7 @@ class OdometryReport(Message):
         Time at the end of step ``round`` (s).
     motions : ndarray, shape (L, 3), float64
         Row ``l`` is ``(dx, dy, dtheta)`` of step ``round - L + 1 + l``: the sender's root at the end
-        of that step in its root frame at the previous step (seed 000 eq. (6)).
+        of that step in its root frame at the previous step (Liu et al. 2024 eq. (6)).
     covariances : ndarray, shape (L, 3, 3), float64
         Noise covariance of each row of ``motions``.
     """

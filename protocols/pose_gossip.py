@@ -1,7 +1,7 @@
 """Pose gossip: every agent's newest consensus pose, carried on the ADMM messages to the neighbours.
 
 A row ``(assembly index, step, round, x, y, z, theta)`` holds an assembly's consensus pose (root frame
-of the gauge, seed 000 eq. (19) turns two rows into a relative pose) at its latest step, written at
+of the gauge, Liu et al. 2024 eq. (19) turns two rows into a relative pose) at its latest step, written at
 ``round``. :class:`PoseGossip` is one agent's table of these rows:
 
 * receive half (:meth:`PoseGossip.merge`): a row replaces the held one only when it is newer by

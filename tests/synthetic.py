@@ -1,7 +1,7 @@
 """A tiny, exact log generator for unit tests of the estimators (the full simulator is sims.world).
 
 Given world poses of assembly roots per step (yaw, position), node configurations and cameras, it
-produces detections by inverting seed 000 eq. (1): (u, v) the projection of the node centre and
+produces detections by inverting Liu et al. 2024 eq. (1): (u, v) the projection of the node centre and
 r = f r0 / z_c; optional Gaussian noise on (u, v, r) and on odometry.
 """
 

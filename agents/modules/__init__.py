@@ -1,4 +1,4 @@
-"""agents.modules: one agent per module of an ensemble (seed 003 §V distributed localization)."""
+"""agents.modules: one agent per module of an ensemble (Funiak et al. 2008 §V distributed localization)."""
 
 from agents.modules.agent import LevelState, ModuleAgent, ModuleConfig
 from agents.modules.batched import BatchedRefinement

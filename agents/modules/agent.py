@@ -1,4 +1,4 @@
-"""One agent per module for seed 003's distributed localization (§V): config, private state, handlers.
+"""One agent per module for Funiak et al.'s distributed localization (§V): config, private state, handlers.
 
 A :class:`ModuleAgent` knows only its own id, its own observations z_{i,j} of its neighbours and what
 arrives in its inbox. It runs every phase of the distributed Algorithm 1 for every level of the
@@ -419,7 +419,7 @@ class ModuleAgent:
                 self.events.append(f"level {level} group {st.group}: one cluster, solved as a leaf")
                 plan = CutPlan(cid, np.zeros(1, dtype=np.int64), np.array([self.id]), np.array([st.size]), 0.0)
             else:
-                # seed 003 eq. (4) on the aggregated abstract graph (Algorithm 1 line 4)
+                # Funiak et al. 2008 eq. (4) on the aggregated abstract graph (Algorithm 1 line 4)
                 plan = cut_clusters(total["ea"], total["eb"], total["ew"], cid, total["csize"], total["cmin"])
             st.plan = plan
             self._on_command(level, "cut", {

@@ -1,4 +1,4 @@
-"""One level's refinement (seed 003 §V-A, Algorithm 1 line 11) for all its modules at once.
+"""One level's refinement (Funiak et al. 2008 §V-A, Algorithm 1 line 11) for all its modules at once.
 
 The refinement phase is ~90 % of the messages of the distributed algorithm (one pose share per
 neighbour per iteration, plus a gradient check every few iterations), so simulating it one message
@@ -290,7 +290,7 @@ class BatchedRefinement:
             self.seq[r] = self.agents[int(self.ids[r])]._seq
 
     def _update(self, live: np.ndarray) -> None:
-        """refine_update on every live module (seed 003 eq. 1-2 restricted to its star)."""
+        """refine_update on every live module (Funiak et al. 2008 eq. 1-2 restricted to its star)."""
         m, d = self.ids.size, self.d
         self.iteration[live] += 1
         use = np.flatnonzero(self.have & live[self.slot_row])

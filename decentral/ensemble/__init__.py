@@ -1,4 +1,4 @@
-"""Ensemble (internal) localization of modular robots: seed 003's hierarchical normalized cut.
+"""Ensemble (internal) localization of modular robots: Funiak et al.'s hierarchical normalized cut.
 
 Modules observe only their immediate neighbours; :func:`normcut_localize` (Algorithm 1) recovers
 every module's pose up to one global rigid motion. The building blocks are public so that the

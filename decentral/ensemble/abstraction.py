@@ -1,4 +1,4 @@
-"""Graph abstraction by random leaders and hop-count clustering (seed 003 §IV-C and §V-A).
+"""Graph abstraction by random leaders and hop-count clustering (Funiak et al. 2008 §IV-C and §V-A).
 
 Each module elects itself a leader with a small probability (or a fixed number of leaders is
 drawn); every module then joins the nearest leader by hop count, ties going to the leader with the

@@ -1,9 +1,9 @@
-"""Closed-form rigid alignment from first- and second-order statistics (seed 003 eq. 5, [1]_).
+"""Closed-form rigid alignment from first- and second-order statistics (Funiak et al. 2008 eq. 5, [1]_).
 
 The optimal rigid transform between matched point sets depends on the points only through their
 count, sums and sum of outer products (Umeyama [1]_). :class:`AlignmentStats` holds exactly these,
 adds with ``+`` (so partial sums can be aggregated from the boundary of a cut towards a leader,
-seed 003 §V-A) and has a fixed wire size that depends on the dimension only.
+Funiak et al. 2008 §V-A) and has a fixed wire size that depends on the dimension only.
 
 References
 ----------
@@ -106,7 +106,7 @@ class AlignmentStats:
                    a[3 + 2 * d:].reshape(d, d).copy(), float(a[1]), float(a[2]))
 
     def solve(self) -> RigidTransform:
-        """The optimal rigid transform (seed 003 eq. 5) in closed form.
+        """The optimal rigid transform (Funiak et al. 2008 eq. 5) in closed form.
 
         .. math:: \\min_{R \\in SO(d), t} \\sum_k \\lVert p_k - (R q_k + t) \\rVert^2
 
@@ -118,7 +118,7 @@ class AlignmentStats:
             return RigidTransform(np.eye(d), np.zeros(d), 0.0)
         mp = self.sum_p / self.count
         mq = self.sum_q / self.count
-        # seed 003 eq. (5) via Umeyama: cross-covariance from first/second-order statistics only
+        # Funiak et al. 2008 eq. (5) via Umeyama: cross-covariance from first/second-order statistics only
         S = self.sum_pq - self.count * np.outer(mp, mq)
         U, sv, Vt = np.linalg.svd(S)
         D = np.ones(d)
@@ -155,7 +155,7 @@ def merge_point_pairs(pos_a: np.ndarray, rot_a: np.ndarray, pos_b: np.ndarray, r
         Points in A's frame and their matches in B's frame. Under the model (eq. 1) each module sees
         its neighbour's centre at twice its sensor offset, so every pair gives two matches: the centre
         of b as predicted by a (in A) with b's centre (in B), and a's centre (in A) with a's centre as
-        predicted by b (in B). Their midpoints are the matched sensors of seed 003, and a single pair
+        predicted by b (in B). Their midpoints are the matched sensors of Funiak et al. 2008, and a single pair
         already fixes the planar rotation.
     """
     pa_b = pos_a + 2.0 * np.einsum("mab,mb->ma", rot_a, z_ab)

@@ -20,7 +20,7 @@ with g_k the cluster's centroid, and turns its modules' orientations by w_k. Int
 are unchanged by such a motion up to the rotation of their residual, so the Gauss-Newton curvature
 of the likelihood over coarse vectors is
 
-    E = J^T J,   J = dr/d(t, w) = Jrot - B P     (seed 003 eq. (3), r_e = R_i z_e - (c_j - c_i)/2)
+    E = J^T J,   J = dr/d(t, w) = Jrot - B P     (Funiak et al. 2008 eq. (3), r_e = R_i z_e - (c_j - c_i)/2)
 
 with Jrot the residuals' change from the turning orientations and B the (scaled) incidence matrix;
 G = -B^T J approximates the reduced Hessian times P. The initial inverse Hessian is the deflated,

@@ -1,4 +1,4 @@
-"""Seed 003 Algorithm 1 (NormCutLocalize): recursive normalized cut, closed-form merges, refinement.
+"""Funiak et al. 2008 Algorithm 1 (NormCutLocalize): recursive normalized cut, closed-form merges, refinement.
 
 The contact graph is split in two by normalized cut (eq. 4), each side is localized recursively,
 the two partial solutions are joined by the optimal rigid transform between the observations that
@@ -59,10 +59,10 @@ class HierarchyConfig:
         first and refined directly.
     cut : str
         ``"abstract"``: cut an abstraction of the graph with ``abstract_size`` random leaders
-        whenever the set is larger than ``4 * abstract_size`` (seed 003 §IV-C); ``"exact"``: always
+        whenever the set is larger than ``4 * abstract_size`` (Funiak et al. 2008 §IV-C); ``"exact"``: always
         cut the contact graph itself.
     abstract_size : int
-        Number of leaders (abstract nodes) per abstraction (seed 003 Fig. 7: 20 or more suffice).
+        Number of leaders (abstract nodes) per abstraction (Funiak et al. 2008 Fig. 7: 20 or more suffice).
     level_refine : RefineConfig
         Refinement of each leaf and after each merge below the top (Algorithm 1 lines 2 and 11).
         Default: L-BFGS on the centres (:func:`~decentral.ensemble.refine.refine`, ``"lbfgs"``)
@@ -83,7 +83,7 @@ class HierarchyConfig:
         observations). ``0`` refines every module of the level, as the seed does. Applies to the
         ``"lbfgs"`` and ``"alternating"`` refiners, whose Laplacian solves at the top carry any
         correction left in the interiors across the whole ensemble in one step; ``"pcg"`` and
-        ``"lm"`` levels are always refined in full (the seed's protocol: PCG moves information one
+        ``"lm"`` levels are always refined in full (the paper's protocol: PCG moves information one
         contact per iteration).
     seam_fraction : float
         Seam-only refinement applies to merges of at most this fraction of the component's modules;
@@ -105,7 +105,7 @@ class HierarchyConfig:
 
     def with_tolerance(self, gtol: float) -> "HierarchyConfig":
         """This configuration with every refinement (each level's and the top's) stopping at a largest
-        gradient entry of ``gtol`` module radii (seed 003 §VI-B: "a fixed level of accuracy")."""
+        gradient entry of ``gtol`` module radii (Funiak et al. 2008 §VI-B: "a fixed level of accuracy")."""
         if not (np.isfinite(gtol) and gtol > 0):
             raise ValueError(f"gtol must be a positive number, got {gtol!r}")
         return replace(self, level_refine=replace(self.level_refine, gtol=gtol),
@@ -135,7 +135,7 @@ class LocalizationResult:
         Negative log-likelihood at the estimate (metres^2), summed over components.
     iterations_per_module : ndarray, shape (n,)
         Refinement iterations charged to each module: the sum over all refinements that included it
-        (seed 003 Fig. 6 plots its mean).
+        (Funiak et al. 2008 Fig. 6 plots its mean).
     status : str
         ``"ok"``, or a short reason when a refinement did not converge (the estimate is still the
         best found, never NaN).
@@ -208,7 +208,7 @@ def merge_parts(sub: EnsembleProblem, part: np.ndarray, poses: list[tuple[np.nda
         links[merged] = -1
         p = int(np.argmax(links))
         e = np.flatnonzero(cross & (pj == p))
-        # seed 003 eq. (5): align part p (frame q) onto the merged set (frame p) from the crossing pairs
+        # Funiak et al. 2008 eq. (5): align part p (frame q) onto the merged set (frame p) from the crossing pairs
         a, b = i[e], j[e]
         pts_p, pts_q = merge_point_pairs(pos[a], rot[a], pos[b], rot[b], z[e], z[rev[e]])
         T = AlignmentStats.from_points(pts_p, pts_q).solve()
@@ -405,7 +405,7 @@ def localize_components(problem: EnsembleProblem, solve_component) -> tuple[Ense
 def normcut_localize(problem: EnsembleProblem, rng: np.random.Generator,
                      config: HierarchyConfig = HierarchyConfig(),
                      progress: Callable[..., None] | None = None) -> LocalizationResult:
-    """Localize every module by seed 003's Algorithm 1 (NormCutLocalize).
+    """Localize every module by Funiak et al.'s Algorithm 1 (NormCutLocalize).
 
     Parameters
     ----------

@@ -1,4 +1,4 @@
-"""Accuracy of an ensemble estimate against ground truth, as in seed 003 §VI-C and Fig. 10.
+"""Accuracy of an ensemble estimate against ground truth, as in Funiak et al. 2008 §VI-C and Fig. 10.
 
 The model (eq. 1) does not forbid overlap, so an estimate is first scaled uniformly until its mean
 spacing between observed neighbours equals the true mean spacing; it is then rigidly aligned to the
@@ -32,7 +32,7 @@ class EnsembleErrors:
         RMS centre error after scaling to the true spacing and one rigid alignment of the whole.
     local_rms : float
         RMS centre error after a rigid alignment of each region of diameter <= ``region_diameter``
-        module diameters (seed 003 Fig. 10b).
+        module diameters (Funiak et al. 2008 Fig. 10b).
     scale : float
         Factor applied to the estimate to match the true mean neighbour spacing.
     regions : int

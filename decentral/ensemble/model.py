@@ -1,4 +1,4 @@
-"""Seed 003's observation model, likelihood and analytic gradients (eq. 1-3), 2D and 3D.
+"""Funiak et al.'s observation model, likelihood and analytic gradients (eq. 1-3), 2D and 3D.
 
 Each directed observation ``e = (i, j)`` penalizes the distance between module i's sensor and the
 midpoint of the two centres,
@@ -9,12 +9,12 @@ midpoint of the two centres,
     -\\log p(\\mathbf z \\mid \\mathbf x) = \\tfrac12 \\sum_e \\lVert r_e \\rVert^2 + \\text{const},
 
 so the maximum likelihood estimate (eq. 3) minimizes :func:`negative_log_likelihood`. Orientations
-are angles (2D) or quaternions (w, x, y, z) normalized implicitly inside the model (3D, seed 003
+are angles (2D) or quaternions (w, x, y, z) normalized implicitly inside the model (3D, Funiak et al. 2008
 §VI-D), so the gradient with respect to an unnormalized quaternion is exact.
 
 References
 ----------
-.. [1] S. Funiak et al., "Distributed localization of modular robot ensembles", RSS 2008 (seed 003).
+.. [1] S. Funiak et al., "Distributed localization of modular robot ensembles", RSS 2008.
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ def _rotation(problem: EnsembleProblem, orientation: np.ndarray) -> np.ndarray:
 def residuals_from_matrices(problem: EnsembleProblem, position: np.ndarray, rotation: np.ndarray) -> np.ndarray:
     """Residuals r_e (E, dim) of every observation, orientations given as matrices (n, dim, dim).
 
-    seed 003 eq. (1): r_e = R_i z_ij - (c_j - c_i) / 2.
+    Funiak et al. 2008 eq. (1): r_e = R_i z_ij - (c_j - c_i) / 2.
     """
     i, j = problem.i, problem.j
     rz = np.einsum("eab,eb->ea", rotation[i], problem.z)
@@ -56,7 +56,7 @@ def residuals(problem: EnsembleProblem, position: np.ndarray, orientation: np.nd
 
 
 def negative_log_likelihood(problem: EnsembleProblem, position: np.ndarray, orientation: np.ndarray) -> float:
-    """Negative log-likelihood 1/2 sum_e |r_e|^2 (seed 003 eq. 2, constant dropped), metres^2."""
+    """Negative log-likelihood 1/2 sum_e |r_e|^2 (Funiak et al. 2008 eq. 2, constant dropped), metres^2."""
     r = residuals(problem, position, orientation)
     return 0.5 * float(np.einsum("ea,ea->", r, r))
 
@@ -80,7 +80,7 @@ def gradient(problem: EnsembleProblem, position: np.ndarray, orientation: np.nda
     Notes
     -----
     The gradient is a sum of per-observation terms, each touching only the two modules of the
-    observation, so module i can compute its own share from its neighbours' poses (seed 003 §V-A).
+    observation, so module i can compute its own share from its neighbours' poses (Funiak et al. 2008 §V-A).
     """
     position = np.asarray(position, dtype=float)
     orientation = np.asarray(orientation, dtype=float)

@@ -1,4 +1,4 @@
-"""Two-way normalized cut of a sparse weighted graph (seed 003 eq. 4, Shi and Malik [1]_).
+"""Two-way normalized cut of a sparse weighted graph (Funiak et al. 2008 eq. 4, Shi and Malik [1]_).
 
 The relaxed problem is the generalized eigenproblem ``L y = lambda D y``; its second eigenvector
 (the Fiedler vector) is found by shift-invert Lanczos on the normalized Laplacian (dense ``eigh`` for
@@ -39,7 +39,7 @@ class NcutResult:
     in_a : ndarray of bool, shape (n,)
         True for the nodes of side A (the side holding node 0's lower Fiedler values).
     value : float
-        Ncut(A, B) of seed 003 eq. (4).
+        Ncut(A, B) of Funiak et al. 2008 eq. (4).
     fiedler : ndarray, shape (n,)
         The relaxed indicator (generalized eigenvector).
     """
@@ -80,7 +80,7 @@ def _fiedler(off: sparse.csr_matrix, deg: np.ndarray) -> np.ndarray:
         Ln = sparse.csc_matrix((np.concatenate([-coo.data * dm[coo.row] * dm[coo.col], deg_off * dm * dm]),
                                 (np.concatenate([coo.row, np.arange(n)]), np.concatenate([coo.col, np.arange(n)]))),
                                shape=(n, n))
-        # seed 003 eq. (4) relaxed: second-smallest eigenpair of the normalized Laplacian
+        # Funiak et al. 2008 eq. (4) relaxed: second-smallest eigenpair of the normalized Laplacian
         v0 = np.sqrt(deg) + 0.01 * np.cos(np.arange(n))  # deterministic start vector
         vals, vecs = eigsh(Ln, k=2, sigma=-1e-3, which="LM", v0=v0, tol=1e-8)
         u = vecs[:, int(np.argsort(vals)[1])]
@@ -102,7 +102,7 @@ def fiedler_vector(W: sparse.spmatrix) -> np.ndarray:
 
 
 def normalized_cut(W: sparse.spmatrix) -> NcutResult:
-    """Best threshold cut of the Fiedler vector under the exact Ncut criterion (seed 003 eq. 4).
+    """Best threshold cut of the Fiedler vector under the exact Ncut criterion (Funiak et al. 2008 eq. 4).
 
     Parameters
     ----------
@@ -142,7 +142,7 @@ def normalized_cut(W: sparse.spmatrix) -> NcutResult:
 
 
 def ncut_value(W: sparse.spmatrix, in_a: np.ndarray) -> float:
-    """Ncut(A, B) of seed 003 eq. (4) for the partition given by the boolean mask ``in_a`` (n,)."""
+    """Ncut(A, B) of Funiak et al. 2008 eq. (4) for the partition given by the boolean mask ``in_a`` (n,)."""
     off, deg, _ = _split(W)
     in_a = np.asarray(in_a, dtype=bool)
     coo = off.tocoo()

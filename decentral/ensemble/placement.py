@@ -1,4 +1,4 @@
-"""Breadth-first placement: an initial estimate from a spanning traversal (seed 003 §III-B).
+"""Breadth-first placement: an initial estimate from a spanning traversal (Funiak et al. 2008 §III-B).
 
 Starting from a root module at the origin with the identity orientation, modules are placed one
 breadth-first layer at a time. A module of the new layer gets the mean of the centres its placed
@@ -71,7 +71,7 @@ class LayerPlacer:
     """Places a set of new modules from their already placed neighbours (in place, vectorized).
 
     A new module m gets the mean of the centres its placed neighbours k predict for it,
-    c_k + 2 R_k z_km (seed 003 eq. 1 with zero residual), and the orientation that best maps its
+    c_k + 2 R_k z_km (Funiak et al. 2008 eq. 1 with zero residual), and the orientation that best maps its
     own observations z_mk onto the directions (c_k - c_m)/2 (per-module Kabsch fit).
     """
 

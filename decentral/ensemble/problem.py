@@ -1,4 +1,4 @@
-"""The ensemble localization problem (seed 003 §III-A) and its estimate, as frozen array containers.
+"""The ensemble localization problem (Funiak et al. 2008 §III-A) and its estimate, as frozen array containers.
 
 An :class:`EnsembleProblem` holds the observations of the ``decentral.ensemble/1`` format: ``n``
 modules of radius ``radius`` in ``dim`` dimensions and ``E`` directed observations ``z[e]``, the
@@ -143,7 +143,7 @@ class EnsembleProblem:
     def subproblem(self, nodes: np.ndarray) -> "EnsembleProblem":
         """The problem restricted to modules ``nodes`` (relabelled 0..len(nodes)-1 in that order).
 
-        Keeps the observations with both ends in ``nodes`` (G_V in Algorithm 1 of seed 003).
+        Keeps the observations with both ends in ``nodes`` (G_V in Algorithm 1 of Funiak et al. 2008).
         """
         nodes = np.asarray(nodes, dtype=np.int64)
         index = np.full(self.n, -1, dtype=np.int64)

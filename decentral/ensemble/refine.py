@@ -1,4 +1,4 @@
-"""Refinement of an ensemble estimate to the maximum likelihood (seed 003 eq. 3, Algorithm 1 line 11).
+"""Refinement of an ensemble estimate to the maximum likelihood (Funiak et al. 2008 eq. 3, Algorithm 1 line 11).
 
 Four methods, all on the sparse structure of the contact graph and fully vectorized:
 
@@ -26,12 +26,12 @@ Four methods, all on the sparse structure of the contact graph and fully vectori
     of clusters, which those soft modes are made of. The default of Algorithm 1's
     :class:`~decentral.ensemble.HierarchyConfig` (two-level at the top).
 ``"pcg"``
-    Preconditioned nonlinear conjugate gradient, the refiner of seed 003 §VI-B/E: O(E) per
+    Preconditioned nonlinear conjugate gradient, the refiner of Funiak et al. 2008 §VI-B/E: O(E) per
     iteration, no factorization, so it undoes errors far from where they are corrected only slowly
     (Fig. 3c); kept for the faithful accuracy study.
 
 The iteration count is reported per call so callers can charge it to the modules involved
-(seed 003 Fig. 6). All quantities are made dimensionless by the module radius inside, so the
+(Funiak et al. 2008 Fig. 6). All quantities are made dimensionless by the module radius inside, so the
 tolerances do not depend on units.
 """
 
@@ -62,7 +62,7 @@ class RefineConfig:
         ``"alternating"`` and ``"lm"``, quasi-Newton steps for ``"lbfgs"``, conjugate-gradient
         steps for ``"pcg"``.
     gtol : float
-        Stop when the largest gradient entry (in module radii) is below this (seed 003 §VI-B stops
+        Stop when the largest gradient entry (in module radii) is below this (Funiak et al. 2008 §VI-B stops
         each level at a fixed gradient norm).
     ftol : float
         Stop when an accepted step lowers the cost by less than this fraction (for ``"lbfgs"`` and
@@ -81,7 +81,7 @@ class RefineConfig:
         curvature pairs kept by ``"lbfgs"``.
     gnorm : str
         How ``gtol`` measures the gradient (in module radii): ``"max"``, its largest entry;
-        ``"l2"``, its Euclidean norm, the "norm of the gradient" of seed 003 §VI-B. The gradient is
+        ``"l2"``, its Euclidean norm, the "norm of the gradient" of Funiak et al. 2008 §VI-B. The gradient is
         the position gradient for ``"alternating"`` (its orientations are optimal for the centres
         after every sweep, so their gradient vanishes) and the whole gradient (positions and
         orientation increments) for ``"lm"`` and ``"pcg"``.
@@ -330,7 +330,7 @@ class _Rotations:
 
     ``Z`` (E, d n) holds z_e at the columns (i_e, 0..d-1), so ``Z @ Rt`` with ``Rt[(i, b), a] =
     R_i[a, b]`` gives R_i z_e for every observation, and ``Z^T @ h`` gives the per-module sums
-    M_i[a, b] = sum_e h_e[a] z_e[b] that the closed-form fit needs (seed 003 eq. (1) per module).
+    M_i[a, b] = sum_e h_e[a] z_e[b] that the closed-form fit needs (Funiak et al. 2008 eq. (1) per module).
     """
 
     def __init__(self, i, z, n):
@@ -361,7 +361,7 @@ class _Rotations2D(_Rotations):
         return self.rotate(angle_to_matrix(theta))
 
     def fit(self, dvec):
-        # seed 003 eq. (1) per module, closed form: theta = atan2(sum z x d, sum z . d)
+        # Funiak et al. 2008 eq. (1) per module, closed form: theta = atan2(sum z x d, sum z . d)
         M = self.moments(dvec)
         return np.arctan2(M[:, 1, 0] - M[:, 0, 1], M[:, 0, 0] + M[:, 1, 1])
 
@@ -525,7 +525,7 @@ def _refine_alternating(problem: EnsembleProblem, position: np.ndarray, rotation
 def refine(problem: EnsembleProblem, position: np.ndarray, rotation: np.ndarray,
            config: RefineConfig = RefineConfig(), fixed: np.ndarray | None = None,
            elimination: np.ndarray | None = None) -> RefineResult:
-    """Maximize the likelihood (seed 003 eq. 3) starting from ``position`` (n, d), ``rotation`` (n, d, d).
+    """Maximize the likelihood (Funiak et al. 2008 eq. 3) starting from ``position`` (n, d), ``rotation`` (n, d, d).
 
     Parameters
     ----------
@@ -609,7 +609,7 @@ def _refine_lbfgs(problem: EnsembleProblem, position: np.ndarray, rotation: np.n
         r = rots.apply(state) - half
         g = inc.gradient(r)  # envelope theorem: the orientations are optimal
         g[~free] = 0.0
-        # seed 003 eq. (3): negative log-likelihood 1/2 sum_e |R_i z_e - (c_j - c_i)/2|^2
+        # Funiak et al. 2008 eq. (3): negative log-likelihood 1/2 sum_e |R_i z_e - (c_j - c_i)/2|^2
         return 0.5 * float(np.einsum("ea,ea->", r, r)), g, state
 
     def fine(v):  # 4 L^-1 v on the free modules
@@ -741,12 +741,12 @@ def _refine_lm(problem: EnsembleProblem, position: np.ndarray, rotation: np.ndar
 
 def _refine_pcg(problem: EnsembleProblem, position: np.ndarray, rotation: np.ndarray,
                 config: RefineConfig) -> RefineResult:
-    """Preconditioned nonlinear conjugate gradient on eq. 2 (the refiner of seed 003 §VI-B/E).
+    """Preconditioned nonlinear conjugate gradient on eq. 2 (the refiner of Funiak et al. 2008 §VI-B/E).
 
     Every iteration costs a fixed number of passes over the observations (gradient, one
     Jacobian-vector product, one or a few cost evaluations): no factorization, so information
     travels about one contact per iteration, which is what makes errors piled up far from where
-    they are corrected slow to undo (seed 003 Fig. 3c). Positions move freely; orientations move
+    they are corrected slow to undo (Funiak et al. 2008 Fig. 3c). Positions move freely; orientations move
     by a right increment ``R exp([w]x)`` (an angle in 2D). The preconditioner is the block
     diagonal of the Gauss-Newton matrix (deg/4 per centre, sum |z|^2 per planar angle, sum
     (|z|^2 I - z z^T) per 3D increment); directions follow Polak-Ribiere+, the step is the

@@ -36,7 +36,7 @@ def matrix_to_angle(R: np.ndarray) -> np.ndarray:
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     """Rotation matrices (n, 3, 3) of quaternions ``q`` (n, 4) = (w, x, y, z), normalized implicitly.
 
-    The quaternion need not have unit norm: ``R(q) = R(q / |q|)`` (seed 003 §VI-D normalizes the
+    The quaternion need not have unit norm: ``R(q) = R(q / |q|)`` (Funiak et al. 2008 §VI-D normalizes the
     quaternion implicitly inside the observation model).
     """
     q = np.asarray(q, dtype=float)

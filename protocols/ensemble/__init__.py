@@ -1,4 +1,4 @@
-"""protocols.ensemble: messages and aggregation/dissemination halves of seed 003's distributed
+"""protocols.ensemble: messages and aggregation/dissemination halves of Funiak et al.'s distributed
 localization (§V), and the pure reductions its group leaders perform."""
 
 from protocols.ensemble.aggregation import Convergecast, combine, split_by_subtree

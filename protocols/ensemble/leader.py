@@ -4,7 +4,7 @@
 itself is :func:`decentral.ensemble.normalized_cut`); :func:`plan_merge` is lines 7-10 from the
 aggregated alignment statistics, in the same order as :func:`decentral.ensemble.hierarchical.merge_parts`
 (largest part first, then the part with most observations into what is merged), using
-:meth:`decentral.ensemble.AlignmentStats.solve` for each closed-form alignment (seed 003 eq. 5).
+:meth:`decentral.ensemble.AlignmentStats.solve` for each closed-form alignment (Funiak et al. 2008 eq. 5).
 """
 
 from __future__ import annotations
@@ -121,7 +121,7 @@ def plan_merge(parts: np.ndarray, sizes: np.ndarray, pa, pb, stats, links) -> di
         for a in np.flatnonzero(merged):
             s = table.get((int(a), p))
             if s is not None:
-                # seed 003 eq. (5): the merged side's points move with their part's transform
+                # Funiak et al. 2008 eq. (5): the merged side's points move with their part's transform
                 total = total + moved_target(s, T[int(a)])
         T[p] = total.solve()
         merged[p] = True

@@ -1,4 +1,4 @@
-"""Messages of seed 003's distributed localization (§V), one kind per purpose, with wire encoding.
+"""Messages of Funiak et al.'s distributed localization (§V), one kind per purpose, with wire encoding.
 
 Every kind is a frozen, slotted :class:`protocols.messages.Message` (sender, receiver, round) and goes
 through the project's versioned wire format. ``level`` is the depth in the hierarchy of Algorithm 1
@@ -44,7 +44,7 @@ __all__ = [
     "Ack",
 ]
 
-#: phases of the distributed algorithm, in execution order (seed 003 Fig. 4 and Fig. 12)
+#: phases of the distributed algorithm, in execution order (Funiak et al. 2008 Fig. 4 and Fig. 12)
 PHASES: tuple[str, ...] = (
     "neighbor_detection",
     "leader_election",

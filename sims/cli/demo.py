@@ -1,6 +1,6 @@
 """``decentral demo``: the main job on its default scenario, end to end.
 
-Simulates a scenario (default ``table1``: seed 000's Table I setting), writes its observation log
+Simulates a scenario (default ``table1``: Liu et al.'s Table I setting), writes its observation log
 and ground truth, runs the windowed estimator (the centralized joint estimate) and the two
 baselines on the log alone, writes the estimate, and prints the Table I metrics.
 """

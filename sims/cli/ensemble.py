@@ -1,6 +1,6 @@
 """``decentral ensemble``: ``decentral.ensemble/1`` observations in, module poses out (CONTRACT §3-4).
 
-``--method ncut`` (default) is seed 003's Algorithm 1; ``incremental``, ``mds``, ``sdp`` and
+``--method ncut`` (default) is Funiak et al.'s Algorithm 1; ``incremental``, ``mds``, ``sdp`` and
 ``bottom-up`` are the baselines of its §VI-E. ``--distributed`` runs Algorithm 1 as one agent per
 module over the simulated network (``--loss``: probability that a message is dropped); that runner
 lives in :mod:`sims.ensembles.distributed` (``run_distributed``) and this command only calls it, so
@@ -8,7 +8,7 @@ if it is not installed the command says so and exits 2. The estimate then also h
 ``phase_names`` and ``phase_messages``.
 
 ``--tol`` sets the refinement tolerance: the largest gradient entry, in module radii, at which each
-level's refinement and the top's stop (seed 003 §VI-B). It is what ``benchmarks/ensemble_messages.py``
+level's refinement and the top's stop (Funiak et al. 2008 §VI-B). It is what ``benchmarks/ensemble_messages.py``
 varies (``--gtol``, with ``--check-every 5``), so a point of its message figure is
 ``decentral ensemble OBS.npz -o EST.npz --distributed --tol 0.01 --check-every 5``. Without it each
 method keeps its defaults (centralized: levels 1e-3, top 1e-6; distributed: levels 1e-3, top 1e-4).

@@ -1,4 +1,4 @@
-"""``decentral experiment``: seed 000's experiments reproduced on rendered frames (JSON + PNG).
+"""``decentral experiment``: Liu et al.'s experiments reproduced on rendered frames (JSON + PNG).
 
 ``decentral experiment table1 -o OUTDIR [--seeds 2] [--steps 60] [--clean]`` writes
 ``OUTDIR/table1.json``, ``table1.md`` and ``table1.png`` (Table I: ours vs bearing vs AprilTag);

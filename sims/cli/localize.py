@@ -22,7 +22,7 @@ __all__ = ["HELP", "add_arguments", "run", "ESTIMATORS"]
 
 HELP = "estimate every assembly's pose relative to a reference from an observation log"
 
-#: estimator name -> one-line description (the seed's method and its baselines)
+#: estimator name -> one-line description (the paper's method and its baselines)
 ESTIMATORS = {
     "windowed": "Liu et al. 2024 §IV: radius-depth visual factors + odometry, SDP relaxation, sliding window",
     "bearing": "Liu et al. 2024 §V-C 2 baseline: root-node bearings only (no radius) + odometry",

@@ -1,4 +1,4 @@
-"""``decentral make-ensemble``: generate a seed 003 test ensemble (``decentral.ensemble/1`` + truth)."""
+"""``decentral make-ensemble``: generate a Funiak et al. 2008 test ensemble (``decentral.ensemble/1`` + truth)."""
 
 from __future__ import annotations
 

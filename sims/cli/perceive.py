@@ -5,7 +5,7 @@ bounding circles, AprilTag ids inside them, tracking so a node keeps its id thro
 With ``--log-template LOG.json --camera A0/cam0 --log-out OUT.json`` the same run also writes a
 ``decentral.log/1``: the template's steps (configurations, odometry) with that camera's detections
 replaced by the perceived, identified ones (frame k = step k), its camera model used to turn each
-circle into the circle of seed 000 eq. (1) and, with ``--motion odometry``, to compensate the
+circle into the circle of Liu et al. 2024 eq. (1) and, with ``--motion odometry``, to compensate the
 observer's own rotation in the tracker.
 """
 

@@ -1,8 +1,8 @@
-"""sims.ensembles: ensembles of modules for seed 003's internal localization.
+"""sims.ensembles: ensembles of modules for Funiak et al.'s internal localization.
 
 The generator settles circular modules under gravity into 2D containers or rasterizes 3D solids into
 a lattice, simulates the IR contact sensors and writes ``decentral.ensemble/1`` observations plus the
-truth (:mod:`sims.ensembles.generator`); :mod:`sims.ensembles.distributed` runs seed 003 §V as one
+truth (:mod:`sims.ensembles.generator`); :mod:`sims.ensembles.distributed` runs Funiak et al. 2008 §V as one
 agent per module over the simulated network.
 """
 

@@ -5,7 +5,7 @@ points are inside the container. :func:`make_container` scales it so that its ar
 number of modules at a nominal packing density, rasterizes it, and returns a :class:`Container` whose
 signed distance (positive inside, metres) and its gradient can be sampled at module centres.
 
-The seed's scenarios (seed 003 §VI-A, Fig. 5) are mimicked by ``triple`` (three dense chambers joined
+The paper's scenarios (Funiak et al. 2008 §VI-A, Fig. 5) are mimicked by ``triple`` (three dense chambers joined
 by low bridges), ``sparse`` (the same chambers joined by bridges about one module wide: weak regions)
 and ``open`` (a long U-shaped channel, an open loop); ``twin`` is Fig. 3's two clusters joined by a
 pair of thin bridges (a loop through two weak regions); ``funnel``, ``ring`` and ``blobs`` add variety.
@@ -112,7 +112,7 @@ def _chambers(bridge: float, bridge_modules: float) -> Callable:
 
 
 def _twin(x, y, rng, m):
-    # seed 003 Fig. 3: two dense square clusters side by side whose only links are two thin
+    # Funiak et al. 2008 Fig. 3: two dense square clusters side by side whose only links are two thin
     # bridges, one at the floor and one at mid-height, each about one module high and a few
     # modules long: the weak regions come in a pair, so the relative rotation of the clusters is
     # well determined once both are used, but not through either bridge alone
@@ -126,7 +126,7 @@ def _twin(x, y, rng, m):
 
 
 def _open(x, y, rng, m):
-    # a U-shaped channel 0.4 wide: an open loop, long and thin (seed 003 Fig. 5 "open")
+    # a U-shaped channel 0.4 wide: an open loop, long and thin (Funiak et al. 2008 Fig. 5 "open")
     outer = _rect(x, y, 0.0, 3.0, 0.0, 2.0)
     inner = _rect(x, y, 0.4, 2.6, 0.4, 2.1)
     return outer & ~inner
@@ -166,7 +166,7 @@ def _blobs(x, y, rng, m):
 def _capture(discs: np.ndarray, neck: float, floor: float, level: float, min_gap: float):
     """A box packed with modules around fixed discs ("objects"): a planar slice of shape capture.
 
-    seed 003 §VI-A: the 2D scenarios "mimic planar slices of a 3D shape capture scenario [4]", in
+    Funiak et al. 2008 §VI-A: the 2D scenarios "mimic planar slices of a 3D shape capture scenario [4]", in
     which modules fill a container around an object. The objects are held in place (pressed into the
     ensemble), so they are holes in the container, not loads on the floor; modules settle around
     them under gravity up to the fill ``level`` (unit coordinates), 0.3 below the box's open top.
@@ -221,7 +221,7 @@ def _capture(discs: np.ndarray, neck: float, floor: float, level: float, min_gap
 
 def _capture_row(radius: float, gap: float, cover: float, min_gap: float):
     """Three equal discs in a row, ``gap`` from each other, the side walls and the floor, covered
-    by ``cover`` of modules above their tops (seed 003 Fig. 5(b) "structured triple", read as shape
+    by ``cover`` of modules above their tops (Funiak et al. 2008 Fig. 5(b) "structured triple", read as shape
     capture of three objects)."""
     pitch = 2.0 * radius + gap
     cx = gap + radius + pitch * np.arange(3)

@@ -1,4 +1,4 @@
-"""Run seed 003's distributed localization (§V) as one agent per module over the simulated network.
+"""Run Funiak et al.'s distributed localization (§V) as one agent per module over the simulated network.
 
 :func:`run_distributed` builds a :class:`agents.modules.ModuleAgent` per module from its own
 observations, attaches all of them to a :class:`protocols.network.SimulatedNetwork` (lossless by
@@ -152,7 +152,7 @@ class _Driver:
 def run_distributed(problem: EnsembleProblem, rng: np.random.Generator,
                     config: DistributedConfig = DistributedConfig(),
                     progress: Callable[..., None] | None = None) -> DistributedResult:
-    """Localize every module by the distributed Algorithm 1 (seed 003 §V).
+    """Localize every module by the distributed Algorithm 1 (Funiak et al. 2008 §V).
 
     Parameters
     ----------

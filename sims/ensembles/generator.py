@@ -112,7 +112,7 @@ class Ensemble:
     i, j : ndarray of int64, shape (E,)
         Observation pairs, symmetric.
     z : ndarray, shape (E, dim)
-        z_{i,j}: sensor of i that saw j, on the perimeter, in i's local frame (seed 003 Fig. 2b).
+        z_{i,j}: sensor of i that saw j, on the perimeter, in i's local frame (Funiak et al. 2008 Fig. 2b).
     dropped : int
         Modules removed because they were not connected to the largest observation component.
     """

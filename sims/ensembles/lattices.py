@@ -1,4 +1,4 @@
-"""3D ensembles rasterized from solid shapes into a hexagonal-close-packed or cubic lattice (seed 003 §VI-A).
+"""3D ensembles rasterized from solid shapes into a hexagonal-close-packed or cubic lattice (Funiak et al. 2008 §VI-A).
 
 A shape is a signed distance function on unit coordinates (positive inside). :func:`rasterize` scales
 it so that it holds slightly more lattice sites than requested, keeps the ``n`` sites deepest inside

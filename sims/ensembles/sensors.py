@@ -1,4 +1,4 @@
-"""The infrared contact sensor model of seed 003 §VI: which module pairs see each other, and with which sensors.
+"""The infrared contact sensor model of Funiak et al. 2008 §VI: which module pairs see each other, and with which sensors.
 
 Every module carries transceivers (colocated emitter/detector pairs) pointing radially outwards: 12
 evenly spaced on the perimeter in 2D, 50 scattered (a Fibonacci spiral) over the sphere in 3D. A
@@ -12,7 +12,7 @@ The peak intensity is that of two touching modules with facing transceivers, ``1
 pair is observed when its strongest transceiver pair reaches ``threshold`` (20 %) of the peak, so
 modules are seen a little before they touch and the reported sensor positions are quantized to the
 transceiver layout. The observation z_{i,j} is module i's transceiver of that strongest pair, moved to
-the perimeter and written in i's local frame (seed 003 §III-A, Fig. 2b); the pair gives z_{j,i} from
+the perimeter and written in i's local frame (Funiak et al. 2008 §III-A, Fig. 2b); the pair gives z_{j,i} from
 module j's transceiver, so observations are symmetric by construction. Occlusion is not modelled: only
 pairs within sensing range of each other are candidates, and at that range a third module cannot sit
 between them.
@@ -35,11 +35,11 @@ class SensorModel:
     Attributes
     ----------
     count : int or None
-        Transceivers per module; ``None`` means 12 in 2D and 50 in 3D (seed 003 §VI).
+        Transceivers per module; ``None`` means 12 in 2D and 50 in 3D (Funiak et al. 2008 §VI).
     depth : float
         Recess of each transceiver below the surface, in module radii.
     threshold : float
-        Detection threshold as a fraction of the peak intensity (seed 003 §VI: 0.2).
+        Detection threshold as a fraction of the peak intensity (Funiak et al. 2008 §VI: 0.2).
     lobe : float
         Exponent of the cosine lobe of emitters and receivers.
     """

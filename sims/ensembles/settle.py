@@ -7,7 +7,7 @@ overlapping pair apart by half its overlap (Jacobi, all pairs at once, pairs fro
 list rebuilt only when some module moved more than half the skin), and projects modules that cross a
 wall back inside along the wall normal. The last iterations, without gravity, remove the remaining
 overlaps. The result is an irregular, jammed, largely amorphous packing resting on the container floor
-(seed 003 §VI-A generated theirs with a physics simulator; this is a cheaper stand-in that gives the
+(Funiak et al. 2008 §VI-A generated theirs with a physics simulator; this is a cheaper stand-in that gives the
 same kind of structure: dense regions, weak bridges and a free surface).
 """
 

@@ -8,7 +8,7 @@ roots move as unicycles under the env's commands, and every step
    scenario's noise model and per-source streams);
 2. each live agent takes its own data (:meth:`AssemblyAgent.on_step`), and ``admm_rounds`` rounds of
    consensus-ADMM run over the simulated lossy network, two phases per round, all inside the step;
-3. each agent's estimates (poses of the assemblies it can place, in its root frame, seed 000
+3. each agent's estimates (poses of the assemblies it can place, in its root frame, Liu et al. 2024
    eq. (19)) are compared with the truth for the env's ``infos``.
 
 A crashed agent is skipped while down and restarts empty when it comes back (as in
@@ -136,7 +136,7 @@ class AssemblySim:
         return World(self.node_radius, times, tuple(tracks), self.cameras)
 
     def relative(self, i: int, j: int) -> tuple[np.ndarray, float]:
-        """True position (3,) of j's root in i's root frame and relative yaw (seed 000 eq. (19))."""
+        """True position (3,) of j's root in i's root frame and relative yaw (Liu et al. 2024 eq. (19))."""
         w = self.world([self.state], self.k * self.config.dt)
         Pi, Pj = w.assemblies[i].root_pose(0, self.node_radius), w.assemblies[j].root_pose(0, self.node_radius)
         return Pi.R.T @ (Pj.p - Pi.p), float(wrap_angle(self.state[j, 2] - self.state[i, 2]))

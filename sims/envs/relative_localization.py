@@ -1,6 +1,6 @@
 """PettingZoo parallel env for decentralized relative localization.
 
-Agents are assemblies; in the ``"swarm"`` scenario (seed 004) each assembly is a one-node robot with
+Agents are assemblies; in the ``"swarm"`` scenario (Kanovsky) each assembly is a one-node robot with
 a camera, running the on-board agent of :mod:`sims.swarm.robot` (EKF tracks of every other robot,
 shared over the simulated lossy radio of :mod:`protocols.network`). The policy chooses motion
 commands; the env returns what each agent really has, and puts errors against truth in ``infos``
@@ -74,7 +74,7 @@ class RelativeLocalizationEnv(ParallelEnv):
     Parameters
     ----------
     scenario : str
-        ``"swarm"`` (seed 004's one-node robots) or ``"assemblies"`` (FreeSN-like assemblies with
+        ``"swarm"`` (Kanovsky's one-node robots) or ``"assemblies"`` (FreeSN-like assemblies with
         consensus-ADMM agents; parameters are the fields of
         :class:`sims.envs.assembly_sim.AssemblySimConfig` plus ``max_detections``).
     max_cycles : int

@@ -1,4 +1,4 @@
-"""Seed 000 Table I and Fig. 4 reproduced on rendered data: perception front end + estimators.
+"""Liu et al. 2024 Table I and Fig. 4 reproduced on rendered data: perception front end + estimators.
 
 Table I (§V-D): the ``table1`` scenario (one observer on a 0.75 m table, three moving targets of
 different configurations, 1.85 m away on average as in the seed, 5 Hz) is rendered; the frames go through the perception
@@ -313,7 +313,7 @@ def plot_reconfig(result: dict, path) -> None:
     axes[2].set_ylabel("nodes")
     axes[2].set_xlabel("t [s]")
     axes[2].legend(fontsize=7)
-    fig.suptitle("Reconfiguration run (seed 000 Fig. 4) on rendered frames", fontsize=10)
+    fig.suptitle("Reconfiguration run (Liu et al. 2024 Fig. 4) on rendered frames", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

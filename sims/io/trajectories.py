@@ -3,7 +3,7 @@ files in the formats trajectory-evaluation tools read (TUM, KITTI, CSV).
 
 A trajectory here is what ``decentral.estimate/1`` holds for one assembly: at each time it is
 placed, the pose of its root horizontal frame in the reference's root horizontal frame at the same
-time, ``p`` (3,) and yaw ``theta`` (seed 000 eq. (19)). Its 3D form is the rotation about z by
+time, ``p`` (3,) and yaw ``theta`` (Liu et al. 2024 eq. (19)). Its 3D form is the rotation about z by
 ``theta``, i.e. the unit quaternion ``(qx, qy, qz, qw) = (0, 0, sin(theta/2), cos(theta/2))``.
 
 File formats written by :func:`write_trajectories` (one file per assembly, named after it):
@@ -140,7 +140,7 @@ def estimate_trajectories(estimate: Estimate, reference: str | None = None) -> d
 
 
 def truth_trajectories(truth: GroundTruth, reference: str) -> dict[str, Trajectory]:
-    """Every assembly's true trajectory relative to ``reference`` (seed 000 eq. (19) on true poses).
+    """Every assembly's true trajectory relative to ``reference`` (Liu et al. 2024 eq. (19) on true poses).
 
     The same relation :func:`decentral.metrics.score_estimate` scores against, at every truth step.
     """

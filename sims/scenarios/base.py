@@ -33,7 +33,7 @@ class ScenarioConfig:
     steps : int
         Number of time steps (frames) of the run.
     dt : float
-        Time between steps [s] (0.2 s: the seed's 5 Hz frames).
+        Time between steps [s] (0.2 s: the paper's 5 Hz frames).
     noise : bool
         ``False`` makes every sensor exact (no noise, drop-outs, missing odometry or outliers).
     sensors : SensorNoise

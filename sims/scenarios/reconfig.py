@@ -1,4 +1,4 @@
-"""Seed 000 §V-E (Fig. 4): a still observer and one target that reconfigures while it is watched.
+"""Liu et al. 2024 §V-E (Fig. 4): a still observer and one target that reconfigures while it is watched.
 
 The target's configuration goes through phases of ``phase_steps`` steps each, while it drifts and slowly turns: (a) two nodes, one
 partly hidden behind the root; (b) a third node joins beside them, in clear view; (c) the hidden
@@ -82,7 +82,7 @@ class ReconfigConfig(ScenarioConfig):
 
 
 class Reconfig(Scenario):
-    """A still observer watching one target change its configuration (seed 000 Fig. 4)."""
+    """A still observer watching one target change its configuration (Liu et al. 2024 Fig. 4)."""
 
     name = "reconfig"
     Config = ReconfigConfig

@@ -1,4 +1,4 @@
-"""Seed 000 §V-D (Table I): one observer on a 0.75 m table, three moving targets on the floor.
+"""Liu et al. 2024 §V-D (Table I): one observer on a 0.75 m table, three moving targets on the floor.
 
 The observer (a three-node line carrying one camera on its middle strut, tilted down) drifts slowly
 on the table top; three targets of different configurations wander on the floor (one on a raised
@@ -52,7 +52,7 @@ class Table1Config(ScenarioConfig):
     table_height: float = 0.75
     target_shapes: tuple = ("L", "triangle", "tower")
     target_floors: tuple = (0.0, 0.0, 0.03)
-    # homes chosen so that the mean observer-target distance over a run is about 1.85 m, the seed's:
+    # homes chosen so that the mean observer-target distance over a run is about 1.85 m, the paper's:
     # its Table I gives 0.039 m = 2.09 % (ours), 0.112 m = 5.38 % (AprilTag), 0.304 m = 16.9 %
     # (bearing), i.e. 1.8-2.1 m. (Homes of 1.8/2.5/2.0 m made it 2.47 m: nodes a quarter smaller.)
     # Targets wander up to ~0.7 m from home, so the nearest comes within ~0.8 m (edge of the view).
@@ -77,7 +77,7 @@ class Table1Config(ScenarioConfig):
 
 
 class Table1(Scenario):
-    """One observer on a table and several wandering targets on the floor (seed 000 Table I)."""
+    """One observer on a table and several wandering targets on the floor (Liu et al. 2024 Table I)."""
 
     name = "table1"
     Config = Table1Config

@@ -1,4 +1,4 @@
-"""The ``ensemble`` cell: make an ensemble, localize it, score it against its truth (seed 003).
+"""The ``ensemble`` cell: make an ensemble, localize it, score it against its truth (Funiak et al. 2008).
 
 The keys are those of ``decentral make-ensemble`` (``shape``, ``n``, ``seed``, ``radius``,
 ``lattice``, ``jitter``, ``threshold``) and of ``decentral ensemble`` (``method``, ``distributed``,

@@ -1,4 +1,4 @@
-"""Seed 004's camera swarm: one-node unicycle robots with field-of-view-limited cameras, on-board
+"""Kanovsky's camera swarm: one-node unicycle robots with field-of-view-limited cameras, on-board
 EKF tracking of each other, and reports shared over the simulated radio."""
 
 from sims.swarm.config import SwarmConfig

@@ -1,6 +1,6 @@
-"""Parameters of seed 004's camera swarm: robots, cameras, sensor noise and the radio.
+"""Parameters of Kanovsky's camera swarm: robots, cameras, sensor noise and the radio.
 
-Seed 004 §3.1: each robot sees others inside a cone (``max_angle`` from the camera's centre line,
+Kanovsky §3.1: each robot sees others inside a cone (``max_angle`` from the camera's centre line,
 ``max_distance`` away), identifies them by a tag, and reports to the swarm over a network. Its §5
 asks for measurement noise and a filter on each robot's own motion; both are parameters here.
 """
@@ -37,9 +37,9 @@ class SwarmConfig:
     node_radius : float
         Radius r_0 [m] of each robot's spherical node.
     max_angle_deg : float
-        Half-angle of the camera's field-of-view cone [deg] (seed 004 ``max_angle``).
+        Half-angle of the camera's field-of-view cone [deg] (Kanovsky ``max_angle``).
     max_distance : float
-        Farthest detection [m] (seed 004 ``max_distance``).
+        Farthest detection [m] (Kanovsky ``max_distance``).
     image_width, image_height : int
         Image size [px]; the focal length follows from ``max_angle_deg``.
     min_radius_px : float

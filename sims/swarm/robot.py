@@ -1,7 +1,7 @@
 """A swarm robot's on-board agent: config + private state + message handlers (house style 9).
 
-Each robot keeps, as seed 004 §3 describes, an estimate of every other robot relative to itself
-(itself at the origin), and reports what it knows to the swarm; following seed 004 §5 it filters:
+Each robot keeps, as Kanovsky §3 describes, an estimate of every other robot relative to itself
+(itself at the origin), and reports what it knows to the swarm; following Kanovsky §5 it filters:
 an EKF on its own motion and one EKF track per other robot (:mod:`decentral.filtering`). It sees
 only its own sensors and its inbox, never ground truth.
 
@@ -109,7 +109,7 @@ class SwarmRobot:
         self.peers = tuple(n for n in config.names if n != name)
         cam = config.cam_in_root()
         self._cam_R, self._cam_p, self._K = cam.R, cam.p, config.K
-        self.pose = np.zeros(3)  # own pose in the start frame (seed 004: itself at the origin at start)
+        self.pose = np.zeros(3)  # own pose in the start frame (Kanovsky: itself at the origin at start)
         self.pose_cov = np.zeros((3, 3))
         self.tracks: dict[str, Track] = {}
         self.stats = RobotStats()
@@ -245,7 +245,7 @@ class SwarmRobot:
     def _backproject(self, uvr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Position (2,) of a detected node in the camera's root frame and its covariance (2, 2)."""
         c = self.config
-        pc = backproject(self._K, uvr[:1], uvr[1:2], uvr[2:3], c.node_radius)[0]  # seed 000 eq. (1)
+        pc = backproject(self._K, uvr[:1], uvr[1:2], uvr[2:3], c.node_radius)[0]  # Liu et al. 2024 eq. (1)
         xy = (self._cam_R @ pc + self._cam_p)[:2]
         _, H, _ = project_target(xy, self._K, self._cam_R, self._cam_p, c.node_radius)
         info = H.T @ np.linalg.solve(c.pixel_cov, H)

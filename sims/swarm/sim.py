@@ -1,4 +1,4 @@
-"""Seed 004's swarm, end to end: true world, on-board robots, and the simulated radio between them.
+"""Kanovsky's swarm, end to end: true world, on-board robots, and the simulated radio between them.
 
 :class:`SwarmSim` advances everything by one step per call (the PettingZoo env drives it);
 :func:`run_swarm` runs a whole episode with the built-in wander policy and returns a

@@ -1,13 +1,13 @@
-"""Ground truth of seed 004's swarm: unicycle robots in a square arena, their cameras and odometry.
+"""Ground truth of Kanovsky's swarm: unicycle robots in a square arena, their cameras and odometry.
 
 The world is stepped online (the PettingZoo env feeds actions one step at a time). A robot's state
 is ``(x, y, theta)`` of its root horizontal frame in the world frame W (z up; the root is the node
 centre, ``node_radius`` above the floor). Commands are unicycle ``(v, omega)`` held over a step and
 integrated exactly (arcs); a robot that would leave the arena stops at the wall.
 
-Sensing follows seed 004 §3.1 -- a robot sees another inside the cone ``|angle| <= max_angle`` and
+Sensing follows Kanovsky §3.1 -- a robot sees another inside the cone ``|angle| <= max_angle`` and
 ``distance <= max_distance`` -- through a pinhole camera, so each detection is a pixel circle
-``(u, v, r)`` (seed 000 eq. (1) inverted: ``r = f r_0 / z_c``) with Gaussian noise, tag drop-outs,
+``(u, v, r)`` (Liu et al. 2024 eq. (1) inverted: ``r = f r_0 / z_c``) with Gaussian noise, tag drop-outs,
 and occlusion by nearer robots. Every noise source (each robot's camera, odometry and wander policy)
 has its own generator, keyed by the source's name, so adding a robot changes nobody else's noise.
 """
@@ -127,7 +127,7 @@ class SwarmWorld:
         motion = np.zeros_like(new)
         for i in range(c.n_robots):
             d = new[i, :2] - self.state[i, :2]
-            motion[i, :2] = rot2(self.state[i, 2]).T @ d  # seed 000 eq. (6): in the previous root frame
+            motion[i, :2] = rot2(self.state[i, 2]).T @ d  # Liu et al. 2024 eq. (6): in the previous root frame
             motion[i, 2] = wrap_angle(new[i, 2] - self.state[i, 2])
         self.state = new
         self.k += 1

@@ -1,6 +1,6 @@
 """The pinhole camera model of the simulator: projection of nodes, field of view and occlusion.
 
-The noiseless detection of a node is exactly seed 000 eq. (1) inverted: the centre (u, v) is the
+The noiseless detection of a node is exactly Liu et al. 2024 eq. (1) inverted: the centre (u, v) is the
 projection of the node centre and the radius is ``r = f r_0 / z_c`` with ``z_c`` the depth of the
 centre in the camera frame and ``f = K[0, 0]``. The estimator's back-projection
 ``p = K^{-1} (f r_0 / r) [u, v, 1]^T`` then returns the true centre.
@@ -70,7 +70,7 @@ def project_nodes(K: np.ndarray, cam_in_world: Pose, centres: np.ndarray, node_r
     depth = pc[:, 2]
     safe = np.where(depth > 1e-9, depth, 1.0)
     hom = pc @ K.T / safe[:, None]
-    r = K[0, 0] * node_radius / safe  # seed 000 eq. (1) inverted: r = f r_0 / z_c
+    r = K[0, 0] * node_radius / safe  # Liu et al. 2024 eq. (1) inverted: r = f r_0 / z_c
     return np.column_stack([hom[:, 0], hom[:, 1], r]), depth
 
 

@@ -1,6 +1,6 @@
 """Simulated sensors: odometry with noise and identified node detections from the pinhole model.
 
-The noiseless detection of a visible node is seed 000 eq. (1) inverted (see :mod:`sims.world.camera`);
+The noiseless detection of a visible node is Liu et al. 2024 eq. (1) inverted (see :mod:`sims.world.camera`);
 noise, drop-outs, stray tags and wrong ids are then applied per :class:`SensorNoise`. Every noise
 source (each assembly's odometry, each camera) draws from its own generator, made by
 :func:`sensor_streams` from the run's seed and the source's name, so adding a robot does not change
@@ -27,7 +27,7 @@ STRAY_ID_BASE = 9000
 
 @dataclass(frozen=True)
 class SensorNoise:
-    """Noise and failure model of the sensors (defaults: realistic, seed 000 §V-like).
+    """Noise and failure model of the sensors (defaults: realistic, Liu et al. 2024 §V-like).
 
     Attributes
     ----------
@@ -115,7 +115,7 @@ def odometry_at(world: World, name: str, k: int, noise: SensorNoise, rng: np.ran
     """Odometry of assembly ``name`` at step ``k >= 1`` (``None`` when it is missing).
 
     The true values are the root's motion since step k-1 written in the root frame at k-1
-    (seed 000 eq. (6)): ``dp = R_{k-1}^T (p_k - p_{k-1})``, ``dtheta = yaw_k - yaw_{k-1}``.
+    (Liu et al. 2024 eq. (6)): ``dp = R_{k-1}^T (p_k - p_{k-1})``, ``dtheta = yaw_k - yaw_{k-1}``.
     """
     a = world.assembly(name)
     prev, cur = a.root_pose(k - 1, world.node_radius), a.root_pose(k, world.node_radius)

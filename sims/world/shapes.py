@@ -1,6 +1,6 @@
 """FreeSN-like assembly configurations: spherical nodes joined by struts.
 
-A :class:`Shape` lists node centres in the assembly's root horizontal frame H_r (seed 000 §II):
+A :class:`Shape` lists node centres in the assembly's root horizontal frame H_r (Liu et al. 2024 §II):
 the root node sits at the origin, nodes resting on the floor have ``z = 0`` and stacked nodes a
 positive ``z``. Struts join pairs of nodes (they matter to rendering and occlusion, not to the log).
 The library functions return shapes with local ids ``0..n-1`` (0 is the root); :meth:`Shape.with_ids`
@@ -30,7 +30,7 @@ __all__ = [
     "library_shape",
 ]
 
-#: FreeSN node radius r_0 [m] (seed 000 §V-D)
+#: FreeSN node radius r_0 [m] (Liu et al. 2024 §V-D)
 NODE_RADIUS = 0.06
 #: default centre-to-centre node spacing along a strut [m]
 SPACING = 0.25

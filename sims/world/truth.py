@@ -10,7 +10,7 @@
 
 ``poses`` holds every assembly root's pose (R_{H_r}^W, p_{H_r}^W) in one world frame W (z up, floor
 at ``z = 0``). ``visible`` lists, per camera, the nodes the geometric model finds in view at that step
-with their noiseless circle (seed 000 eq. (1) inverted) and the fraction of the circle hidden by
+with their noiseless circle (Liu et al. 2024 eq. (1) inverted) and the fraction of the circle hidden by
 nearer nodes, before drop-outs and noise. Runs rendered with frames add, per step and camera,
 ``"frames": {"A0/cam0": {"file": "frames/A0/cam0/00000.png", "nodes": [{"id", "u", "v", "r", "su",
 "sv", "sr", "visible"}]}}``: every node with a visible pixel, its eq. (1) circle, its exact

@@ -184,7 +184,7 @@ def test_unseen_assembly_is_never_placed():
 
 
 def test_unit_weighting_recovers_and_places_like_the_seed():
-    """With the seed's unweighted sums every observable target is still placed and recovered exactly."""
+    """With the paper's unweighted sums every observable target is still placed and recovered exactly."""
     from decentral.factors import NoiseModel
 
     world, configs = scene()

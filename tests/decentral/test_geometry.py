@@ -1,4 +1,4 @@
-"""Properties of the planar geometry helpers (seed 000 eq. (1), (16), (17))."""
+"""Properties of the planar geometry helpers (Liu et al. 2024 eq. (1), (16), (17))."""
 
 import numpy as np
 from hypothesis import given, settings

@@ -12,7 +12,7 @@ CONFIGS = {"A0": {1: np.array([0.0, 0.0, 0.05])}, "A1": {7: np.array([0.1, 0.0, 
 
 
 def test_noiseless_detections_back_project_to_the_true_centres_in_the_root_frame():
-    """Exact circles give each seen node's centre in the observer's root frame (seed 000 eq. (1), (4)), weight > 0."""
+    """Exact circles give each seen node's centre in the observer's root frame (Liu et al. 2024 eq. (1), (4)), weight > 0."""
     cam = camera("A0")
     log = make_log(WORLD, CONFIGS, [cam])
     out = own_detections([cam], log.steps[0].detections, {}, {1}, log.node_radius, NoiseModel())

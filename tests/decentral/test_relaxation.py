@@ -56,7 +56,7 @@ def test_low_rank_and_sdp_reach_the_same_optimum(seed):
 
 
 def test_literal_primal_matches_the_dual_form():
-    """The seed's P3 as written (3m x 3m, 15b-15c) gives the same rotations as the dual SDP."""
+    """The paper's P3 as written (3m x 3m, 15b-15c) gives the same rotations as the dual SDP."""
     Q, _ = sync_problem(6, 0.05, np.random.default_rng(7))
     literal = solve_literal_primal(Q)
     fast = solve_low_rank(Q)
@@ -103,7 +103,7 @@ def test_reduce_rotations_matches_explicit_minimization():
 
 
 def test_literal_o2_relaxation_is_loose_where_so2_is_tight():
-    """On line-shaped assemblies moving along their axis, seed 000's literal P3 (O(2)) is not tight
+    """On line-shaped assemblies moving along their axis, Liu et al.'s literal P3 (O(2)) is not tight
     at the optimum, while the SO(2) relaxation certifies it (why we add the commuting-block constraint)."""
     from decentral.factors import NoiseModel, measure_log
     from decentral.relaxation import certificate_o2

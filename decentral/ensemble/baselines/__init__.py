@@ -1,4 +1,4 @@
-"""Baselines of seed 003 §VI-E, each returning a :class:`~decentral.ensemble.hierarchical.LocalizationResult`.
+"""Baselines of Funiak et al. 2008 §VI-E, each returning a :class:`~decentral.ensemble.hierarchical.LocalizationResult`.
 
 - :func:`classical_mds`: classical multidimensional scaling of hop counts (Shang et al., MDS-MAP);
 - :func:`sdp_localize`: regularized (maximum-spread) SDP sensor-network localization, inequality
@@ -6,7 +6,7 @@
 - :func:`incremental_localize`: the breadth-first incremental method of §III-B;
 - :func:`bottom_up_localize`: hierarchical merging of clusters in order of algebraic connectivity.
 
-All of them finish, like the seed's study, with the same maximum-likelihood refinement.
+All of them finish, like the paper's study, with the same maximum-likelihood refinement.
 """
 
 from decentral.ensemble.baselines.bottom_up import bottom_up_localize

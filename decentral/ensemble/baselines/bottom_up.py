@@ -1,4 +1,4 @@
-"""Bottom-up merging of clusters in order of algebraic connectivity (seed 003 §VI-E (iv)).
+"""Bottom-up merging of clusters in order of algebraic connectivity (Funiak et al. 2008 §VI-E (iv)).
 
 The ensemble is first split into small hop-count clusters around random leaders; each is localized
 on its own (breadth-first placement and refinement). Then, repeatedly, the pair of adjacent

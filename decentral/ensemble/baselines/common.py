@@ -13,7 +13,7 @@ from decentral.ensemble.refine import RefineConfig, refine
 
 __all__ = ["FINAL_REFINE", "run_per_component"]
 
-#: refinement applied to every baseline's initial solution (seed 003 §VI-E: 300 iterations)
+#: refinement applied to every baseline's initial solution (Funiak et al. 2008 §VI-E: 300 iterations)
 FINAL_REFINE = RefineConfig(max_iter=300, gtol=1e-6)
 
 

@@ -1,9 +1,9 @@
-"""The incremental breadth-first method of seed 003 §III-B (the motivation for Algorithm 1).
+"""The incremental breadth-first method of Funiak et al. 2008 §III-B (the motivation for Algorithm 1).
 
 Starting from one module, the set A of localized modules grows one breadth-first layer at a time:
 the new modules are placed from their localized neighbours and the maximum likelihood of all
 observations among A is refined from there. Errors made early in weak regions are carried along
-and only resolved, slowly, when a loop closes (seed 003 Fig. 3). Each step refines all of A, so the
+and only resolved, slowly, when a loop closes (Funiak et al. 2008 Fig. 3). Each step refines all of A, so the
 work grows as n times the number of layers; it is a baseline for studies, not for large ensembles.
 """
 

@@ -1,4 +1,4 @@
-"""Classical multidimensional scaling of hop counts (seed 003 §VI-E (i); Shang et al., MDS-MAP [1]_).
+"""Classical multidimensional scaling of hop counts (Funiak et al. 2008 §VI-E (i); Shang et al., MDS-MAP [1]_).
 
 Distances between all pairs of modules are approximated by the hop count times the model's contact
 spacing (two radii); classical MDS embeds them in ``dim`` dimensions. All-pairs hop counts are

@@ -1,4 +1,4 @@
-"""Regularized SDP sensor-network localization (seed 003 §VI-E (ii); Biswas et al. [1]_).
+"""Regularized SDP sensor-network localization (Funiak et al. 2008 §VI-E (ii); Biswas et al. [1]_).
 
 Inequality form with the spreading regularizer: module 0 is put at the origin and the Gram matrix
 Y of the other centres solves

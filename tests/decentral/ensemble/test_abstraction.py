@@ -1,4 +1,4 @@
-"""Tests of random leaders, hop-count clusters and the abstracted graph (seed 003 §IV-C, §V-A)."""
+"""Tests of random leaders, hop-count clusters and the abstracted graph (Funiak et al. 2008 §IV-C, §V-A)."""
 
 import numpy as np
 from scipy import sparse

@@ -1,4 +1,4 @@
-"""Tests of the closed-form rigid alignment from aggregable statistics (seed 003 eq. 5)."""
+"""Tests of the closed-form rigid alignment from aggregable statistics (Funiak et al. 2008 eq. 5)."""
 
 import numpy as np
 from hypothesis import given, settings

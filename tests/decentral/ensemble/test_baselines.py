@@ -1,4 +1,4 @@
-"""Tests of the seed 003 §VI-E baselines."""
+"""Tests of the Funiak et al. 2008 §VI-E baselines."""
 
 import numpy as np
 import pytest

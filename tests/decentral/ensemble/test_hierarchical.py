@@ -1,4 +1,4 @@
-"""Tests of seed 003's Algorithm 1 (normalized-cut localization)."""
+"""Tests of Funiak et al.'s Algorithm 1 (normalized-cut localization)."""
 
 import numpy as np
 import pytest

@@ -1,4 +1,4 @@
-"""Tests of the observation model, likelihood and gradients (seed 003 eq. 1-3)."""
+"""Tests of the observation model, likelihood and gradients (Funiak et al. 2008 eq. 1-3)."""
 
 import numpy as np
 from hypothesis import given, settings

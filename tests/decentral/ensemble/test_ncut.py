@@ -1,4 +1,4 @@
-"""Tests of the sparse spectral normalized cut (seed 003 eq. 4)."""
+"""Tests of the sparse spectral normalized cut (Funiak et al. 2008 eq. 4)."""
 
 import numpy as np
 from scipy import sparse
@@ -15,7 +15,7 @@ def _grid(nx, ny, offset=0):
 
 
 def _two_rooms(k=12, bridges=2):
-    """Two dense k x k grids joined by ``bridges`` edges (seed 003 Fig. 3a)."""
+    """Two dense k x k grids joined by ``bridges`` edges (Funiak et al. 2008 Fig. 3a)."""
     e = _grid(k, k) + _grid(k, k, k * k)
     for b in range(bridges):
         e.append(((k - 1) * k + b * (k // bridges), k * k + b * (k // bridges)))

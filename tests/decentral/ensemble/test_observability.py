@@ -12,7 +12,7 @@ R_MOD = 0.05
 
 
 def _observe(x, R, rng, noise=0.1):
-    """Noisy observations (seed 003 eq. 1) of every touching pair of centres ``x`` (n, d)."""
+    """Noisy observations (Funiak et al. 2008 eq. 1) of every touching pair of centres ``x`` (n, d)."""
     pairs = cKDTree(x).query_pairs(2 * R_MOD * 1.01, output_type="ndarray")
     i = np.concatenate([pairs[:, 0], pairs[:, 1]])
     j = np.concatenate([pairs[:, 1], pairs[:, 0]])

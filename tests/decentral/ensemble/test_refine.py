@@ -1,4 +1,4 @@
-"""Tests of maximum-likelihood refinement (seed 003 eq. 3)."""
+"""Tests of maximum-likelihood refinement (Funiak et al. 2008 eq. 3)."""
 
 import numpy as np
 import pytest
@@ -52,7 +52,7 @@ def test_reported_cost_matches_model(lattice):
 
 @pytest.mark.parametrize("dim,shape", [(2, (9, 9)), (3, (4, 4, 3))])
 def test_pcg_reaches_the_alternating_optimum(lattice, dim, shape):
-    """The seed's refiner (preconditioned nonlinear CG) reaches the same noisy maximum likelihood."""
+    """The paper's refiner (preconditioned nonlinear CG) reaches the same noisy maximum likelihood."""
     prob, x, R = lattice(dim, shape, noise=0.2, seed=3)
     a = refine(prob, x, R, RefineConfig(method="alternating", gtol=1e-9, max_iter=2000))
     b = refine(prob, x, R, RefineConfig(method="pcg", gtol=1e-9, max_iter=5000))

@@ -1,4 +1,4 @@
-"""Tests of the shape-capture containers (seed 003 §VI-A, Fig. 5 read as slices of shape capture)."""
+"""Tests of the shape-capture containers (Funiak et al. 2008 §VI-A, Fig. 5 read as slices of shape capture)."""
 
 from functools import lru_cache
 

@@ -1,4 +1,4 @@
-"""Tests of the distributed runner (seed 003 §V) against the centralized Algorithm 1."""
+"""Tests of the distributed runner (Funiak et al. 2008 §V) against the centralized Algorithm 1."""
 
 import numpy as np
 import pytest

@@ -152,7 +152,7 @@ def test_bad_spec_is_refused():
 
 
 def test_twin_clusters_are_joined_only_by_a_few_observations():
-    """seed 003 Fig. 3: the exact normalized cut of ``twin`` splits two halves linked by <= 6 pairs."""
+    """Funiak et al. 2008 Fig. 3: the exact normalized cut of ``twin`` splits two halves linked by <= 6 pairs."""
     from decentral.ensemble import EnsembleProblem, normalized_cut
 
     ens = generate(EnsembleSpec(shape="twin", n=600), np.random.default_rng(0))

@@ -66,7 +66,7 @@ def test_table1_geometry_matches_the_seed_setting():
     targets = ["A1", "A2", "A3"]
     dist = np.stack([np.linalg.norm(p[t][:, :2] - p["A0"][:, :2], axis=1) for t in targets])
     assert dist.min() > 0.6 and dist.max() < 3.0
-    # the seed's Table I implies 1.8-2.1 m observer-target distance (0.039 m is 2.09 %, 0.112 m 5.38 %)
+    # the paper's Table I implies 1.8-2.1 m observer-target distance (0.039 m is 2.09 %, 0.112 m 5.38 %)
     mean3d = np.mean([np.linalg.norm(p[t] - p["A0"], axis=1).mean() for t in targets])
     assert 1.7 < mean3d < 2.1
     shapes = {tuple(np.round(sim.world.assembly(t).shapes[0].centres, 3).ravel()) for t in targets}

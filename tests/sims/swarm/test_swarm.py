@@ -1,4 +1,4 @@
-"""Seed 004's swarm: world, sensing, on-board tracking, the radio, and the contract log it produces."""
+"""Kanovsky's swarm: world, sensing, on-board tracking, the radio, and the contract log it produces."""
 
 from __future__ import annotations
 
@@ -41,7 +41,7 @@ def test_log_is_a_valid_contract_log(run60):
 
 
 def test_detections_respect_the_view_cone(run60):
-    """Every detection is of a robot within max_distance and max_angle of the observer's heading (seed 004 §3.1)."""
+    """Every detection is of a robot within max_distance and max_angle of the observer's heading (Kanovsky §3.1)."""
     half = np.radians(FAST.max_angle_deg)
     count = 0
     for rep in run60.reports:
@@ -57,7 +57,7 @@ def test_detections_respect_the_view_cone(run60):
 
 
 def test_noiseless_detections_back_project_to_truth():
-    """With zero pixel noise, seed 000 eq. (1) recovers each seen robot's true relative position."""
+    """With zero pixel noise, Liu et al. 2024 eq. (1) recovers each seen robot's true relative position."""
     from decentral.geometry import backproject
 
     cfg = replace(FAST, pixel_sigma=0.0, radius_sigma=0.0, dropout=0.0)
@@ -77,7 +77,7 @@ def test_noiseless_detections_back_project_to_truth():
 
 
 def test_odometry_is_the_motion_in_the_previous_frame():
-    """Noiseless odometry equals seed 000 eq. (6): the new root pose in the previous root frame."""
+    """Noiseless odometry equals Liu et al. 2024 eq. (6): the new root pose in the previous root frame."""
     cfg = replace(FAST, odom_frac=0.0, odom_floor=0.0, yaw_frac=0.0, yaw_floor=0.0)
     world = SwarmWorld(cfg, seed=2)
     before = world.state.copy()

@@ -1,4 +1,4 @@
-"""Properties of the pinhole model in sims.world.camera (seed 000 eq. (1))."""
+"""Properties of the pinhole model in sims.world.camera (Liu et al. 2024 eq. (1))."""
 
 import numpy as np
 import pytest
