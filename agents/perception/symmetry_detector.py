@@ -114,7 +114,7 @@ class SymmetryConfig:
     weak_contrast: float = 130.0
     retries: int = 1
     retry_margin: float = 0.12
-    strong: float = 0.45
+    strong: float = 0.55
     max_circles: int = 64
     refine: RimRefineConfig = field(default_factory=RimRefineConfig)
 
