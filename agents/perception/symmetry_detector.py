@@ -111,7 +111,7 @@ class SymmetryConfig:
     outer_tie: float = 0.9
     retry_score: float = 0.3
     weak_score: float = 0.35
-    weak_contrast: float = 130.0
+    weak_contrast: float = 80.0
     retries: int = 1
     retry_margin: float = 0.12
     strong: float = 0.55
