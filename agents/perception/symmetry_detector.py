@@ -86,6 +86,10 @@ class SymmetryConfig:
     strong : float
         Suppression (:func:`agents.perception.hough.suppress`): of nested circles scoring at least
         this, the largest is kept (a rim around its tag); weaker ones are kept best first.
+    repeat : float
+        Accepted circles whose centres and radii lie within this share of the larger radius are
+        repeats of one rim: the best scored is kept, or a larger one scoring at least ``outer_tie``
+        of it (before suppression, whose largest-first rule would keep a repeat a little too large).
     max_circles : int
         At most this many circles are returned (best score first).
     refine : RimRefineConfig
@@ -115,6 +119,7 @@ class SymmetryConfig:
     retries: int = 1
     retry_margin: float = 0.12
     strong: float = 0.55
+    repeat: float = 0.2
     max_circles: int = 64
     refine: RimRefineConfig = field(default_factory=RimRefineConfig)
 
@@ -173,7 +178,8 @@ class SymmetryCircleDetector:
             return []
         circles, scores, ok = self._refined(fine_img, coarse)
         ok &= self._accepted(fine_img, circles, scores)
-        found = [Circle(*map(float, c), float(min(s, 1.0))) for c, s in zip(circles[ok], scores[ok])]
+        circles, scores = _merge_repeats(circles[ok], scores[ok], cfg.repeat, cfg.outer_tie)
+        found = [Circle(*map(float, c), float(min(s, 1.0))) for c, s in zip(circles, scores)]
         return suppress(found, cfg.strong)[: cfg.max_circles]
 
     def _threshold(self, circles: np.ndarray) -> np.ndarray:
@@ -269,6 +275,29 @@ def _fit_and_score(image, pts, strength, rough, cfg: RimRefineConfig, origin=Non
     ok &= (inl.sum(axis=1) >= 4) & (shift <= cfg.max_shift * origin[:, 2]) & np.all(np.isfinite(circles), axis=1)
     ok &= circles[:, 2] > 0
     return circles, np.where(ok, inl.sum(axis=1) / cfg.coarse_rays, 0.0), ok
+
+
+def _merge_repeats(circles: np.ndarray, scores: np.ndarray, within: float, outer_tie: float
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """One circle per group of repeats (centres and radii within ``within`` of the larger radius):
+    taken best score first, a repeat replaces the kept circle only when it is larger and scores at
+    least ``outer_tie`` of it (the rule of :func:`agents.perception.rim.keep_better`)."""
+    if within <= 0 or len(circles) < 2:
+        return circles, scores
+    order = np.argsort(-scores, kind="stable")
+    kept: list[int] = []
+    for i in order:
+        u, v, r = circles[i]
+        for slot, j in enumerate(kept):
+            big = max(r, circles[j, 2])
+            if np.hypot(u - circles[j, 0], v - circles[j, 1]) < within * big and abs(r - circles[j, 2]) < within * big:
+                if r > circles[j, 2] and scores[i] >= outer_tie * scores[j]:
+                    kept[slot] = i
+                break
+        else:
+            kept.append(i)
+    idx = np.array(kept, dtype=int)
+    return circles[idx], scores[idx]
 
 
 def _on_image_scores(circles: np.ndarray, scores: np.ndarray, shape: tuple, cfg: RimRefineConfig) -> np.ndarray:

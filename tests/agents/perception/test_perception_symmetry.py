@@ -77,3 +77,15 @@ def test_weak_rim_is_kept_with_a_faint_print_inside_but_not_around_plain_floor()
     scores = np.array([0.4, 0.4])
     assert scores[0] < det._threshold(circles)[0]
     assert det._accepted(img, circles, scores).tolist() == [True, False]
+
+
+def test_repeats_of_one_rim_keep_the_better_circle_but_a_rim_and_its_tag_both_go_on():
+    """Of two circles 8 % apart the better scored is kept unless the larger scores at least 0.9 of it;
+    a circle half the size inside (a tag) is no repeat and is left for the suppression."""
+    from agents.perception.symmetry_detector import _merge_repeats
+
+    circles = np.array([[100.0, 100.0, 20.0], [100.5, 100.0, 21.6], [100.0, 100.0, 10.0]])
+    kept, _ = _merge_repeats(circles, np.array([0.9, 0.7, 0.8]), 0.2, 0.9)
+    assert sorted(kept[:, 2].tolist()) == [10.0, 20.0]
+    kept, _ = _merge_repeats(circles, np.array([0.9, 0.85, 0.8]), 0.2, 0.9)
+    assert sorted(kept[:, 2].tolist()) == [10.0, 21.6]
