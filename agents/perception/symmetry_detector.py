@@ -78,13 +78,18 @@ class SymmetryConfig:
         Circles short of the threshold that score at least ``weak_score`` are kept when the image
         inside 0.7 of their radius spreads by at least ``weak_contrast`` grey levels (summed over
         the channels): a tagged node whose rim its struts and neighbours hide in part.
-    retry_score, retries : float, int
+    retry_score, retries, retry_margin : float, int, float
         Only circles scoring at least ``retry_score`` on the coarse rays are refined on all rays;
-        those that then fall short of the threshold but score at least ``retry_score`` are refined
-        ``retries`` more times from their own result.
+        those that then fall short of the threshold by at most ``retry_margin`` (and score at least
+        ``retry_score``) are refined ``retries`` more times from their own result (circles further
+        below gained nothing from it on the tuning scenes, and were a third of the refinement's cost).
     strong : float
         Suppression (:func:`agents.perception.hough.suppress`): of nested circles scoring at least
         this, the largest is kept (a rim around its tag); weaker ones are kept best first.
+    repeat : float
+        Accepted circles whose centres and radii lie within this share of the larger radius are
+        repeats of one rim: the best scored is kept, or a larger one scoring at least ``outer_tie``
+        of it (before suppression, whose largest-first rule would keep a repeat a little too large).
     max_circles : int
         At most this many circles are returned (best score first).
     refine : RimRefineConfig
@@ -110,9 +115,11 @@ class SymmetryConfig:
     outer_tie: float = 0.9
     retry_score: float = 0.3
     weak_score: float = 0.35
-    weak_contrast: float = 130.0
+    weak_contrast: float = 80.0
     retries: int = 1
-    strong: float = 0.45
+    retry_margin: float = 0.12
+    strong: float = 0.55
+    repeat: float = 0.2
     max_circles: int = 64
     refine: RimRefineConfig = field(default_factory=RimRefineConfig)
 
@@ -171,7 +178,8 @@ class SymmetryCircleDetector:
             return []
         circles, scores, ok = self._refined(fine_img, coarse)
         ok &= self._accepted(fine_img, circles, scores)
-        found = [Circle(*map(float, c), float(min(s, 1.0))) for c, s in zip(circles[ok], scores[ok])]
+        circles, scores = _merge_repeats(circles[ok], scores[ok], cfg.repeat, cfg.outer_tie)
+        found = [Circle(*map(float, c), float(min(s, 1.0))) for c, s in zip(circles, scores)]
         return suppress(found, cfg.strong)[: cfg.max_circles]
 
     def _threshold(self, circles: np.ndarray) -> np.ndarray:
@@ -194,14 +202,15 @@ class SymmetryCircleDetector:
 
         A circle a little off a rim that a tag or a neighbour crowds converges over further passes
         (the first fits, with tight gates, hold to the rays already on the rim): circles short of
-        the threshold but scoring at least ``retry_score`` are refined ``retries`` more times.
+        the threshold by at most ``retry_margin`` are refined ``retries`` more times.
         """
         cfg = self.config
         shape = fine_img.shape
         circles, scores, ok = _refine_outward(fine_img, coarse, cfg.refine, cfg.min_score, cfg.outer_tie,
                                               cfg.retry_score)
         scores = _on_image_scores(circles, scores, shape, cfg.refine)
-        retry = ok & (scores < self._threshold(circles)) & (scores >= cfg.retry_score)
+        need = self._threshold(circles)
+        retry = ok & (scores < need) & (scores >= np.maximum(cfg.retry_score, need - cfg.retry_margin))
         for _ in range(cfg.retries if retry.any() else 0):
             again, again_scores, again_ok = refine_circles(fine_img, circles[retry], cfg.refine)
             again_scores = _on_image_scores(again, again_scores, shape, cfg.refine)
@@ -266,6 +275,29 @@ def _fit_and_score(image, pts, strength, rough, cfg: RimRefineConfig, origin=Non
     ok &= (inl.sum(axis=1) >= 4) & (shift <= cfg.max_shift * origin[:, 2]) & np.all(np.isfinite(circles), axis=1)
     ok &= circles[:, 2] > 0
     return circles, np.where(ok, inl.sum(axis=1) / cfg.coarse_rays, 0.0), ok
+
+
+def _merge_repeats(circles: np.ndarray, scores: np.ndarray, within: float, outer_tie: float
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """One circle per group of repeats (centres and radii within ``within`` of the larger radius):
+    taken best score first, a repeat replaces the kept circle only when it is larger and scores at
+    least ``outer_tie`` of it (the rule of :func:`agents.perception.rim.keep_better`)."""
+    if within <= 0 or len(circles) < 2:
+        return circles, scores
+    order = np.argsort(-scores, kind="stable")
+    kept: list[int] = []
+    for i in order:
+        u, v, r = circles[i]
+        for slot, j in enumerate(kept):
+            big = max(r, circles[j, 2])
+            if np.hypot(u - circles[j, 0], v - circles[j, 1]) < within * big and abs(r - circles[j, 2]) < within * big:
+                if r > circles[j, 2] and scores[i] >= outer_tie * scores[j]:
+                    kept[slot] = i
+                break
+        else:
+            kept.append(i)
+    idx = np.array(kept, dtype=int)
+    return circles[idx], scores[idx]
 
 
 def _on_image_scores(circles: np.ndarray, scores: np.ndarray, shape: tuple, cfg: RimRefineConfig) -> np.ndarray:

@@ -63,3 +63,29 @@ def test_make_detector_builds_the_symmetry_detector_with_its_radius_range():
     det = make_detector("symmetry", 10.2, 90.5)
     assert isinstance(det, SymmetryCircleDetector)
     assert (det.config.min_radius, det.config.max_radius) == (10, 91)
+
+
+def test_weak_rim_is_kept_with_a_faint_print_inside_but_not_around_plain_floor():
+    """A circle short of the score threshold is kept when a print of 70 grey levels contrast lies inside it
+    (a small rendered node whose struts hide part of its rim), and dropped around a plain patch."""
+    det = SymmetryCircleDetector()
+    img = np.full((200, 300, 3), 120.0, np.float32)
+    yy, xx = np.mgrid[0:200, 0:300]
+    print_ = (np.hypot(xx - 80, yy - 100) < 18) & (((xx // 5) + (yy // 5)) % 2 == 0)
+    img[print_] -= 70.0  # the print's dark cells, as blurred on a 25 px node
+    circles = np.array([[80.0, 100.0, 25.0], [220.0, 100.0, 25.0]])
+    scores = np.array([0.4, 0.4])
+    assert scores[0] < det._threshold(circles)[0]
+    assert det._accepted(img, circles, scores).tolist() == [True, False]
+
+
+def test_repeats_of_one_rim_keep_the_better_circle_but_a_rim_and_its_tag_both_go_on():
+    """Of two circles 8 % apart the better scored is kept unless the larger scores at least 0.9 of it;
+    a circle half the size inside (a tag) is no repeat and is left for the suppression."""
+    from agents.perception.symmetry_detector import _merge_repeats
+
+    circles = np.array([[100.0, 100.0, 20.0], [100.5, 100.0, 21.6], [100.0, 100.0, 10.0]])
+    kept, _ = _merge_repeats(circles, np.array([0.9, 0.7, 0.8]), 0.2, 0.9)
+    assert sorted(kept[:, 2].tolist()) == [10.0, 20.0]
+    kept, _ = _merge_repeats(circles, np.array([0.9, 0.85, 0.8]), 0.2, 0.9)
+    assert sorted(kept[:, 2].tolist()) == [10.0, 21.6]
