@@ -93,3 +93,18 @@ def test_every_option_of_every_command_has_help(name):
     for action in sub._actions:
         if action.dest != "help":
             assert action.help and action.help.strip(), f"{name} {action.option_strings or action.dest}"
+
+
+def test_code_and_docs_cite_the_papers_by_their_authors():
+    """No module, test, benchmark or document refers to a paper by an internal number (seed and three
+    digits) that a reader of the package cannot resolve, nor to how the project was developed (a
+    numbered session or issue)."""
+    banned = re.compile(r"\bseeds? 00[0-9]\b|\bsession[- ][0-9]|\bissue [0-9]", re.IGNORECASE)
+    offenders = []
+    for folder in ("decentral", "protocols", "agents", "sims", "benchmarks", "tests", "docs", "studies"):
+        for path in sorted((ROOT / folder).rglob("*")):
+            if path.suffix in (".py", ".md", ".toml") and path.is_file():
+                for k, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+                    if banned.search(line) and "banned = re.compile" not in line:
+                        offenders.append(f"{path.relative_to(ROOT)}:{k}")
+    assert not offenders, offenders[:10]

@@ -1,4 +1,4 @@
-"""An observer's perception front end (seed 000 §III): node circles, AprilTag ids, tracking.
+"""An observer's perception front end (Liu et al. 2024 §III): node circles, AprilTag ids, tracking.
 
 Each stage sits behind a small protocol (:class:`CircleDetector`, :class:`Identifier`,
 :class:`Tracker`) so it can be swapped; :class:`Perception` chains them. OpenCV is used here (and in

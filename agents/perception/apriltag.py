@@ -1,6 +1,6 @@
-"""Identification: OpenCV's AprilTag 36h11 detector run inside each circle (seed 000 §III-B).
+"""Identification: OpenCV's AprilTag 36h11 detector run inside each circle (Liu et al. 2024 §III-B).
 
-Seed 000 filters AprilTag reads by the decision margin and the hamming distance. OpenCV's ArUco
+Liu et al. 2024 filters AprilTag reads by the decision margin and the hamming distance. OpenCV's ArUco
 module (which decodes the AprilTag families) exposes neither: it returns corners, ids and, with
 ``detectMarkersWithConfidence``, a confidence in [0, 1]. So each accepted read is re-measured here
 from its own pixels: the tag is rectified from its corners onto the family's cell grid, each cell's

@@ -1,6 +1,6 @@
 """The classical default circle detector: OpenCV Hough circles, sub-pixel refinement, suppression.
 
-Seed 000 §III-A detects nodes as bounding circles with a learned detector; this default needs no
+Liu et al. 2024 §III-A detects nodes as bounding circles with a learned detector; this default needs no
 training: ``cv2.HoughCircles`` proposes rough circles on a smoothed image (generously: false
 proposals are cheap), each is refined to sub-pixel accuracy and scored by
 :func:`agents.perception.refine.refine_circles`,

@@ -4,7 +4,7 @@ BoT-SORT compensates the camera's own motion before associating [1]_. Two source
 
 - :func:`odometry_homography`: from the observer's own odometry (its root's yaw change) and the
   camera's mounting, the homography of the camera's rotation ``K R^T K^-1`` (translation is
-  ignored: its image motion depends on depth; at the seed's speeds and 5 Hz it is the rotation
+  ignored: its image motion depends on depth; at the paper's speeds and 5 Hz it is the rotation
   that moves the image most);
 - :class:`FlowRegistration`: image registration, sparse Lucas-Kanade optical flow of background
   corners (the node circles masked out) and a RANSAC similarity (``cv2.estimateAffinePartial2D``).

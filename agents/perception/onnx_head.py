@@ -1,6 +1,6 @@
 """A user's own learned circle detector (a CircleNet-style head [1]_) loaded from ONNX with ``cv2.dnn``.
 
-Seed 000 §III-A detects nodes with a YOLO network whose head predicts bounding circles. This loader
+Liu et al. 2024 §III-A detects nodes with a YOLO network whose head predicts bounding circles. This loader
 runs such a network exported to ONNX, with this output convention (CircleNet's):
 
 - ``heatmap`` (1, 1, h, w): centre likelihood in [0, 1] on a grid of stride ``H / h`` input pixels;
@@ -15,7 +15,7 @@ rim fit of the classical detector (:mod:`agents.perception.refine`) polishes the
 References
 ----------
 .. [1] H. Yang et al., "CircleNet: Anchor-free glomerulus detection with circle representation",
-   MICCAI 2020 (seed 000 ref. [30]).
+   MICCAI 2020 (Liu et al. 2024 ref. [30]).
 """
 
 from __future__ import annotations

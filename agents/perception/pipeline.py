@@ -1,4 +1,4 @@
-"""The perception front end of one camera: detect circles, read tags, track (seed 000 §III).
+"""The perception front end of one camera: detect circles, read tags, track (Liu et al. 2024 §III).
 
 :class:`Perception` chains the three swappable stages (any objects meeting the protocols of
 :mod:`agents.perception.types`) and the camera-motion source; :func:`perceive_frames` runs it over a

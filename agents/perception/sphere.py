@@ -1,4 +1,4 @@
-"""From a sphere's image circle to the circle of seed 000 eq. (1) (centre projection, f r0 / z).
+"""From a sphere's image circle to the circle of Liu et al. 2024 eq. (1) (centre projection, f r0 / z).
 
 A sphere's silhouette in a pinhole image is an ellipse, not a circle: off the optical axis its best
 circle is larger than ``f r0 / z`` and its centre is pushed outwards (5-8 % in radius at the edge of

@@ -195,7 +195,7 @@ class SphereTagReader:
         K = np.asarray(K, dtype=float)
         R_cam = np.asarray(R_cam, dtype=float)
         f = K[0, 0]
-        centre = np.linalg.solve(K, [circle.u, circle.v, 1.0]) * (f * node_radius / circle.r)  # seed 000 eq. (1)
+        centre = np.linalg.solve(K, [circle.u, circle.v, 1.0]) * (f * node_radius / circle.r)  # Liu et al. 2024 eq. (1)
         view = -centre / np.linalg.norm(centre)
         # a sticker faces the camera when its axis (root frame) points along the view (root frame)
         facing = self._axes_root @ (R_cam @ view) >= cfg.min_facing  # (Y, S)

@@ -1,15 +1,15 @@
-"""The AprilTag-pose baseline of seed 000 §V-C 1: target pose from the tag on its root node.
+"""The AprilTag-pose baseline of Liu et al. 2024 §V-C 1: target pose from the tag on its root node.
 
 For each step, the tag read on a target's root node gives the tag's pose in the camera from its
 four image corners (``cv2.solvePnPGeneric`` with ``SOLVEPNP_IPPE_SQUARE``, and SQPnP as a check,
 the lower reprojection error winning; the tag taken as a flat square:
-precisely what a sticker bent around a sphere is not, seed 000 §III-B). The node centre lies
+precisely what a sticker bent around a sphere is not, Liu et al. 2024 §III-B). The node centre lies
 ``depth`` behind the tag along its normal (``depth`` = distance from the sphere centre to the plane
 of the print's four corners), the camera's mounting maps it into the observer's root frame, and
 the target root is that node (the root node sits at the origin of H_r). The yaw is the tag's right
 axis measured in the root frame, minus the sticker's own azimuth on the node; since copies of the
 tag sit all around the equator, it is ambiguous by the sticker spacing, and is resolved towards the
-previous step's estimate (seed 000 reports no angular error for this baseline).
+previous step's estimate (Liu et al. 2024 reports no angular error for this baseline).
 """
 
 from __future__ import annotations

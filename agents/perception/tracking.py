@@ -1,4 +1,4 @@
-"""A BoT-SORT-style tracker of node circles that carries node ids through tag drop-outs (seed 000 §III-C).
+"""A BoT-SORT-style tracker of node circles that carries node ids through tag drop-outs (Liu et al. 2024 §III-C).
 
 Per frame: every track's Kalman state is predicted one frame ahead and moved by the camera motion
 (if given); detections are split by score; high-score detections are associated first with all

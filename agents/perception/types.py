@@ -1,4 +1,4 @@
-"""Data types and the swappable stage interfaces of the perception front end (seed 000 §III).
+"""Data types and the swappable stage interfaces of the perception front end (Liu et al. 2024 §III).
 
 An image goes through three stages, each behind a :class:`typing.Protocol` so a user can swap it:
 a :class:`CircleDetector` (image -> bounding circles, §III-A), an :class:`Identifier` (AprilTag reads
@@ -26,7 +26,7 @@ __all__ = [
 
 @dataclass(frozen=True)
 class Circle:
-    """A bounding circle of one spherical node in an image (seed 000 §III-A, y = [u, v, r]).
+    """A bounding circle of one spherical node in an image (Liu et al. 2024 §III-A, y = [u, v, r]).
 
     Attributes
     ----------
@@ -47,7 +47,7 @@ class Circle:
 
 @dataclass(frozen=True)
 class TagRead:
-    """One AprilTag read inside a circle (seed 000 §III-B).
+    """One AprilTag read inside a circle (Liu et al. 2024 §III-B).
 
     Attributes
     ----------

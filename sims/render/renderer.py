@@ -90,7 +90,7 @@ class Frame:
         BGR frame.
     nodes : list[dict]
         The nodes with at least one visible pixel: ``id``; the model circle ``u``, ``v``, ``r``
-        (seed 000 eq. (1) inverted: projected centre, ``f r_0 / z_c``); the exact silhouette's
+        (Liu et al. 2024 eq. (1) inverted: projected centre, ``f r_0 / z_c``); the exact silhouette's
         centre and equal-area radius ``su``, ``sv``, ``sr``; and ``visible``, the fraction of the
         silhouette's pixels not hidden by nearer objects.
     """
@@ -192,7 +192,7 @@ class Renderer:
                                                 tag=tag_cells(node), stickers=self.stickers)
                 if c[2] > world.node_radius:
                     uvw = K @ c
-                    # seed 000 eq. (1) inverted, and the sphere's exact silhouette (an ellipse)
+                    # Liu et al. 2024 eq. (1) inverted, and the sphere's exact silhouette (an ellipse)
                     circles[node] = (uvw[0] / c[2], uvw[1] / c[2], K[0, 0] * world.node_radius / c[2],
                                      *silhouette_circle(K, c, world.node_radius))
             for a, b in shape.struts:

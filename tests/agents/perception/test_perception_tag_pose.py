@@ -63,7 +63,7 @@ def test_far_small_tag_keeps_the_centre_but_not_the_normal():
 
 
 def test_non_root_tags_are_not_used():
-    """A tag read only on a non-root node places nothing (the seed's baseline uses the root tag)."""
+    """A tag read only on a non-root node places nothing (the paper's baseline uses the root tag)."""
     p_root = np.array([1.8, 0.3, -0.1])
     est = estimate_log_tag_pose(_log(1, p_root), {"A0/cam0": [{6: _corners(p_root, np.pi, 0)}]})
     assert est.steps[0].poses == {}
