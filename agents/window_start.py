@@ -30,8 +30,8 @@ class WindowStart:
         The agent has run an ADMM round in this window (its estimate is then the consensus once converged).
     fallback : dict
         Assembly -> ``(R, p)`` at this step of what the joint solution places (of every live agent's
-        forms, or of those that came before the wait for them ended): the step's answer while the ADMM
-        has not converged (its iterates on the way are not estimates).
+        forms, or of those that came before the wait for them ended): the step's answer unless this agent
+        ran ADMM rounds in the window and they converged (iterates on the way are not estimates).
     """
 
     seeds: dict = field(default_factory=dict)
