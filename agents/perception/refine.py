@@ -12,6 +12,7 @@ circle is its score. Everything is vectorised over all proposals of a frame.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import cv2
 import numpy as np
@@ -25,7 +26,7 @@ from agents.perception.circle_fit import (
     sampson_distances,
 )
 
-__all__ = ["RefineConfig", "coarse_fit", "refine_circles", "rim_points"]
+__all__ = ["RefineConfig", "coarse_fit", "coarse_score", "refine_circles", "rim_points"]
 
 
 @dataclass(frozen=True)
@@ -293,16 +294,34 @@ def coarse_fit(image: np.ndarray, rough: np.ndarray, cfg: RefineConfig) -> tuple
         return rough.copy(), np.zeros(0), np.zeros(0, dtype=bool)
     r0 = rough[:, 2]
     pts, strength = rim_points(image, rough, cfg.band, cfg, rays=cfg.coarse_rays, samples=cfg.coarse_samples)
+    return coarse_score(pts, strength, rough, rough, r0, [0.25 * r0, 0.12 * r0], cfg)
+
+
+def coarse_score(pts: np.ndarray, strength: np.ndarray, start: np.ndarray, rough: np.ndarray, r0: np.ndarray,
+                 gates: list, cfg: RefineConfig, edges: Callable | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Fit circles robustly to coarse-ray rim points and score them (the last step of every coarse pass).
+
+    ``pts`` (N, R, 2) and ``strength`` (N, R) are the rim points, ``start`` (N, 3) the circles the fit
+    starts from, ``gates`` its first shrinking gates (the coarse tolerance ``tol + tol_rel r0 + 0.02 r0``
+    is the last), ``rough`` (N, 3) the proposals a circle may not move far from (``max_shift r0``).
+    ``edges(pts, circles)``, if given, is a further (N, R) condition on the inliers. Returns (circles,
+    scores over the coarse rays, ok) as :func:`coarse_fit`.
+    """
     tol = cfg.tol + cfg.tol_rel * r0 + 0.02 * r0
-    circles, ok = _robust_fit(pts, strength, rough, [0.25 * r0, 0.12 * r0, tol])
+    circles, ok = _robust_fit(pts, strength, start, [*gates, tol])
     inl = (strength > 0) & (np.abs(circle_residuals(pts, circles)) < tol[:, None])
+    if edges is not None:
+        inl &= edges(pts, circles)
     shift = np.hypot(circles[:, 0] - rough[:, 0], circles[:, 1] - rough[:, 1])
     ok &= (inl.sum(axis=1) >= 4) & (shift <= cfg.max_shift * r0) & np.all(np.isfinite(circles), axis=1)
     ok &= circles[:, 2] > 0
     return circles, np.where(ok, inl.sum(axis=1) / cfg.coarse_rays, 0.0), ok
 
 
-def refine_circles(image: np.ndarray, rough: np.ndarray, cfg: RefineConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def refine_circles(image: np.ndarray, rough: np.ndarray, cfg: RefineConfig, *, nearest: bool = False,
+                   ellipse_margin: float = 0.0, edges: Callable | None = None, min_step: float | None = None
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Refine circles on ``image`` ((H, W) float32, lightly smoothed): a narrow band around each
     (already roughly right) circle, gated algebraic fits, then geometric steps on the inliers.
 
@@ -318,6 +337,16 @@ def refine_circles(image: np.ndarray, rough: np.ndarray, cfg: RefineConfig) -> t
     ----------
     rough : ndarray, shape (N, 3)
         Circles within a few per cent of the rim (e.g. from :func:`coarse_fit`).
+    nearest : bool
+        On each ray the edge nearest the rough circle, else the strongest (:func:`rim_points`).
+    ellipse_margin : float
+        Share of the rays by which an ellipse must fit more rays than the circle to replace it.
+    edges : callable, optional
+        ``edges(pts (N, R, 2), circles (N, 3))`` -> (N, R) bool: a further condition on the inliers
+        (the rim detectors: the gradient points along the ray).
+    min_step : float, optional
+        Least median edge step of the supporting rays (a rim is an edge: a smooth bright patch of
+        floor can be round, with radial gradients of a grey level per pixel).
 
     Returns
     -------
@@ -333,7 +362,7 @@ def refine_circles(image: np.ndarray, rough: np.ndarray, cfg: RefineConfig) -> t
     rough = np.asarray(rough, dtype=float).reshape(-1, 3)
     if len(rough) == 0:
         return rough.copy(), np.zeros(0), np.zeros(0, dtype=bool)
-    pts, strength = rim_points(image, rough, cfg.fine_band, cfg)
+    pts, strength = rim_points(image, rough, cfg.fine_band, cfg, nearest=nearest)
     r0 = rough[:, 2]
     tol = cfg.tol + cfg.tol_rel * r0
     circles, ok = _robust_fit(pts, strength, rough, [0.06 * r0 + cfg.tol, 2.0 * tol, tol, tol])
@@ -343,10 +372,17 @@ def refine_circles(image: np.ndarray, rough: np.ndarray, cfg: RefineConfig) -> t
     inl = valid & (np.abs(circle_residuals(pts, circles)) < tol[:, None])
     if cfg.max_axis_ratio > 1.0:
         h, w = image.shape[:2]
-        circles, inl = _ellipse_stage(pts, strength, circles, inl, tol, cfg, ((w - 1) / 2.0, (h - 1) / 2.0))
+        circles, inl = _ellipse_stage(pts, strength, circles, inl, tol, cfg, ((w - 1) / 2.0, (h - 1) / 2.0),
+                                      ellipse_margin)
+    if edges is not None:
+        inl &= edges(pts, circles)
     shift = np.hypot(circles[:, 0] - rough[:, 0], circles[:, 1] - rough[:, 1])
     ok &= (inl.sum(axis=1) >= 5) & (shift <= 0.25 * r0) & (circles[:, 2] > 0)
     ok &= np.all(np.isfinite(circles), axis=1)
+    if min_step is not None:
+        ranked = -np.sort(-np.where(inl, strength, 0.0), axis=1)  # supporting steps first, largest first
+        median = ranked[np.arange(len(ranked)), np.maximum(inl.sum(axis=1) // 2, 0)]
+        ok &= median >= min_step
     scores = np.where(ok, inl.sum(axis=1) / cfg.rays, 0.0)
     return circles, scores, ok
 

@@ -15,19 +15,18 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from agents.perception.circle_fit import circle_residuals, fit_circles_geometric
 from agents.perception.refine import (
     RefineConfig,
     _edge_nearest,
-    _ellipse_stage,
     _local_maxima,
     _radial_steps,
     _ray_points,
     _robust_fit,
     _sample,
     _subsample,
-    rim_points,
+    coarse_score,
 )
+from agents.perception.refine import refine_circles as _refine_circles  # (this module's refine_circles wraps it)
 
 __all__ = ["RimRefineConfig", "coarse_fit", "radial_edges", "refine_circles", "rim_votes"]
 
@@ -284,71 +283,17 @@ def _settle(image: np.ndarray, found: np.ndarray, rough: np.ndarray, cfg: RimRef
     """Re-vote the rim of circles ``found`` (N, 3) from their own centres, fit robustly, score."""
     pts, strength, r0 = rim_votes(image, found, cfg, band=(0.75, 1.35))
     start = np.column_stack([found[:, :2], r0])
-    tol = cfg.tol + cfg.tol_rel * r0 + 0.02 * r0
-    circles, ok = _robust_fit(pts, strength, start, [0.12 * r0, 0.06 * r0, tol])
-    inl = (strength > 0) & (np.abs(circle_residuals(pts, circles)) < tol[:, None])
-    inl &= radial_edges(image, pts, circles)
-    shift = np.hypot(circles[:, 0] - rough[:, 0], circles[:, 1] - rough[:, 1])
-    ok &= (inl.sum(axis=1) >= 4) & (shift <= cfg.max_shift * r0) & np.all(np.isfinite(circles), axis=1)
-    ok &= circles[:, 2] > 0
-    return circles, np.where(ok, inl.sum(axis=1) / cfg.coarse_rays, 0.0), ok
+    return coarse_score(pts, strength, start, rough, r0, [0.12 * r0, 0.06 * r0], cfg,
+                        edges=lambda p, c: radial_edges(image, p, c))
 
 
 def refine_circles(image: np.ndarray, rough: np.ndarray, cfg: RimRefineConfig, *, nearest: bool = True
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Refine circles on ``image`` ((H, W) float32, lightly smoothed): a narrow band around each
-    (already roughly right) circle, gated algebraic fits, then geometric steps on the inliers.
-
-    A sphere off the optical axis images as an ellipse (axis ratio about ``1 / cos`` of the
-    off-axis angle: 1.17 at 31 deg), whose rim strays from any circle by more than the inlier
-    tolerance once the node is large; a circle fitted with a tight gate then holds to part of the
-    rim and comes out too large or too small. So an ellipse is also fitted (direct least squares on
-    the rim points near the circle, then re-gated on Sampson distances); where it explains more
-    rays than the circle, the circle returned is the ellipse's centre and equal-area radius
-    ``sqrt(a b)`` (the convention of a silhouette circle).
-
-    Parameters
-    ----------
-    rough : ndarray, shape (N, 3)
-        Circles within a few per cent of the rim (e.g. from :func:`coarse_fit`).
-    nearest : bool
-        On each ray the edge nearest the rough circle (default), else the outermost strong one
-        (see :func:`rim_points`).
-
-    Returns
-    -------
-    circles : ndarray, shape (N, 3)
-        Refined (u, v, r).
-    scores : ndarray, shape (N,)
-        Fraction of all rays whose rim point lies within the final tolerance of the circle (of the
-        ellipse, where that was kept).
-    ok : ndarray of bool, shape (N,)
-        False where no consistent rim was found (fewer than 5 inliers, a degenerate fit, or a
-        centre that moved more than a quarter radius).
-    """
-    rough = np.asarray(rough, dtype=float).reshape(-1, 3)
-    if len(rough) == 0:
-        return rough.copy(), np.zeros(0), np.zeros(0, dtype=bool)
-    pts, strength = rim_points(image, rough, cfg.fine_band, cfg, nearest=nearest)
-    r0 = rough[:, 2]
-    tol = cfg.tol + cfg.tol_rel * r0
-    circles, ok = _robust_fit(pts, strength, rough, [0.06 * r0 + cfg.tol, 2.0 * tol, tol, tol])
-    valid = strength > 0
-    inl = valid & (np.abs(circle_residuals(pts, circles)) < tol[:, None])
-    circles = fit_circles_geometric(pts, np.where(inl, strength * strength, 0.0), circles)
-    inl = valid & (np.abs(circle_residuals(pts, circles)) < tol[:, None])
-    if cfg.max_axis_ratio > 1.0:
-        h, w = image.shape[:2]
-        circles, inl = _ellipse_stage(pts, strength, circles, inl, tol, cfg, ((w - 1) / 2.0, (h - 1) / 2.0),
-                                      cfg.ellipse_margin)
-    inl &= radial_edges(image, pts, circles)
-    shift = np.hypot(circles[:, 0] - rough[:, 0], circles[:, 1] - rough[:, 1])
-    ok &= (inl.sum(axis=1) >= 5) & (shift <= 0.25 * r0) & (circles[:, 2] > 0)
-    ok &= np.all(np.isfinite(circles), axis=1)
-    # a rim is an edge: the median step of its supporting rays must reach ``min_rim_step`` (a
-    # smooth bright patch of floor can be round, with radial gradients of a grey level per pixel)
-    ranked = -np.sort(-np.where(inl, strength, 0.0), axis=1)  # supporting steps first, largest first
-    median = ranked[np.arange(len(ranked)), np.maximum(inl.sum(axis=1) // 2, 0)]
-    ok &= median >= cfg.min_rim_step
-    scores = np.where(ok, inl.sum(axis=1) / cfg.rays, 0.0)
-    return circles, scores, ok
+    """The default detector's fine fit (:func:`agents.perception.refine.refine_circles`: a narrow band
+    around each rough (N, 3) circle, gated fits, the ellipse stage) with the rim detectors' rules: on
+    each ray the edge nearest the rough circle (``nearest``, default) or else the outermost strong
+    one, an ellipse kept only by ``cfg.ellipse_margin`` more rays, inliers whose gradient points along
+    the ray (:func:`radial_edges`), and a median edge step of at least ``cfg.min_rim_step``.
+    Returns (circles (N, 3), scores (N,), ok (N,)) as that function."""
+    return _refine_circles(image, rough, cfg, nearest=nearest, ellipse_margin=cfg.ellipse_margin,
+                           edges=lambda p, c: radial_edges(image, p, c), min_step=cfg.min_rim_step)
