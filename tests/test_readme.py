@@ -164,7 +164,7 @@ def test_pages_say_nothing_about_how_the_project_was_developed():
 def test_result_files_are_named_by_their_parameters_and_cited():
     """No committed result or study file is named after when or in which attempt it was made, and every
     result file is cited by name in the benchmarks' README or the docs."""
-    files = [p for folder in (RESULTS, ROOT / "studies") for p in sorted(folder.rglob("*")) if p.is_file()]
+    files = [p for folder in (RESULTS, ROOT / "studies", DOCS) for p in sorted(folder.rglob("*")) if p.is_file()]
     assert files
     badly_named = [p.relative_to(ROOT).as_posix() for p in files if WHEN.search(p.stem)]
     assert not badly_named, badly_named
@@ -175,6 +175,18 @@ def test_result_files_are_named_by_their_parameters_and_cited():
         if not re.search(rf"(?<![\w.-]){re.escape(stem)}(\.|\b)", cited):
             uncited.append(stem)
     assert not uncited, uncited
+
+
+def test_every_result_file_a_page_names_exists():
+    """Each `benchmarks/results/...` path the pages name (braces and * expanded) matches a committed file."""
+    missing = []
+    for page in PAGES:
+        for path in re.findall(r"benchmarks/results/([\w./*{},-]+)", page.read_text(encoding="utf-8")):
+            path = path.rstrip(".,")
+            braces = re.search(r"\{([^}]*)\}", path)
+            options = [path.replace(braces.group(0), o) for o in braces.group(1).split(",")] if braces else [path]
+            missing += [f"{page.name}: {o}" for o in options if o and not list(RESULTS.glob(o))]
+    assert not missing, missing
 
 
 @pytest.mark.parametrize("name", sorted(COMMANDS))
