@@ -1,7 +1,7 @@
 """Extended Kalman filtering of planar poses for one-node robots (Kanovsky's future work, §5).
 
 A planar pose ``s = (x, y, theta)`` of frame B in frame A maps ``x_A = R(theta) x_B + (x, y)``
-(CONTRACT.md conventions, yaw about z). Composition and inverse:
+(docs/formats.md conventions, yaw about z). Composition and inverse:
 
 .. math::
 

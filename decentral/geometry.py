@@ -1,6 +1,6 @@
 """Planar-yaw geometry shared by the estimators.
 
-Conventions (CONTRACT.md): a pose "of B in A" maps ``x_A = R x_B + p``; horizontal frames have z up;
+Conventions (docs/formats.md): a pose "of B in A" maps ``x_A = R x_B + p``; horizontal frames have z up;
 a yaw-only rotation is ``R = blkdiag(R2, 1)`` with ``R2`` in SO(2) (Liu et al. 2024 eq. (16)).
 """
 

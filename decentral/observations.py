@@ -268,7 +268,7 @@ def require_increasing_times(times: Sequence[float], field: str = "steps") -> No
     """Raise :class:`InputError` naming ``{field}[k].t`` at the first time that does not exceed the one before.
 
     Logs, estimates and ground truths all key their steps by time; a repeated or backward time would
-    make two steps indistinguishable (the contract, §4: "step times that do not increase" are bad input).
+    make two steps indistinguishable (docs/formats.md: "step times that do not increase" are bad input).
     """
     previous = -np.inf
     for k, t in enumerate(times):

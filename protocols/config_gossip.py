@@ -170,7 +170,7 @@ class ConfigGossip:
         """Unnamed nodes that an assembly whose configuration has not arrived here may still own.
 
         Once every other assembly's configuration is in (announcements, answers to ``config_request``,
-        relays), a node none of them lists is a stray tag (CONTRACT §1: skipped): it neither holds the
+        relays), a node none of them lists is a stray tag (docs/formats.md: skipped): it neither holds the
         convergence flag nor triggers requests. Until then an unnamed node may be a pair still to
         come, and an agent that reported convergence without it would report the joint solution of
         a view graph that lacks the pair (4-ring at 50 % loss: 20 mm off, flagged converged).

@@ -1,4 +1,4 @@
-"""``decentral agent``: one assembly's agent as its own process over the real transport (CONTRACT §5)."""
+"""``decentral agent``: one assembly's agent as its own process over the real transport (docs/processes.md)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""``decentral ensemble``: ``decentral.ensemble/1`` observations in, module poses out (CONTRACT §3-4).
+"""``decentral ensemble``: ``decentral.ensemble/1`` observations in, module poses out (docs/formats.md).
 
 ``--method ncut`` (default) is Funiak et al.'s Algorithm 1; ``incremental``, ``mds``, ``sdp`` and
 ``bottom-up`` are the baselines of its §VI-E. ``--distributed`` runs Algorithm 1 as one agent per

@@ -1,4 +1,4 @@
-"""``decentral export``: an estimate or a ground truth as per-assembly trajectory files (CONTRACT §7).
+"""``decentral export``: an estimate or a ground truth as per-assembly trajectory files (docs/formats.md).
 
 The input's ``format`` field decides what it is: a ``decentral.estimate/1`` gives one file per
 assembly it places, a ``decentral.truth/1`` one per assembly other than the reference, both relative

@@ -1,4 +1,4 @@
-"""``decentral launch``: a whole log as one ``decentral agent`` process per assembly on loopback (CONTRACT §5)."""
+"""``decentral launch``: a whole log as one ``decentral agent`` process per assembly on loopback (docs/processes.md)."""
 
 from __future__ import annotations
 

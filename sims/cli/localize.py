@@ -1,4 +1,4 @@
-"""``decentral localize``: a ``decentral.log/1`` in, a ``decentral.estimate/1`` out (CONTRACT §4).
+"""``decentral localize``: a ``decentral.log/1`` in, a ``decentral.estimate/1`` out (docs/formats.md).
 
 A progress bar counts log steps (with ADMM rounds and messages in ``--mode admm``); one summary
 line closes the run. ``--mode admm`` warns on stderr when steps hit ``--max-rounds`` without

@@ -1,4 +1,4 @@
-"""``decentral study``: run a declared sweep into a SQLite store, resumably (CONTRACT §6).
+"""``decentral study``: run a declared sweep into a SQLite store, resumably (docs/formats.md).
 
 The spec (TOML: ``name``, ``command``, ``[fixed]``, ``[grid]``) is checked whole before any cell
 runs; cells without a row in ``DIR/study.sqlite`` then run on the chosen engine, and each finished

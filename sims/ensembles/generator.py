@@ -9,7 +9,7 @@ connected group of the observation graph cannot be localized relative to the res
 
 Files (both written atomically, ``np.load(..., allow_pickle=False)`` reads them):
 
-- observations, CONTRACT §3: ``format`` = ``decentral.ensemble/1``, ``dim``, ``n``, ``radius``,
+- observations, docs/formats.md: ``format`` = ``decentral.ensemble/1``, ``dim``, ``n``, ``radius``,
   ``i``, ``j`` (E ints), ``z`` (E x dim);
 - truth: ``format`` = ``decentral.ensemble_truth/1``, ``dim``, ``n``, ``radius``, ``position``
   (n x dim), ``orientation`` (n angles, or n x 4 unit quaternions w, x, y, z: module frame to world),
@@ -184,7 +184,7 @@ def _save_npz(path: str | os.PathLike, arrays: dict) -> None:
 
 
 def save_observations(path: str | os.PathLike, ens: Ensemble) -> None:
-    """Write the observations as ``decentral.ensemble/1`` (CONTRACT §3), atomically."""
+    """Write the observations as ``decentral.ensemble/1`` (docs/formats.md), atomically."""
     _save_npz(
         path,
         {

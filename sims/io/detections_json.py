@@ -10,7 +10,7 @@
 
 A frame may carry its capture time ``"t"`` in seconds (optional; ``decentral build-log`` uses it to
 place the frame in time); the times given must increase from frame to frame. ``id`` is the node id (null where neither the tag nor the track names the node), ``track`` the track
-number (null when untracked). ``tag`` (optional, beyond the contract) is the accepted tag read inside
+number (null when untracked). ``tag`` (optional, beyond the format's required fields) is the accepted tag read inside
 the circle: its tag id, hamming distance, decision margin and image corners (canonical order).
 
 :func:`assemble_log` fills the detections of an observation log (``decentral.log/1``) from per-frame

@@ -1,4 +1,4 @@
-"""Read and validate ``decentral.ensemble/1`` observations; write ensemble estimates (CONTRACT §3).
+"""Read and validate ``decentral.ensemble/1`` observations; write ensemble estimates (docs/formats.md).
 
 The reader never trusts the file: every array is checked for presence, type, shape and finiteness,
 and the problem's invariants (ids in range, no self-observation, symmetric pairs) are checked by

@@ -1,4 +1,4 @@
-"""A study specification: the TOML file that declares a sweep (CONTRACT §6).
+"""A study specification: the TOML file that declares a sweep (docs/formats.md).
 
 .. code-block:: toml
 

@@ -18,7 +18,7 @@ from protocols.network import LinkConfig
 
 __all__ = ["SwarmConfig", "CAM_LOOKS_ALONG_X"]
 
-#: camera-in-strut rotation of an OpenCV camera looking along the strut's +x (CONTRACT.md example)
+#: camera-in-strut rotation of an OpenCV camera looking along the strut's +x (the example of docs/formats.md)
 CAM_LOOKS_ALONG_X = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
 

@@ -1,4 +1,4 @@
-"""Tests of ``decentral ensemble`` (CONTRACT §3-4): outputs, and the exit-2 contract on bad input."""
+"""Tests of ``decentral ensemble`` (docs/formats.md): outputs, and the exit-2 contract on bad input."""
 
 from __future__ import annotations
 

@@ -172,7 +172,7 @@ CONTRACT_EXAMPLE = {
 
 @pytest.mark.parametrize("mode", ["centralized", "admm"])
 def test_contract_example_leaves_an_undetermined_yaw_out(tmp_path, mode):
-    """CONTRACT §1's example: one node seen at t=0 leaves A1's yaw open, so A1 is left out there, placed at t=0.2."""
+    """The one-node example log: one node seen at t=0 leaves A1's yaw open, so A1 is left out there, placed at t=0.2."""
     out = tmp_path / "est.json"
     assert main(["localize", str(write(tmp_path, CONTRACT_EXAMPLE)), "-o", str(out), "--mode", mode]) == 0
     steps = json.loads(out.read_text())["steps"]
@@ -180,7 +180,7 @@ def test_contract_example_leaves_an_undetermined_yaw_out(tmp_path, mode):
 
 
 def test_both_modes_count_the_same_stray_tags_in_stats(tmp_path):
-    """A detection whose id no assembly holds (CONTRACT §1) is counted in stats.stray_detections by both modes."""
+    """A detection whose id no assembly holds (docs/formats.md) is counted in stats.stray_detections by both modes."""
     doc = copy.deepcopy(CONTRACT_EXAMPLE)
     doc["steps"][0]["detections"]["A0/cam0"].append({"id": 99, "u": 300.0, "v": 380.0, "r": 20.0})
     doc["steps"][1]["detections"]["A0/cam0"] += [{"id": 42, "u": 200.0, "v": 380.0, "r": 20.0},

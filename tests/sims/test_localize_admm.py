@@ -228,7 +228,7 @@ def test_cli_admm_mode_writes_the_contract_estimate_with_counts(tmp_path):
 
 def test_a_stray_tag_is_skipped_once_every_configuration_is_in():
     """A detection no assembly owns (a stray tag) every step: exact, and once the agent holds every
-    assembly's configuration (no loss: after the first announcements) it is skipped (CONTRACT §1) and no
+    assembly's configuration (no loss: after the first announcements) it is skipped (docs/formats.md) and no
     window waits for its name."""
     import dataclasses
 

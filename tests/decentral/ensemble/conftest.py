@@ -1,7 +1,7 @@
 """Fixtures for the ensemble tests: noiseless and noisy lattices under the contract's model.
 
 An observation z_ij lies on module i's perimeter, in i's local frame, pointing to j (Funiak et al. 2008
-§III-A, CONTRACT §3); in a noiseless lattice it is exactly R_i^T (c_j - c_i) / 2.
+§III-A, docs/formats.md); in a noiseless lattice it is exactly R_i^T (c_j - c_i) / 2.
 """
 
 from __future__ import annotations

@@ -128,7 +128,7 @@ def test_pairs_beyond_reach_are_never_seen():
 
 
 def test_files_round_trip_with_contract_fields(tmp_path, triple):
-    """The observation file has exactly CONTRACT §3's fields and the truth file reads back."""
+    """The observation file has exactly the fields docs/formats.md lists and the truth file reads back."""
     obs, truth = tmp_path / "obs.npz", tmp_path / "truth.npz"
     save_observations(obs, triple)
     save_truth(truth, triple, seed=3)
