@@ -13,7 +13,8 @@ parts:
   rotations and message counts per phase;
 - ``perception``: the detections of the default pipeline and of every named detector on rendered frames.
 
-Usage: ``python benchmarks/fingerprint.py [--parts admm,central,ensemble,perception] [-o OUT.json]``.
+Usage: ``python benchmarks/fingerprint.py [--parts admm,central,ensemble,perception] [--out DIR]``
+(the hashes are printed and saved as ``DIR/fingerprint.json``).
 """
 
 from __future__ import annotations
@@ -21,13 +22,13 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
-import os
 import sys
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 PARTS = ("admm", "central", "ensemble", "perception")
 
@@ -180,25 +181,24 @@ def perception_part() -> str:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    from _common import machine, output, parser
+
+    p = parser(__doc__)
     p.add_argument("--parts", default=",".join(PARTS), help=f"comma-separated subset of {', '.join(PARTS)}")
-    p.add_argument("-o", "--output", help="also write the hashes as JSON here (refuses to overwrite)")
     args = p.parse_args(argv)
     parts = [s for s in args.parts.split(",") if s]
     unknown = [s for s in parts if s not in PARTS]
     if unknown:
-        print(f"fingerprint: unknown part(s) {', '.join(unknown)} (known: {', '.join(PARTS)})", file=sys.stderr)
-        return 2
-    if args.output and os.path.exists(args.output):
-        print(f"fingerprint: {args.output}: exists, not overwritten", file=sys.stderr)
+        print(f"fingerprint: --parts: unknown part(s) {', '.join(unknown)} (known: {', '.join(PARTS)})",
+              file=sys.stderr)
         return 2
     fns = {"admm": admm_part, "central": central_part, "ensemble": ensemble_part, "perception": perception_part}
-    result = {}
+    hashes = {}
     for part in parts:
-        result[part] = fns[part]()
-        print(f"{part:<11} {result[part]}", flush=True)
-    if args.output:
-        Path(args.output).write_text(json.dumps(result, indent=2) + "\n")
+        hashes[part] = fns[part]()
+        print(f"{part:<11} {hashes[part]}", flush=True)
+    path = output(args.out, "fingerprint")
+    path.write_text(json.dumps({"benchmark": "fingerprint", "machine": machine(), "hashes": hashes}, indent=2) + "\n")
     return 0
 
 
