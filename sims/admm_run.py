@@ -296,6 +296,7 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
                  "alpha": config.admm.alpha, "metric": config.admm.metric, "metric_floor": config.admm.metric_floor,
                  "eps_rot": config.admm.eps_rot, "eps_pos": config.admm.eps_pos, "share_forms": config.share_forms,
                  "aggregation": config.aggregation},
+        "stray_detections": sum(step.stray_detections() for step in log.steps),
     }
     estimate = Estimate(reference, tuple(est_steps), stats)
     return AdmmRun(estimate, tuple(rounds), tuple(converged), tuple(per_agent), stats,
