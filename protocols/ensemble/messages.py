@@ -38,6 +38,7 @@ __all__ = [
     "TreeFlood",
     "Join",
     "ClusterClaim",
+    "GroupPayload",
     "Report",
     "Command",
     "PoseShare",
@@ -162,42 +163,40 @@ def _payload(obj) -> None:
     Message.__post_init__(obj)
 
 
+@dataclass(frozen=True, slots=True, eq=False, kw_only=True)
+class GroupPayload(Message):
+    """The fields of a group's step: arrays by name for step ``phase`` of group ``group`` at ``level``.
+
+    Not a kind itself: :class:`Report` (up the tree) and :class:`Command` (down it) are.
+    """
+
+    level: int
+    group: int
+    phase: str
+    payload: Mapping[str, np.ndarray]
+    seq: int = -1
+
+    def __post_init__(self) -> None:
+        _payload(self)
+        for name in ("level", "group", "seq"):
+            _int(self, name)
+        _phase(self)
+
+
 @register
 @dataclass(frozen=True, slots=True, eq=False, kw_only=True)
-class Report(Message):
+class Report(GroupPayload):
     """Convergecast: the aggregate of the sender's subtree for step ``phase`` (arrays by name)."""
 
     KIND: ClassVar[str] = "ens.report"
-    level: int
-    group: int
-    phase: str
-    payload: Mapping[str, np.ndarray]
-    seq: int = -1
-
-    def __post_init__(self) -> None:
-        _payload(self)
-        for name in ("level", "group", "seq"):
-            _int(self, name)
-        _phase(self)
 
 
 @register
 @dataclass(frozen=True, slots=True, eq=False, kw_only=True)
-class Command(Message):
+class Command(GroupPayload):
     """Dissemination: what the group leader decided in step ``phase`` (arrays by name)."""
 
     KIND: ClassVar[str] = "ens.command"
-    level: int
-    group: int
-    phase: str
-    payload: Mapping[str, np.ndarray]
-    seq: int = -1
-
-    def __post_init__(self) -> None:
-        _payload(self)
-        for name in ("level", "group", "seq"):
-            _int(self, name)
-        _phase(self)
 
 
 @register
