@@ -42,6 +42,15 @@ def _blocks(value: Any, field: str) -> MappingProxyType:
     return MappingProxyType(out)
 
 
+def _window_and_blocks(msg: Message) -> None:
+    """The checks every ADMM value kind makes: the base fields, an int ``window``, finite ``blocks``."""
+    Message.__post_init__(msg)
+    if isinstance(msg.window, bool) or not isinstance(msg.window, (int, np.integer)):
+        raise ProtocolError("field 'window': must be an int")
+    set_field(msg, "window", int(msg.window))
+    set_field(msg, "blocks", _blocks(msg.blocks, "blocks"))
+
+
 @register
 @dataclass(frozen=True, slots=True, eq=False, kw_only=True)
 class AdmmPrimal(Message):
@@ -61,11 +70,7 @@ class AdmmPrimal(Message):
     blocks: Mapping[str, np.ndarray]
 
     def __post_init__(self) -> None:
-        Message.__post_init__(self)
-        if isinstance(self.window, bool) or not isinstance(self.window, (int, np.integer)):
-            raise ProtocolError("field 'window': must be an int")
-        set_field(self, "window", int(self.window))
-        set_field(self, "blocks", _blocks(self.blocks, "blocks"))
+        _window_and_blocks(self)
 
 
 @register
@@ -90,11 +95,7 @@ class AdmmDual(Message):
     rho: float = 1.0
 
     def __post_init__(self) -> None:
-        Message.__post_init__(self)
-        if isinstance(self.window, bool) or not isinstance(self.window, (int, np.integer)):
-            raise ProtocolError("field 'window': must be an int")
-        set_field(self, "window", int(self.window))
-        set_field(self, "blocks", _blocks(self.blocks, "blocks"))
+        _window_and_blocks(self)
         rho = finite_float(self.rho, "rho")
         if rho <= 0:
             raise ProtocolError("field 'rho': must be positive")
