@@ -111,12 +111,11 @@ def _measure(folder: str, config: str, split: bool) -> dict:
     from decentral.ensemble.problem import EnsembleEstimate
     from decentral.ensemble.ordering import choose_ordering
     from decentral.ensemble.refine import LaplacianSolver
-    from sims.ensembles.generator import load_truth
-    from sims.io.ensemble_npz import read_ensemble
+    from sims.io.ensemble_npz import read_ensemble, read_ensemble_truth
 
     prob = read_ensemble(Path(folder) / "obs.npz")
-    truth = load_truth(Path(folder) / "truth.npz")
-    R = EnsembleEstimate.orientation_to_matrix(np.asarray(truth["orientation"]), prob.dim)
+    truth = read_ensemble_truth(Path(folder) / "truth.npz")
+    R = EnsembleEstimate.orientation_to_matrix(truth.orientation, prob.dim)
     # floor: reduced Laplacian factorization + one solve on the same graph
     floor_wall, floor_cpu = [], []
     for _ in range(3):
@@ -137,7 +136,7 @@ def _measure(folder: str, config: str, split: bool) -> dict:
         walls.append(time.perf_counter() - w0)
         cpus.append(time.process_time() - c0)
     wall, cpu = float(np.median(walls)), float(np.median(cpus))
-    err = evaluate(res.estimate.position, np.asarray(truth["position"]), prob.pairs(), prob.radius)
+    err = evaluate(res.estimate.position, truth.position, prob.pairs(), prob.radius)
     row = {}
     if split and prob.n <= 30000:
         # where the time goes: everything below the top level, from a run without the top refinement

@@ -142,7 +142,8 @@ def estimate_log_bearing(log: ObservationLog, config: BearingConfig = BearingCon
         if progress is not None:
             progress(k + 1, len(measurements))
     stats = {"estimator": "bearing", "window": config.window, "nodes": config.nodes,
-             "unplaced": count_reasons(step.unplaced for step in steps), "seconds": time.perf_counter() - start}
+             "unplaced": count_reasons(step.unplaced for step in steps),
+             "stray_detections": int(sum(m.stray for m in measurements)), "seconds": time.perf_counter() - start}
     return Estimate(reference, tuple(steps), stats)
 
 

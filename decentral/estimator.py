@@ -193,6 +193,22 @@ def estimate_log(log: ObservationLog, config: EstimatorConfig = EstimatorConfig(
         If ``log`` is not a well-formed :class:`ObservationLog` (e.g. a decoded JSON dict: read files
         with :func:`sims.io.log_json.read_log`), ``config`` not an :class:`EstimatorConfig`, or
         ``reference`` not one of its assemblies.
+
+    Examples
+    --------
+    Two assemblies on a circle, ``A``'s camera seeing ``B``'s nodes (an exact log of
+    :mod:`decentral.synthetic`); ``B``'s pose in ``A``'s root frame at every step:
+
+    >>> from decentral.synthetic import camera, circle_motion, l_config, make_log
+    >>> world = {"A": circle_motion(3, (0, 0), 1.0, 0.0, 0.1, 0.0), "B": circle_motion(3, (0, 0), 1.0, 0.8, 0.1, 0.0)}
+    >>> log = make_log(world, {"A": l_config([0, 1, 2, 3]), "B": l_config([10, 11, 12, 13])}, [camera("A", yaw=0.5)])
+    >>> est = estimate_log(log, EstimatorConfig(window=3))
+    >>> [sorted(step.poses) for step in est.steps], est.stats["all_certified"]
+    ([['B'], ['B'], ['B']], True)
+    >>> from decentral.synthetic import true_relative
+    >>> p, theta = true_relative(world, "B", "A", 2)
+    >>> bool(np.allclose(est.steps[2].poses["B"].p, p, atol=1e-6))
+    True
     """
     log = require_log(log)
     if not isinstance(config, EstimatorConfig):

@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import eigh
 
-from decentral.geometry import wrap_angle
+from decentral.geometry import rot2, wrap_angle
 
 __all__ = [
     "compose",
@@ -61,12 +61,6 @@ __all__ = [
 ]
 
 _DR = np.array([[0.0, -1.0], [1.0, 0.0]])  # d R(theta) / d theta = R(theta) @ _DR
-
-
-def rot2(theta: float) -> np.ndarray:
-    """SO(2) matrix (2, 2) of one angle (a scalar fast path of :func:`decentral.geometry.rot2`)."""
-    c, s = np.cos(theta), np.sin(theta)
-    return np.array([[c, -s], [s, c]])
 
 
 def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -21,6 +21,8 @@ __all__ = [
 def rot2(theta: float | np.ndarray) -> np.ndarray:
     """SO(2) matrix (or stack (..., 2, 2)) of angle(s) ``theta`` in radians."""
     c, s = np.cos(theta), np.sin(theta)
+    if np.ndim(theta) == 0:  # one angle: the filters' hot path, without the stacking
+        return np.array([[c, -s], [s, c]])
     return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
 
 

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from decentral.errors import InputError
+from decentral.geometry import yaw_of
 from decentral.observations import Estimate, require_estimate
 
 __all__ = ["GroundTruth", "AssemblyScore", "Score", "relative_truth", "score_estimate", "estimate_gap"]
@@ -116,10 +117,6 @@ class Score:
         }
 
 
-def _yaw(R: np.ndarray) -> np.ndarray:
-    return np.arctan2(R[..., 1, 0], R[..., 0, 0])
-
-
 def relative_truth(truth: GroundTruth, reference: str, target: str) -> tuple[np.ndarray, np.ndarray]:
     """True pose of ``target``'s root in ``reference``'s root frame at every step.
 
@@ -134,7 +131,7 @@ def relative_truth(truth: GroundTruth, reference: str, target: str) -> tuple[np.
     # Liu et al. 2024 eq. (19) on true poses: R_1^0 = R_0^T R_1, p_1^0 = R_0^T (p_1 - p_0)
     p = np.einsum("tji,tj->ti", R0, truth.p[target] - p0)
     R = np.einsum("tji,tjk->tik", R0, truth.R[target])
-    return p, _yaw(R)
+    return p, yaw_of(R)
 
 
 def _mean(values: list[float]) -> float | None:

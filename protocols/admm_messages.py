@@ -28,7 +28,8 @@ from typing import ClassVar
 import numpy as np
 
 from decentral.errors import ProtocolError
-from protocols.messages import Message, _finite_array, _set, as_array, register
+from protocols.fields import as_array, finite_array, set_field
+from protocols.message_base import Message, register
 
 __all__ = ["ConfigAnnounce", "ConfigRequest", "FactorShare", "FormAck", "FormBundle", "form_length", "pack_bundle",
            "pack_forms"]
@@ -63,10 +64,10 @@ class ConfigAnnounce(Message):
         Message.__post_init__(self)
         if isinstance(self.step, bool) or not isinstance(self.step, (int, np.integer)) or self.step < 0:
             raise ProtocolError("field 'step': must be a non-negative int")
-        _set(self, "step", int(self.step))
+        set_field(self, "step", int(self.step))
         ids = as_array(self.ids, "ids", dtype=np.int64, ndim=1)
-        _set(self, "ids", ids)
-        _set(self, "centres", _finite_array(self.centres, "centres", shape=(ids.shape[0], 3)))
+        set_field(self, "ids", ids)
+        set_field(self, "centres", finite_array(self.centres, "centres", shape=(ids.shape[0], 3)))
         if len(np.unique(ids)) != len(ids):
             raise ProtocolError("field 'ids': duplicate node ids")
         if not isinstance(self.owner, str):
@@ -90,7 +91,7 @@ class ConfigRequest(Message):
 
     def __post_init__(self) -> None:
         Message.__post_init__(self)
-        _set(self, "ids", as_array(self.ids, "ids", dtype=np.int64, ndim=1))
+        set_field(self, "ids", as_array(self.ids, "ids", dtype=np.int64, ndim=1))
 
 
 def form_length(m: int) -> int:
@@ -137,7 +138,7 @@ class FactorShare(Message):
         have = as_array(self.have, "have", dtype=np.int64, ndim=1)
         if len(have) and have.min() < 0:
             raise ProtocolError("field 'have': indices must be non-negative")
-        _set(self, "have", have)
+        set_field(self, "have", have)
         _check_forms(self)
 
     def unpack(self) -> list[tuple[tuple[tuple[int, int], ...], np.ndarray, np.ndarray, float]]:
@@ -159,21 +160,21 @@ def _check_forms(msg) -> None:
     """Validate and normalize the ``step``, ``keys``, ``forms`` and ``pin`` fields shared by the form kinds."""
     if isinstance(msg.step, bool) or not isinstance(msg.step, (int, np.integer)) or msg.step < 0:
         raise ProtocolError("field 'step': must be a non-negative int")
-    _set(msg, "step", int(msg.step))
+    set_field(msg, "step", int(msg.step))
     keys = as_array(np.asarray(msg.keys).reshape(-1, 3), "keys", dtype=np.int64, shape=(None, 3))
     if len(keys) and (keys.min() < 0 or keys[0, 0] != 0 or np.any(np.diff(keys[:, 0]) < 0)
                       or np.any(np.diff(keys[:, 0]) > 1)):
         raise ProtocolError("field 'keys': form indices must run 0, 1, ... and all entries be non-negative")
-    _set(msg, "keys", keys)
-    forms = _finite_array(msg.forms, "forms", ndim=1)
+    set_field(msg, "keys", keys)
+    forms = finite_array(msg.forms, "forms", ndim=1)
     sizes = np.bincount(keys[:, 0]) if len(keys) else np.zeros(0, int)
     if len(forms) != sum(form_length(int(m)) for m in sizes):
         raise ProtocolError(f"field 'forms': {len(forms)} floats do not match the forms of 'keys'")
-    _set(msg, "forms", forms)
-    pin = _finite_array(msg.pin, "pin", ndim=1)
+    set_field(msg, "forms", forms)
+    pin = finite_array(msg.pin, "pin", ndim=1)
     if len(pin) not in (0, 5):
         raise ProtocolError("field 'pin': expected 0 or 5 values")
-    _set(msg, "pin", pin)
+    set_field(msg, "pin", pin)
 
 
 def _unpack(keys: np.ndarray, forms: np.ndarray) -> list:
@@ -252,22 +253,22 @@ class FormBundle(Message):
         Message.__post_init__(self)
         if not isinstance(self.down, (bool, np.bool_)):
             raise ProtocolError("field 'down': must be a bool")
-        _set(self, "down", bool(self.down))
+        set_field(self, "down", bool(self.down))
         for name in ("hop", "depth", "start"):
-            _set(self, name, _count(getattr(self, name), name))
+            set_field(self, name, _count(getattr(self, name), name))
         if isinstance(self.parent, bool) or not isinstance(self.parent, (int, np.integer)) or self.parent < -1:
             raise ProtocolError("field 'parent': must be an int >= -1")
-        _set(self, "parent", int(self.parent))
+        set_field(self, "parent", int(self.parent))
         members = as_array(self.members, "members", dtype=np.int64, ndim=1)
         if len(members) and (members.min() < 0 or np.any(np.diff(members) <= 0)):
             raise ProtocolError("field 'members': must be sorted, unique and non-negative")
-        _set(self, "members", members)
+        set_field(self, "members", members)
         _check_forms(self)
         owners = as_array(self.owners, "owners", dtype=np.int64, ndim=1)
         n_forms = int(self.keys[:, 0].max()) + 1 if len(self.keys) else 0
         if len(owners) != n_forms or not np.isin(owners, members).all():
             raise ProtocolError("field 'owners': one member per form expected")
-        _set(self, "owners", owners)
+        set_field(self, "owners", owners)
 
     def records(self) -> dict[int, list]:
         """Member index -> its forms ``[(keys, M, b_z, c_z), ...]`` (empty list: a member with no form)."""
@@ -297,11 +298,11 @@ class FormAck(Message):
 
     def __post_init__(self) -> None:
         Message.__post_init__(self)
-        _set(self, "step", _count(self.step, "step"))
+        set_field(self, "step", _count(self.step, "step"))
         have = as_array(self.have, "have", dtype=np.int64, ndim=1)
         if len(have) and (have.min() < 0 or np.any(np.diff(have) <= 0)):
             raise ProtocolError("field 'have': must be sorted, unique and non-negative")
-        _set(self, "have", have)
+        set_field(self, "have", have)
 
 
 def pack_bundle(records: dict[int, list]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

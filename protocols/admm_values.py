@@ -1,5 +1,5 @@
-"""The values of the consensus rounds on the wire: what an agent sends in ``admm.primal``/``admm.dual``
-and what it keeps of what it hears.
+"""The values of the consensus rounds on the wire: the ``admm.primal``/``admm.dual`` kinds, what an agent
+sends in them and what it keeps of what it hears.
 
 Send half, :func:`value_blocks`: rows ``x`` = ``(step, R00, R01, R10, R11, px, py, pz)`` of the poses
 (consensus poses in an ``admm.primal``, a pair's copies plus duals of the target in an ``admm.dual``),
@@ -17,14 +17,90 @@ neighbour that stays silent. The ADMM arithmetic itself is :mod:`decentral.admm`
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any, ClassVar
 
 import numpy as np
 
 from decentral.admm import scalar_metric
-from protocols.messages import AdmmDual, AdmmPrimal
+from decentral.errors import ProtocolError
+from protocols.fields import finite_array, finite_float, set_field
+from protocols.message_base import Message, register
 
-__all__ = ["Inbound", "AdmmInbox", "value_blocks", "packed_metric"]
+__all__ = ["AdmmDual", "AdmmPrimal", "Inbound", "AdmmInbox", "value_blocks", "packed_metric"]
+
+def _blocks(value: Any, field: str) -> MappingProxyType:
+    if not isinstance(value, Mapping):
+        raise ProtocolError(f"field {field!r}: must map block names to float arrays")
+    out = {}
+    for key, arr in value.items():
+        if not isinstance(key, str) or not key:
+            raise ProtocolError(f"field {field!r}: block names must be non-empty str")
+        out[key] = finite_array(arr, f"{field}[{key}]")
+    return MappingProxyType(out)
+
+
+def _window_and_blocks(msg: Message) -> None:
+    """The checks every ADMM value kind makes: the base fields, an int ``window``, finite ``blocks``."""
+    Message.__post_init__(msg)
+    if isinstance(msg.window, bool) or not isinstance(msg.window, (int, np.integer)):
+        raise ProtocolError("field 'window': must be an int")
+    set_field(msg, "window", int(msg.window))
+    set_field(msg, "blocks", _blocks(msg.blocks, "blocks"))
+
+
+@register
+@dataclass(frozen=True, slots=True, eq=False, kw_only=True)
+class AdmmPrimal(Message):
+    """An agent's local copies of shared variable blocks after its primal update.
+
+    Attributes
+    ----------
+    window : int
+        Id of the estimation window (sliding window of steps) the iteration belongs to.
+    blocks : Mapping[str, ndarray]
+        Block name -> finite float64 array (any shape). Names are agreed by the protocol that uses them.
+    """
+
+    KIND: ClassVar[str] = "admm.primal"
+
+    window: int
+    blocks: Mapping[str, np.ndarray]
+
+    def __post_init__(self) -> None:
+        _window_and_blocks(self)
+
+
+@register
+@dataclass(frozen=True, slots=True, eq=False, kw_only=True)
+class AdmmDual(Message):
+    """Dual variables (scaled multipliers) of shared blocks, and the penalty they are scaled by.
+
+    Attributes
+    ----------
+    window : int
+        Estimation window id.
+    blocks : Mapping[str, ndarray]
+        Block name -> finite float64 array.
+    rho : float
+        Positive penalty parameter the duals refer to (so peers can follow penalty adaptation).
+    """
+
+    KIND: ClassVar[str] = "admm.dual"
+
+    window: int
+    blocks: Mapping[str, np.ndarray]
+    rho: float = 1.0
+
+    def __post_init__(self) -> None:
+        _window_and_blocks(self)
+        rho = finite_float(self.rho, "rho")
+        if rho <= 0:
+            raise ProtocolError("field 'rho': must be positive")
+        set_field(self, "rho", rho)
+
 
 #: the age of a value never heard (larger than any wait)
 NEVER = 10**9

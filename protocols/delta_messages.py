@@ -29,7 +29,8 @@ from typing import ClassVar
 import numpy as np
 
 from decentral.errors import ProtocolError
-from protocols.messages import Message, _finite_array, _set, as_array, register
+from protocols.fields import as_array, finite_array, set_field
+from protocols.message_base import Message, register
 
 __all__ = ["JointPoses", "DeltaBundle", "form_crc", "record_digest"]
 
@@ -104,37 +105,37 @@ class DeltaBundle(Message):
     def __post_init__(self) -> None:
         Message.__post_init__(self)
         for name in ("step", "hop", "depth"):
-            _set(self, name, _count(getattr(self, name), name))
-        _set(self, "parent", _count(self.parent, "parent", low=-1))
+            set_field(self, name, _count(getattr(self, name), name))
+        set_field(self, "parent", _count(self.parent, "parent", low=-1))
         members = as_array(self.members, "members", dtype=np.int16, ndim=1)
         if len(members) and (members.min() < 0 or np.any(np.diff(members) <= 0)):
             raise ProtocolError("field 'members': must be sorted, unique and non-negative")
-        _set(self, "members", members)
+        set_field(self, "members", members)
         owners = as_array(self.owners, "owners", dtype=np.int16, ndim=1)
         if not np.isin(owners, members).all():
             raise ProtocolError("field 'owners': one member per form expected")
-        _set(self, "owners", owners)
+        set_field(self, "owners", owners)
         n = len(owners)
         pairs = as_array(np.asarray(self.pairs).reshape(-1, 2), "pairs", dtype=np.int16, shape=(n, 2))
         if n and pairs.min() < 0:
             raise ProtocolError("field 'pairs': assembly indices must be non-negative")
-        _set(self, "pairs", pairs)
+        set_field(self, "pairs", pairs)
         lags = as_array(np.asarray(self.lags).reshape(-1, 2), "lags", dtype=np.uint8, shape=(n, 2))
         if n and int(lags.max()) > self.step:
             raise ProtocolError("field 'lags': a pose before step 0")
-        _set(self, "lags", lags)
+        set_field(self, "lags", lags)
         forms = as_array(self.forms, "forms", dtype=np.float32, shape=(PAIR_FORM * n,))
         if not np.all(np.isfinite(forms)):
             raise ProtocolError("field 'forms': must be finite in float32")
-        _set(self, "forms", forms)
-        pin = _finite_array(self.pin, "pin", ndim=1)
+        set_field(self, "forms", forms)
+        pin = finite_array(self.pin, "pin", ndim=1)
         if len(pin) not in (0, 5):
             raise ProtocolError("field 'pin': expected 0 or 5 values")
-        _set(self, "pin", pin)
+        set_field(self, "pin", pin)
         digest = as_array(np.asarray(self.digest).reshape(-1, 2), "digest", dtype=np.int64, ndim=2)
         if len(digest) != len(members) or (len(digest) and digest.min() < 0):
             raise ProtocolError("field 'digest': one (count, crc) row per member expected")
-        _set(self, "digest", digest)
+        set_field(self, "digest", digest)
 
     @staticmethod
     def pack(step: int, carried: dict) -> dict:
@@ -218,21 +219,21 @@ class JointPoses(Message):
     def __post_init__(self) -> None:
         Message.__post_init__(self)
         for name in ("step", "hop", "depth", "start"):
-            _set(self, name, _count(getattr(self, name), name))
-        _set(self, "n", _count(self.n, "n", low=1))
-        _set(self, "parent", _count(self.parent, "parent", low=-1))
+            set_field(self, name, _count(getattr(self, name), name))
+        set_field(self, "n", _count(self.n, "n", low=1))
+        set_field(self, "parent", _count(self.parent, "parent", low=-1))
         width = (self.n + 7) // 8
         for name in ("members", "index", "placeable"):
-            _set(self, name, as_array(getattr(self, name), name, dtype=np.uint8, shape=(width,)))
+            set_field(self, name, as_array(getattr(self, name), name, dtype=np.uint8, shape=(width,)))
         edges = as_array(self.edges, "edges", dtype=np.uint8, ndim=1)
         if len(edges) not in (0, (self.n * self.n + 7) // 8):
             raise ProtocolError("field 'edges': empty or an n x n bit mask expected")
-        _set(self, "edges", edges)
-        poses = _finite_array(np.asarray(self.poses).reshape(-1, 4), "poses", ndim=2).astype(np.float32)
+        set_field(self, "edges", edges)
+        poses = finite_array(np.asarray(self.poses).reshape(-1, 4), "poses", ndim=2).astype(np.float32)
         if len(poses) != len(self.indices("index")) or not np.all(np.isfinite(poses)):
             raise ProtocolError("field 'poses': one finite row (within float32) per assembly of 'index' expected")
         poses.setflags(write=False)
-        _set(self, "poses", poses)
+        set_field(self, "poses", poses)
 
     @staticmethod
     def mask(indices, n: int) -> np.ndarray:

@@ -14,7 +14,8 @@ from typing import ClassVar
 import numpy as np
 
 from decentral.errors import ProtocolError
-from protocols.messages import Message, _finite_array, _set, as_array, register
+from protocols.fields import as_array, finite_array, set_field
+from protocols.message_base import Message, register
 
 __all__ = ["RawStep"]
 
@@ -46,15 +47,15 @@ class RawStep(Message):
     def __post_init__(self) -> None:
         Message.__post_init__(self)
         ids = as_array(self.ids, "ids", dtype=np.int64, ndim=1)
-        _set(self, "ids", ids)
+        set_field(self, "ids", ids)
         uvr = np.asarray(self.uvr)
         if uvr.size % 3:  # before the reshape: a decoded frame may carry any element count
             raise ProtocolError("field 'uvr': rows of (u, v, r) expected")
-        uvr = _finite_array(uvr.reshape(-1, 3), "uvr", ndim=2)
+        uvr = finite_array(uvr.reshape(-1, 3), "uvr", ndim=2)
         if len(uvr) != len(ids):
             raise ProtocolError("field 'uvr': one row per id expected")
-        _set(self, "uvr", uvr)
-        odometry = _finite_array(self.odometry, "odometry", ndim=1)
+        set_field(self, "uvr", uvr)
+        odometry = finite_array(self.odometry, "odometry", ndim=1)
         if len(odometry) not in (0, 4):
             raise ProtocolError("field 'odometry': expected 0 or 4 values")
-        _set(self, "odometry", odometry)
+        set_field(self, "odometry", odometry)

@@ -1,6 +1,7 @@
-"""Vectorized rotations for ensemble modules: planar angles, unit quaternions and matrices.
+"""Vectorized rotations for ensemble modules: planar angles, unit quaternions, matrices, orientation models.
 
-Every function works on a stack of ``n`` rotations at once. Quaternions are (w, x, y, z), the
+Every function works on a stack of ``n`` rotations at once; :class:`Rotations2D` and :class:`Rotations3D`
+hold the orientations of the refiners with their closed-form per-module fit. Quaternions are (w, x, y, z), the
 convention of the ``decentral.ensemble/1`` estimate; a matrix ``R`` maps a vector written in the
 module's local frame to the global frame (``v_global = R @ v_local``).
 """
@@ -8,6 +9,8 @@ module's local frame to the global frame (``v_global = R @ v_local``).
 from __future__ import annotations
 
 import numpy as np
+
+from decentral.ensemble.sparse_ops import row_matrix
 
 __all__ = [
     "angle_to_matrix",
@@ -17,6 +20,9 @@ __all__ = [
     "so3_exp",
     "project_to_rotation",
     "skew",
+    "Rotations",
+    "Rotations2D",
+    "Rotations3D",
 ]
 
 
@@ -182,3 +188,67 @@ def _project_3d(M: np.ndarray, iterations: int = 12, tol: float = 1e-13) -> np.n
     if rest.size:
         out[rest] = _project_svd(M[rest])
     return out
+
+
+class Rotations:
+    """Orientation model shared by 2D and 3D: observations as a sparse operator on stacked matrices.
+
+    ``Z`` (E, d n) holds z_e at the columns (i_e, 0..d-1), so ``Z @ Rt`` with ``Rt[(i, b), a] =
+    R_i[a, b]`` gives R_i z_e for every observation, and ``Z^T @ h`` gives the per-module sums
+    M_i[a, b] = sum_e h_e[a] z_e[b] that the closed-form fit needs (Funiak et al. 2008 eq. (1) per module).
+    """
+
+    def __init__(self, i, z, n):
+        d = z.shape[1]
+        self.n, self.d = n, d
+        self.Z = row_matrix(d * i[:, None] + np.arange(d), z, d * n)
+        self.ZT = self.Z.T.tocsr()
+
+    def rotate(self, R: np.ndarray) -> np.ndarray:
+        """R_i z_e for every observation (E, d) from matrices R (n, d, d)."""
+        return self.Z @ np.ascontiguousarray(R.transpose(0, 2, 1)).reshape(-1, self.d)
+
+    def moments(self, dvec: np.ndarray) -> np.ndarray:
+        """M (n, d, d), M_i[a, b] = sum_{e: i_e = i} dvec_e[a] z_e[b]."""
+        return (self.ZT @ dvec).reshape(self.n, self.d, self.d).transpose(0, 2, 1)
+
+
+class Rotations2D(Rotations):
+    """Orientation state as angles (cheaper than matrices for the planar sweeps)."""
+
+    def from_matrices(self, R):
+        return matrix_to_angle(R)
+
+    def to_matrices(self, theta):
+        return angle_to_matrix(theta)
+
+    def apply(self, theta):
+        return self.rotate(angle_to_matrix(theta))
+
+    def fit(self, dvec):
+        # Funiak et al. 2008 eq. (1) per module, closed form: theta = atan2(sum z x d, sum z . d)
+        M = self.moments(dvec)
+        return np.arctan2(M[:, 1, 0] - M[:, 0, 1], M[:, 0, 0] + M[:, 1, 1])
+
+
+class Rotations3D(Rotations):
+    """Orientation state as matrices (n, 3, 3)."""
+
+    def __init__(self, i, z, n):
+        super().__init__(i, z, n)
+        self.lonely = np.bincount(i, minlength=n) == 0
+
+    def from_matrices(self, R):
+        return np.asarray(R, float)
+
+    def to_matrices(self, R):
+        return R
+
+    def apply(self, R):
+        return self.rotate(R)
+
+    def fit(self, dvec):
+        # per-module Kabsch fit of R z_ij onto (c_j - c_i)/2
+        M = self.moments(dvec)
+        M[self.lonely] = np.eye(3)
+        return project_to_rotation(M)

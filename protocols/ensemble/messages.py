@@ -29,7 +29,8 @@ from typing import ClassVar, Mapping
 import numpy as np
 
 from decentral.errors import ProtocolError
-from protocols.messages import Message, _set, as_array, register
+from protocols.fields import as_array, set_field
+from protocols.message_base import Message, register
 
 __all__ = [
     "PHASES",
@@ -38,6 +39,7 @@ __all__ = [
     "TreeFlood",
     "Join",
     "ClusterClaim",
+    "GroupPayload",
     "Report",
     "Command",
     "PoseShare",
@@ -60,7 +62,7 @@ def _int(obj, name: str) -> None:
     v = getattr(obj, name)
     if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
         raise ProtocolError(f"field {name!r}: must be an int, got {type(v).__name__}")
-    _set(obj, name, int(v))
+    set_field(obj, name, int(v))
 
 
 def _phase(obj) -> None:
@@ -95,7 +97,7 @@ class Hello(Message):
         z = tuple(float(v) for v in as_array(self.z, "z", dtype=np.float64).ravel())
         if len(z) not in (2, 3) or not all(np.isfinite(z)):
             raise ProtocolError("field 'z': need 2 or 3 finite floats")
-        _set(self, "z", z)
+        set_field(self, "z", z)
         Message.__post_init__(self)
         _int(self, "seq")
 
@@ -158,46 +160,44 @@ def _payload(obj) -> None:
     data = obj.payload
     if not isinstance(data, Mapping):
         raise ProtocolError("field 'payload': must be a mapping of arrays")
-    _set(obj, "payload", {str(k): as_array(v, f"payload[{k}]") for k, v in data.items()})
+    set_field(obj, "payload", {str(k): as_array(v, f"payload[{k}]") for k, v in data.items()})
     Message.__post_init__(obj)
 
 
+@dataclass(frozen=True, slots=True, eq=False, kw_only=True)
+class GroupPayload(Message):
+    """The fields of a group's step: arrays by name for step ``phase`` of group ``group`` at ``level``.
+
+    Not a kind itself: :class:`Report` (up the tree) and :class:`Command` (down it) are.
+    """
+
+    level: int
+    group: int
+    phase: str
+    payload: Mapping[str, np.ndarray]
+    seq: int = -1
+
+    def __post_init__(self) -> None:
+        _payload(self)
+        for name in ("level", "group", "seq"):
+            _int(self, name)
+        _phase(self)
+
+
 @register
 @dataclass(frozen=True, slots=True, eq=False, kw_only=True)
-class Report(Message):
+class Report(GroupPayload):
     """Convergecast: the aggregate of the sender's subtree for step ``phase`` (arrays by name)."""
 
     KIND: ClassVar[str] = "ens.report"
-    level: int
-    group: int
-    phase: str
-    payload: Mapping[str, np.ndarray]
-    seq: int = -1
-
-    def __post_init__(self) -> None:
-        _payload(self)
-        for name in ("level", "group", "seq"):
-            _int(self, name)
-        _phase(self)
 
 
 @register
 @dataclass(frozen=True, slots=True, eq=False, kw_only=True)
-class Command(Message):
+class Command(GroupPayload):
     """Dissemination: what the group leader decided in step ``phase`` (arrays by name)."""
 
     KIND: ClassVar[str] = "ens.command"
-    level: int
-    group: int
-    phase: str
-    payload: Mapping[str, np.ndarray]
-    seq: int = -1
-
-    def __post_init__(self) -> None:
-        _payload(self)
-        for name in ("level", "group", "seq"):
-            _int(self, name)
-        _phase(self)
 
 
 @register
@@ -227,7 +227,7 @@ class PoseShare(Message):
             values = np.asarray(self.pose, dtype="<f8").ravel()
         if values.size not in (6, 12) or not np.all(np.isfinite(values)):
             raise ProtocolError("field 'pose': need 6 (2D) or 12 (3D) finite float64 values")
-        _set(self, "pose", values.tobytes())
+        set_field(self, "pose", values.tobytes())
         Message.__post_init__(self)
         for name in ("level", "group", "iteration", "seq"):
             _int(self, name)

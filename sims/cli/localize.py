@@ -9,7 +9,6 @@ all (the estimate is still written: its ``stats`` say what the network did).
 from __future__ import annotations
 
 import argparse
-import dataclasses
 
 from decentral.errors import InputError
 from decentral.factors import NoiseModel
@@ -159,10 +158,7 @@ def _run_admm(log, args, noise, reference, progress):
 
     config = AdmmRunConfig(window=args.window, noise=noise, loss=args.loss, share_forms=args.share_forms,
                            aggregation=args.aggregation, max_rounds=args.max_rounds)
-    estimate = run_admm(log, reference, config, seed=args.seed, progress=progress).estimate
-    # the contract counts stray tags in every estimate's stats, as the centralized estimator does
-    stray = sum(step.stray_detections() for step in log.steps)
-    return dataclasses.replace(estimate, stats={**estimate.stats, "stray_detections": stray})
+    return run_admm(log, reference, config, seed=args.seed, progress=progress).estimate
 
 
 def _report(estimate, args: argparse.Namespace, n_assemblies: int) -> int:

@@ -13,7 +13,6 @@ from sims.ensembles.generator import (
     Ensemble,
     EnsembleSpec,
     generate,
-    load_truth,
     save_observations,
     save_truth,
 )
@@ -27,7 +26,6 @@ __all__ = [
     "EnsembleSpec",
     "SensorModel",
     "generate",
-    "load_truth",
     "save_observations",
     "save_truth",
 ]

@@ -43,7 +43,6 @@ __all__ = [
     "generate",
     "save_observations",
     "save_truth",
-    "load_truth",
 ]
 
 
@@ -217,13 +216,3 @@ def save_truth(path: str | os.PathLike, ens: Ensemble, seed: int | None = None) 
             "pairs": np.unique(np.sort(np.stack([ens.i, ens.j], 1), axis=1), axis=0).reshape(-1, 2),
         },
     )
-
-
-def load_truth(path: str | os.PathLike) -> dict[str, np.ndarray]:
-    """Read a ``decentral.ensemble_truth/1`` file into a dict of arrays (checks the format)."""
-    from sims.io.ensemble_npz import read_npz_arrays
-
-    out = read_npz_arrays(path)  # bounded like the observations; errors name the file
-    if str(out.get("format", "")) != TRUTH_FORMAT:
-        raise InputError(f"expected format {TRUTH_FORMAT!r}", source=str(path), field="format")
-    return out

@@ -194,11 +194,17 @@ class EnsembleTruth:
         Module radius, metres.
     pairs : ndarray of int64, shape (P, 2), or None
         Observed neighbour pairs (``i < j``), when the file holds them.
+    orientation : ndarray, shape (n,) or (n, 4), or None
+        True orientations (angles in 2D, unit quaternions (w, x, y, z) in 3D), when the file holds them.
+    seed : int or None
+        Seed the ensemble was generated from, when the file records one (``-1`` in the file: none).
     """
 
     position: np.ndarray
     radius: float
     pairs: np.ndarray | None
+    orientation: np.ndarray | None = None
+    seed: int | None = None
 
 
 def read_ensemble_truth(path: str | os.PathLike) -> EnsembleTruth:
@@ -221,7 +227,21 @@ def read_ensemble_truth(path: str | os.PathLike) -> EnsembleTruth:
         if pairs.size and (pairs.min() < 0 or pairs.max() >= n or np.any(pairs[:, 0] == pairs[:, 1])):
             raise InputError(f"ids must be distinct and in 0..{n - 1}", source=src, field="pairs")
         pairs = pairs.astype(np.int64)
-    return EnsembleTruth(position, float(radius), pairs)
+    orientation = None
+    if "orientation" in data:
+        orientation = np.asarray(data["orientation"])
+        n, dim = position.shape
+        want = (n,) if dim == 2 else (n, 4)
+        if orientation.dtype.kind not in "iuf" or orientation.shape != want:
+            raise InputError(f"expected a {want} array, got {orientation.dtype} {orientation.shape}", source=src,
+                             field="orientation")
+        orientation = orientation.astype(float)
+        if not np.all(np.isfinite(orientation)):
+            raise InputError("non-finite value", source=src, field="orientation")
+    seed = None
+    if "seed" in data and np.asarray(data["seed"]).shape == () and np.asarray(data["seed"]).dtype.kind in "iu":
+        seed = int(data["seed"]) if int(data["seed"]) >= 0 else None
+    return EnsembleTruth(position, float(radius), pairs, orientation, seed)
 
 
 def read_ensemble_positions(path: str | os.PathLike, n: int, dim: int) -> np.ndarray:

@@ -77,7 +77,24 @@ def _check_format(doc: Any, expected: str) -> dict:
 
 
 def read_log(path: str | os.PathLike, limits: Limits | None = None) -> ObservationLog:
-    """Read and validate a ``decentral.log/1`` file (its assembly count within ``limits``)."""
+    """Read and validate a ``decentral.log/1`` file (its assembly count within ``limits``).
+
+    Raises :class:`~decentral.errors.InputError` naming the file and the field on a malformed file.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from decentral.synthetic import camera, circle_motion, l_config, make_log
+    >>> world = {"A": circle_motion(3, (0, 0), 1.0, 0.0, 0.1, 0.0), "B": circle_motion(3, (0, 0), 1.0, 0.8, 0.1, 0.0)}
+    >>> log = make_log(world, {"A": l_config([0, 1, 2, 3]), "B": l_config([10, 11, 12, 13])}, [camera("A", yaw=0.5)])
+    >>> path = os.path.join(tempfile.mkdtemp(), "log.json")
+    >>> write_log(path, log)
+    >>> back = read_log(path)
+    >>> back.assemblies, len(back.steps)
+    (('A', 'B'), 3)
+    >>> [len(step.detections["A/cam0"]) for step in back.steps] == [len(s.detections["A/cam0"]) for s in log.steps]
+    True
+    """
     limits = limits or current_limits()
     doc = load_json(path, limits)
     count = len(doc["assemblies"]) if isinstance(doc, dict) and isinstance(doc.get("assemblies"), dict) else 0
@@ -304,7 +321,21 @@ def estimate_to_dict(estimate: Estimate) -> dict:
 
 
 def write_estimate(path: str | os.PathLike, estimate: Estimate) -> None:
-    """Write ``estimate`` as ``decentral.estimate/1`` atomically."""
+    """Write ``estimate`` as ``decentral.estimate/1`` atomically.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> from decentral.estimator import estimate_log
+    >>> from decentral.synthetic import camera, circle_motion, l_config, make_log
+    >>> world = {"A": circle_motion(3, (0, 0), 1.0, 0.0, 0.1, 0.0), "B": circle_motion(3, (0, 0), 1.0, 0.8, 0.1, 0.0)}
+    >>> log = make_log(world, {"A": l_config([0, 1, 2, 3]), "B": l_config([10, 11, 12, 13])}, [camera("A", yaw=0.5)])
+    >>> path = os.path.join(tempfile.mkdtemp(), "estimate.json")
+    >>> write_estimate(path, estimate_log(log))
+    >>> back = read_estimate(path)
+    >>> back.reference, sorted(back.steps[0].poses), back.stats["estimator"]
+    ('A', ['B'], 'windowed-relaxation')
+    """
     write_json_atomic(path, estimate_to_dict(estimate))
 
 

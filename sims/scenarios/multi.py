@@ -18,7 +18,7 @@ import numpy as np
 
 from decentral.observations import Pose
 from sims.scenarios.base import Scenario, ScenarioConfig
-from sims.world.frames import rot_z
+from decentral.geometry import rotz
 from sims.world.motion import jitter
 from sims.world.rigs import strut_camera
 from sims.world.shapes import NODE_RADIUS, library_shape, random_lattice
@@ -122,7 +122,7 @@ class Multi(Scenario):
                 at = (reach + NODE_RADIUS + 0.04) * d
                 mounts = ()
                 if i == 0 and c.mount_turn_deg:
-                    turned = Pose(rot_z(look + np.radians(c.mount_turn_deg)), at)
+                    turned = Pose(rotz(look + np.radians(c.mount_turn_deg)), at)
                     mounts = tuple(None if k < c.steps // 2 else turned for k in range(c.steps))
                 cameras.append(strut_camera(name, "cam0", at=at, look_yaw=look, mounts=mounts))
             if c.chord_every and i % c.chord_every == 0 and c.chord_skip < n:

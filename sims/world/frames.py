@@ -1,4 +1,4 @@
-"""Small rigid-motion helpers for the simulator: yaw rotations, pitch, and pose algebra.
+"""Camera mounts and pose algebra of the simulator (yaw rotations are :mod:`decentral.geometry`'s).
 
 Frames follow the contract: a pose of B in A is ``(R, p)`` with ``x_A = R x_B + p``; horizontal
 frames have z up; camera frames follow OpenCV (x right, y down, z forward).
@@ -10,33 +10,17 @@ import numpy as np
 
 from decentral.observations import Pose
 
-__all__ = ["rot_z", "rot_y", "yaw_of", "wrap_angle", "CAM_LOOKS_ALONG_X", "camera_mount", "inverse"]
+__all__ = ["rot_y", "CAM_LOOKS_ALONG_X", "camera_mount", "inverse"]
 
 #: camera-in-strut rotation that makes an OpenCV camera look along the strut's +x with image "down"
 #: along the strut's -z (the contract's example ``cam_in_strut``).
 CAM_LOOKS_ALONG_X = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
 
-def rot_z(theta: float) -> np.ndarray:
-    """Rotation (3, 3) by ``theta`` rad about z."""
-    c, s = np.cos(theta), np.sin(theta)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
 def rot_y(phi: float) -> np.ndarray:
     """Rotation (3, 3) by ``phi`` rad about y (positive ``phi`` tips +x towards -z)."""
     c, s = np.cos(phi), np.sin(phi)
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-def yaw_of(R: np.ndarray) -> float:
-    """Yaw (rad) of a rotation (3, 3) about z, read from its first column."""
-    return float(np.arctan2(R[1, 0], R[0, 0]))
-
-
-def wrap_angle(a):
-    """Wrap angles (rad, any shape) to [-pi, pi)."""
-    return (np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi
 
 
 def camera_mount(pitch_down: float = 0.0, offset=(0.05, 0.0, 0.04)) -> Pose:

@@ -6,7 +6,8 @@ import numpy as np
 
 from decentral.observations import Pose
 from sims.world.camera import CameraSpec, default_K
-from sims.world.frames import camera_mount, rot_z
+from decentral.geometry import rotz
+from sims.world.frames import camera_mount
 from sims.world.world import CameraRig
 
 __all__ = ["strut_camera"]
@@ -27,5 +28,5 @@ def strut_camera(
     The camera looks along the strut frame's +x (the contract's ``cam_in_strut`` rotation), tilted
     down by ``pitch_down`` rad, 5 cm ahead of and 4 cm above the strut frame's origin.
     """
-    strut = Pose(rot_z(look_yaw), np.asarray(at, dtype=float))
+    strut = Pose(rotz(look_yaw), np.asarray(at, dtype=float))
     return CameraRig(assembly, name, spec or CameraSpec(default_K()), strut, camera_mount(pitch_down), tuple(mounts))

@@ -16,7 +16,7 @@ import numpy as np
 
 from decentral.observations import Detection, Odometry
 from sims.world.camera import covered_fraction, project_nodes, visible_mask
-from sims.world.frames import wrap_angle
+from decentral.geometry import wrap_angle
 from sims.world.world import World
 
 __all__ = ["SensorNoise", "sensor_streams", "odometry_at", "detections_at"]

@@ -13,7 +13,7 @@ import numpy as np
 
 from decentral.observations import Camera, Pose
 from sims.world.camera import CameraSpec
-from sims.world.frames import rot_z
+from decentral.geometry import rotz
 from sims.world.shapes import Shape
 
 __all__ = ["AssemblyTrack", "CameraRig", "World"]
@@ -45,7 +45,7 @@ class AssemblyTrack:
     def root_pose(self, k: int, node_radius: float) -> Pose:
         """Pose of the root horizontal frame H_r in W at step ``k``."""
         p = np.array([self.xy[k, 0], self.xy[k, 1], self.floor_z + node_radius])
-        return Pose(rot_z(self.yaw[k]), p)
+        return Pose(rotz(self.yaw[k]), p)
 
 
 @dataclass(frozen=True)

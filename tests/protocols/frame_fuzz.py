@@ -31,11 +31,10 @@ from protocols.messages import (
     OdometryReport,
     PoseEstimates,
     Tracks,
-    _enc_str,
-    _enc_value,
     kind_id,
     registered_kinds,
 )
+from protocols.wire import encode_str, encode_value
 
 __all__ = ["ISSUE_FRAME", "sample_messages", "reseal", "hostile_frames"]
 
@@ -153,17 +152,17 @@ def random_value(rng: np.random.Generator, depth: int = 0):
 
 def _typed_frame(rng: np.random.Generator, cls: type, frame: bytes) -> bytes:
     """A frame of kind ``cls`` keeping the valid frame's header fields but with random field values."""
-    from protocols.messages import _payload_names
+    from protocols.wire import payload_names
 
-    names = _payload_names(cls)
-    out = [_enc_str("A0"), _enc_str("A1"), struct.pack("<q", int(rng.integers(-5, 5))), struct.pack("<H", len(names))]
+    names = payload_names(cls)
+    out = [encode_str("A0"), encode_str("A1"), struct.pack("<q", int(rng.integers(-5, 5))), struct.pack("<H", len(names))]
     valid = cls.from_bytes(frame)
     for name in names:
         value = random_value(rng) if rng.random() < 0.5 else getattr(valid, name)
         if isinstance(value, np.ndarray) and rng.random() < 0.3:  # same array, other dtype (floats as ids)
             with np.errstate(all="ignore"):
                 value = value.astype(rng.choice(["<f8", "<f4", "<u8", "?"]))
-        _enc_value(value, name, out)
+        encode_value(value, name, out)
     body = b"".join(out)
     return reseal(frame[:HEADER_SIZE] + body)
 

@@ -333,6 +333,6 @@ def test_malformed_raw_arrays_are_rejected(patch, words):
 
 def test_raw_bool_arrays_reject_bytes_other_than_zero_and_one():
     """A version-2 bool array whose bytes are not 0/1 is rejected (never reinterpreted)."""
-    from protocols.messages import _Reader
+    from protocols.wire import Reader
     with pytest.raises(ProtocolError, match="bool"):
-        _Reader(b"A" + bytes([1, 1]) + struct.pack("<I", 2) + b"\x01\x07").value("x")
+        Reader(b"A" + bytes([1, 1]) + struct.pack("<I", 2) + b"\x01\x07").value("x")

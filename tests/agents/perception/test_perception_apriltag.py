@@ -5,18 +5,13 @@ import numpy as np
 
 from agents.perception import AprilTagConfig, AprilTagIdentifier
 from agents.perception.apriltag import tag_quality
-from agents.perception.types import Circle, Identifier
+from agents.perception.types import Circle
 from perception_scenes import frame, layout
 from sims.experiments.synthetic_scene import SceneNode
 
 
 def _circles(nodes):
     return [Circle(n.u, n.v, n.r, 1.0) for n in nodes]
-
-
-def test_identifier_meets_the_protocol():
-    """The default identifier satisfies the Identifier protocol."""
-    assert isinstance(AprilTagIdentifier(), Identifier)
 
 
 def test_tag_ids_recovered_on_clean_frames():

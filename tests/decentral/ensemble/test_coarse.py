@@ -5,7 +5,8 @@ import pytest
 
 from decentral.ensemble.coarse import TwoLevelInverse, cluster_labels
 from decentral.ensemble.model import gradient, negative_log_likelihood
-from decentral.ensemble.refine import LaplacianSolver, RefineConfig, _Incidence, refine
+from decentral.ensemble.refine import LaplacianSolver, RefineConfig, refine
+from decentral.ensemble.sparse_ops import Incidence
 from decentral.ensemble.rotation import angle_to_matrix, matrix_to_angle, matrix_to_quat, so3_exp
 
 
@@ -22,7 +23,7 @@ def _operator(prob, x, R, labels, fixed=None, every_centre_free=False):
 
     turned = np.einsum("eab,eb->ea", R[prob.i], prob.z)
     turning = np.ones(prob.n, bool) if fixed is None else ~fixed
-    return TwoLevelInverse(prob.i, prob.j, _Incidence(prob.n, prob.i, prob.j).B, x, turned, labels, free, turning, fine), lap
+    return TwoLevelInverse(prob.i, prob.j, Incidence(prob.n, prob.i, prob.j).B, x, turned, labels, free, turning, fine), lap
 
 
 def _move(x, R, labels, delta, dim):

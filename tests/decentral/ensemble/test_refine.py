@@ -239,10 +239,10 @@ def test_auto_ordering_dissects_only_large_3d_laplacians():
 def test_decrease_test_looks_back_over_its_window():
     """With a window of one a single small step stops the run; with a longer window it stops only
     when the steps of the whole window together lowered the cost by less than ftol."""
-    from decentral.ensemble.refine import _DecreaseTest
+    from decentral.ensemble.refiners.base import DecreaseTest
 
     costs = [1.0, 0.5, 0.5 - 1e-14, 0.25, 0.25 - 1e-14, 0.25 - 2e-14, 0.25 - 3e-14]
-    one = _DecreaseTest(RefineConfig(ftol=1e-12, ftol_window=1), costs[0])
+    one = DecreaseTest(RefineConfig(ftol=1e-12, ftol_window=1), costs[0])
     assert [one(c) for c in costs[1:]] == [False, True, False, True, True, True]
-    three = _DecreaseTest(RefineConfig(ftol=1e-12, ftol_window=3), costs[0])
+    three = DecreaseTest(RefineConfig(ftol=1e-12, ftol_window=3), costs[0])
     assert [three(c) for c in costs[1:]] == [False, False, False, False, False, True]

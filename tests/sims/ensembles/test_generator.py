@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from sims.ensembles import EnsembleSpec, SensorModel, generate, load_truth, save_observations, save_truth
+from sims.ensembles import EnsembleSpec, SensorModel, generate, save_observations, save_truth
+from sims.io.ensemble_npz import read_ensemble_truth
 from sims.ensembles.lattices import lattice_sites
 from sims.ensembles.sensors import observe_contacts, rotation_matrices, sensor_layout
 from decentral.errors import InputError
@@ -136,8 +137,9 @@ def test_files_round_trip_with_contract_fields(tmp_path, triple):
         assert set(f.files) == {"format", "dim", "n", "radius", "i", "j", "z"}
         assert str(f["format"]) == "decentral.ensemble/1" and int(f["n"]) == triple.n and int(f["dim"]) == 2
         assert np.array_equal(f["i"], triple.i) and np.array_equal(f["z"], triple.z)
-    t = load_truth(truth)
-    assert np.array_equal(t["position"], triple.position) and int(t["seed"]) == 3
+    t = read_ensemble_truth(truth)
+    assert np.array_equal(t.position, triple.position) and np.array_equal(t.orientation, triple.orientation)
+    assert t.seed == 3
     assert sorted(p.name for p in tmp_path.iterdir()) == ["obs.npz", "truth.npz"]  # no leftovers
 
 

@@ -7,7 +7,8 @@ from hypothesis import strategies as st
 
 from decentral.observations import Pose
 from sims.world.camera import CameraSpec, covered_fraction, default_K, project_nodes, visible_mask
-from sims.world.frames import CAM_LOOKS_ALONG_X, camera_mount, rot_z
+from decentral.geometry import rotz
+from sims.world.frames import CAM_LOOKS_ALONG_X, camera_mount
 
 K = default_K()
 R0 = 0.06
@@ -44,7 +45,7 @@ def test_contract_mount_looks_along_strut_x():
 
 def test_pitched_mount_sees_the_floor_below_the_axis():
     """A camera tilted down puts a point straight ahead at its own height above the image centre."""
-    cam = Pose(rot_z(0.0), np.zeros(3)).compose(camera_mount(np.radians(20), offset=(0, 0, 0)))
+    cam = Pose(rotz(0.0), np.zeros(3)).compose(camera_mount(np.radians(20), offset=(0, 0, 0)))
     uvr, _ = project_nodes(K, cam, np.array([[2.0, 0, 0]]), R0)
     assert uvr[0, 1] < 384
 
