@@ -79,8 +79,7 @@ def _swarm_page(runner: SwarmRunner) -> None:
                         op.command(state["selected"], what)
                 except Exception as err:  # noqa: BLE001 - a bad command is a notification, not a crash
                     ui.notify(str(err), type="warning")
-                if not runner.running:
-                    runner.step()
+                # paused: commands wait for "step", so several robots can act at one instant
 
             with ui.grid(columns=3).classes("gap-1"):
                 ui.label()
@@ -100,10 +99,9 @@ def _swarm_page(runner: SwarmRunner) -> None:
                 def everyone(what: str) -> None:
                     for n in op.names:
                         op.command(n, what)
-                    if not runner.running:
-                        runner.step()
+                ui.button("everyone: picture + report + read", on_click=op.loop_all).props(
+                    'data-testid="loop-all" flat')
                 ui.button("all read", on_click=lambda: everyone("read")).props('data-testid="all-read" flat')
-                ui.button("all report", on_click=lambda: everyone("report")).props('data-testid="all-report" flat')
             seen = ui.label().props('data-testid="seen"')
             ui.toggle({"by": "estimates by robot", "of": "estimates of robot", "all": "all"}, value="by",
                       on_change=lambda e: state.update(mode=e.value)).props('data-testid="mode"')

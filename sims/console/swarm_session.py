@@ -162,6 +162,13 @@ class OperatorSwarm:
         self._check(name)
         self._read.add(name)
 
+    def loop_all(self) -> None:
+        """Every robot takes a picture, reports and reads at the next step: one turn of the loop for the
+        whole swarm at one instant (the EKF's yaw comes from two robots seeing each other at once)."""
+        self._picture.update(self.names)
+        self._report.update(self.names)
+        self._read.update(self.names)
+
     def command(self, name: str, what: str) -> None:
         """One operator command by name: a drive action, ``picture``, ``report`` or ``read``."""
         if what in DRIVE_ACTIONS:
@@ -210,6 +217,7 @@ class OperatorSwarm:
             return None
         if isinstance(msg, PoseEstimates):
             keep = [i for i, s in enumerate(msg.subjects) if moved.get(s, -1) <= msg.round]
+            self.stale_discarded += len(msg.subjects) - len(keep)  # estimates of robots that moved since
             if not keep:
                 return None
             msg = replace(msg, subjects=tuple(msg.subjects[i] for i in keep), poses=msg.poses[keep],
