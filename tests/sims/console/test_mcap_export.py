@@ -37,7 +37,7 @@ def test_swarm_export_holds_every_channel_every_step(tmp_path):
     times = [m.log_time for _, ch, m in msgs if ch.topic == "/truth"]
     assert times == sorted(times) and len(set(times)) == 12
     first = [json.loads(m.data) for _, ch, m in msgs if ch.topic == "/truth"][0]
-    assert [[r["x"], r["y"], r["theta"]] for r in first["robots"]] == pytest.approx(start.tolist())
+    assert [v for r in first["robots"] for v in (r["x"], r["y"], r["theta"])] == pytest.approx(start.ravel().tolist())
 
 
 def test_every_message_matches_its_channel_schema(tmp_path):
