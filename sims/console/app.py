@@ -187,6 +187,11 @@ def _replay_page(replay) -> None:
 
             slider = ui.slider(min=0, max=max(len(replay) - 1, 0), value=0, on_change=lambda e: show(e.value)
                                ).props('data-testid="time" label-always').style("width: 320px")
+            with ui.row():
+                ui.button("◀", on_click=lambda: slider.set_value(max(int(slider.value) - 1, 0))).props(
+                    'data-testid="prev" flat')
+                ui.button("▶", on_click=lambda: slider.set_value(min(int(slider.value) + 1, len(replay) - 1))).props(
+                    'data-testid="next" flat')
             playing = {"on": False}
             ui.switch("play", on_change=lambda e: playing.update(on=e.value)).props('data-testid="play"')
 

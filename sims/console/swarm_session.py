@@ -11,7 +11,8 @@ phase B: estimates), but gated by the operator's commands: a robot's camera is r
 where it takes a picture, its detections and estimates go on the radio only when it reports, and what
 arrives for it is held in its inbox, unread, until it is told to read (the paper's "received and
 processed immediately, but not acted on until the operator gives more instructions"). Odometry is
-the exception: every robot broadcasts its encoders every step (its peers' tracks follow its motion).
+the exception: every robot broadcasts its encoders (its peers' tracks follow its motion) every other
+step, and at every step where the operator commands anyone.
 A report read later than the step it was made is used only while neither its sender, its reader nor
 (for an estimate) its subject has moved since, as far as the reader knows from odometry; otherwise it
 is discarded as stale and counted. With ``auto`` every robot does all three every step: the swarm's
@@ -43,6 +44,8 @@ DRIVE_ACTIONS = {"forward": (1.0, 0.0), "backward": (-1.0, 0.0), "left": (0.0, 1
 DRIVE_HOLD = 0.5
 #: odometry below this many floor-noise standard deviations counts as standing still
 STILL_SIGMAS = 4.0
+#: steps between two odometry broadcasts while nobody is commanded (at most ODOMETRY_HISTORY - 2)
+ODOMETRY_EVERY = 2
 #: steps over which a link's recent loss is measured
 LOSS_WINDOW = 25
 
@@ -118,6 +121,7 @@ class OperatorSwarm:
         # reader -> sender -> last round the reader knows the sender moved (from odometry)
         self._moved = {n: {} for n in self.names}
         self._move_cache: dict[tuple[str, int], int] = {}
+        self._stats = None
         n = len(self.names)
         self._sent = deque(maxlen=LOSS_WINDOW)  # per step: (n, n) copies sent / delivered
         self._delivered = deque(maxlen=LOSS_WINDOW)
@@ -277,6 +281,10 @@ class OperatorSwarm:
         self._move_cache.clear()
         n = self._n
         sent, delivered = np.zeros((n, n), np.int64), np.zeros((n, n), np.int64)
+        # encoders go on the radio every ODOMETRY_EVERY steps (each report repeats the last four steps'
+        # motions, so nothing is lost), and at every step where a robot pictures, reports or reads, so
+        # that every track is brought to the present before it is measured, shared or fused
+        odometry_now = self.auto or k % ODOMETRY_EVERY == 0 or bool(pictures or reports or reads)
         # phase A: odometry (always) and, for reporting robots, their latest picture's detections
         self.detections = {}
         for name, robot in robots.items():
@@ -295,7 +303,7 @@ class OperatorSwarm:
                         self.last_picture[name] = msg
                     if name in reports and name in self.last_picture:
                         self._send(self.last_picture[name], t, sent)
-                else:
+                elif odometry_now:
                     self._send(msg, t, sent)
         t_a = t + c.deadline * c.dt
         for name, robot in robots.items():
@@ -370,12 +378,18 @@ class OperatorSwarm:
                 true = Ri.T @ (state[j, :2] - state[i, :2])
                 e.append(math.hypot(*(true - tr.mean[:2])))
             err[i], tracked[i] = float(np.mean(e)), len(e)
-        total = self.sim.network.stats().total
+        total = self.network_stats().total
         return TickRecord(self.k, self.t, err, tracked, int(total.sent), int(total.bytes_sent))
+
+    def network_stats(self):
+        """The radio's counters (:class:`protocols.transport.TransportStats`) at this step (computed once per step)."""
+        if self._stats is None or self._stats[0] != self.k:
+            self._stats = (self.k, self.sim.network.stats())
+        return self._stats[1]
 
     def counters(self) -> dict:
         """Radio counters (sent, delivered, dropped, bytes) in total and per robot, and stale reports."""
-        s = self.sim.network.stats()
+        s = self.network_stats()
         return {"total": s.total.as_dict(),
                 "per_robot": {n: s.per_sender[n].as_dict() for n in self.names if n in s.per_sender},
                 "stale_discarded": self.stale_discarded,

@@ -113,9 +113,10 @@ def test_auto_loop_tracks_more_robots_over_time():
 def test_link_loss_follows_the_radio():
     """Recent loss per link is 0 on a perfect radio and 1 when every copy is lost."""
     ok = OperatorSwarm(CFG, SEED)
-    ok.tick()
     lost = OperatorSwarm(SwarmConfig(n_robots=4, dt=0.1, link=LinkConfig(drop=1.0)), SEED)
-    lost.tick()
+    for _ in range(2):
+        ok.tick()
+        lost.tick()
     off = ~np.eye(4, dtype=bool)
     assert np.all(ok.link_loss()[off] == 0.0) and np.all(lost.link_loss()[off] == 1.0)
 
