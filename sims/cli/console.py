@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import ipaddress
 import sys
 
 from decentral.errors import DecentralError, InputError
@@ -57,6 +56,8 @@ def swarm_config(args: argparse.Namespace):
 
 
 def _check_host(host: str) -> None:
+    import ipaddress
+
     try:
         loopback = ipaddress.ip_address(host).is_loopback
     except ValueError:
