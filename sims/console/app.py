@@ -144,10 +144,9 @@ def _swarm_page(runner: SwarmRunner) -> None:
         if op.k != state["last_k"]:
             state["last_k"] = op.k
             view.set_content(svg(swarm_frame(op, state["selected"], state["mode"], state["links"]), VIEW_WIDTH))
-            c = op.counters()
-            status.set_text(f"step {op.k}, t = {op.t:.1f} s | {c['total']['sent']} messages, "
-                            f"{c['total']['bytes_sent'] / 1e3:.1f} kB | stale reports discarded "
-                            f"{c['stale_discarded']} | unread by {state['selected']}: {c['unread'][state['selected']]}")
+            status.set_text(f"step {op.k}, t = {op.t:.1f} s | {op.sent_copies} messages, "
+                            f"{op.sent_bytes / 1e3:.1f} kB | stale reports discarded {op.stale_discarded} | "
+                            f"unread by {state['selected']}: {len(op.inbox[state['selected']])}")
             seen.set_text(state["seen"])
         now = time.monotonic()
         if now - last_chart[0] > 1.0 and op.history:

@@ -122,6 +122,8 @@ class OperatorSwarm:
         self._moved = {n: {} for n in self.names}
         self._move_cache: dict[tuple[str, int], int] = {}
         self._stats = None
+        self.sent_copies = 0  # copies put on the radio (a broadcast is one per receiver), and their bytes
+        self.sent_bytes = 0
         n = len(self.names)
         self._sent = deque(maxlen=LOSS_WINDOW)  # per step: (n, n) copies sent / delivered
         self._delivered = deque(maxlen=LOSS_WINDOW)
@@ -252,6 +254,9 @@ class OperatorSwarm:
         i = self.index[msg.sender]
         sent[i, :] += 1
         sent[i, i] -= 1
+        # the radio's own totals need a full snapshot of its books (every link): keep ours as we go
+        self.sent_copies += self._n - 1
+        self.sent_bytes += (self._n - 1) * len(msg.to_bytes())
 
     def _report_estimates(self, robot: SwarmRobot, k: int, t: float) -> PoseEstimates:
         """What ``robot`` knows of the others from its own camera (and mutual views), in its frame now."""
@@ -378,8 +383,7 @@ class OperatorSwarm:
                 true = Ri.T @ (state[j, :2] - state[i, :2])
                 e.append(math.hypot(*(true - tr.mean[:2])))
             err[i], tracked[i] = float(np.mean(e)), len(e)
-        total = self.network_stats().total
-        return TickRecord(self.k, self.t, err, tracked, int(total.sent), int(total.bytes_sent))
+        return TickRecord(self.k, self.t, err, tracked, self.sent_copies, self.sent_bytes)
 
     def network_stats(self):
         """The radio's counters (:class:`protocols.transport.TransportStats`) at this step (computed once per step)."""

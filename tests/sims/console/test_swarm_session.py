@@ -141,3 +141,12 @@ def test_same_seed_and_commands_same_run():
         return op.truth(), {k: (v["x"], v["y"]) for k, v in op.estimates_of("R2").items()}
     (t1, e1), (t2, e2) = run(), run()
     assert np.array_equal(t1, t2) and e1 == e2
+
+
+def test_own_traffic_totals_match_the_radio_books():
+    """The per-step message and byte totals kept by the loop equal the radio's own counters."""
+    op = OperatorSwarm(SwarmConfig(n_robots=5, arena=3.0, dt=0.2), 4, auto=True)
+    for _ in range(6):
+        op.tick()
+    total = op.sim.network.stats().total
+    assert (op.history[-1].messages, op.history[-1].bytes) == (total.sent, total.bytes_sent)
