@@ -84,8 +84,12 @@ def swarm_rate(robots: int, seconds: float, chromium: str, auto: bool) -> dict:
     finally:
         proc.kill()
         proc.wait()
-    return {"robots": robots, "auto": auto, "updates_per_s": seen / (w1 - w0),
-            "server_cores": (cpu1 - cpu0) / (w1 - w0), "console_errors": errors, "load": list(os.getloadavg())}
+    rate, cores = seen / (w1 - w0), (cpu1 - cpu0) / (w1 - w0)
+    # CPU per update is what the load cannot change much: cores needed at 10 Hz = 10 x this
+    return {"robots": robots, "auto": auto, "updates_per_s": rate, "server_cores": cores,
+            "server_cpu_s_per_update": cores / rate if rate > 0 else None,
+            "cores_needed_at_10hz": 10 * cores / rate if rate > 0 else None,
+            "console_errors": errors, "load": list(os.getloadavg())}
 
 
 def _writer(folder: Path, agents: int, period: float, steps: int, written: dict, stop: threading.Event) -> None:

@@ -86,7 +86,7 @@ def test_cli_and_console_library_load_no_web_library():
         "import sys\n"
         "from sims.cli.main import build_parser\n"
         "build_parser()\n"
-        "import sims.console.swarm_session, sims.console.views, sims.console.streams, sims.console.scene\n"
+        "import sims.console.operator, sims.console.views, sims.console.streams, sims.console.scene\n"
         "bad = [m for m in ('nicegui', 'mcap', 'playwright', 'fastapi', 'uvicorn') if m in sys.modules]\n"
         "assert not bad, bad\n"
     )

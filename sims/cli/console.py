@@ -76,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
 
         truth = read_truth(args.truth)
     if args.swarm:
-        from sims.console.swarm_session import OperatorSwarm
+        from sims.console.operator import OperatorSwarm
 
         op = OperatorSwarm(swarm_config(args), args.seed, auto=args.auto)
         if args.mcap:

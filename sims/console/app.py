@@ -1,5 +1,5 @@
 """The console's web page (NiceGUI): a thin layer that draws :mod:`sims.console.views` and forwards the
-operator's keys and buttons to :class:`sims.console.swarm_session.OperatorSwarm`.
+operator's keys and buttons to :class:`sims.console.operator.OperatorSwarm`.
 
 Only this module imports NiceGUI (the optional ``console`` extra); nothing else in the package imports
 it. The simulation state lives in the library objects; a page holds only what the person chose to look

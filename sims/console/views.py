@@ -18,7 +18,7 @@ def swarm_frame(op, selected: str | None, mode: str = "by", links: str = "select
 
     Parameters
     ----------
-    op : sims.console.swarm_session.OperatorSwarm
+    op : sims.console.operator.OperatorSwarm
     selected : str, optional
         The robot under the operator's control (its cone and links are highlighted).
     mode : {"by", "of", "all"}

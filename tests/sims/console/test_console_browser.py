@@ -114,7 +114,7 @@ def _settle(page, robot, timeout=8.0):
 
 @pytest.fixture(scope="module")
 def swarm_page(browser):
-    # seed 8, 4 robots: R1 and R2 see each other, R1 sees R0, R2 does not (tests/sims/console/test_swarm_session.py)
+    # seed 8, 4 robots: R1 and R2 see each other, R1 sees R0, R2 does not (tests/sims/console/test_operator.py)
     console = Console("--swarm", "--robots", "4", "--seed", "8")
     page, errors = _page(browser, console.url)
     page.wait_for_selector("#topview", timeout=60_000)

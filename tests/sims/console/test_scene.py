@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from sims.console.scene import ellipse_axes, loss_colour, svg
-from sims.console.swarm_session import OperatorSwarm
+from sims.console.operator import OperatorSwarm
 from sims.console.views import swarm_frame
 from sims.swarm import SwarmConfig
 

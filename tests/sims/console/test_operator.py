@@ -11,7 +11,7 @@ import pytest
 from decentral.errors import InputError
 from protocols.messages import OdometryReport
 from protocols.network import LinkConfig
-from sims.console.swarm_session import OperatorSwarm
+from sims.console.operator import OperatorSwarm
 from sims.swarm import SwarmConfig
 
 CFG = SwarmConfig(n_robots=4, dt=0.1, dropout=0.0)
