@@ -20,7 +20,7 @@ from sims.console.views import launch_rows, launch_series, swarm_frame
 __all__ = ["SwarmRunner", "serve"]
 
 KEYS = {"ArrowUp": "forward", "w": "forward", "ArrowDown": "backward", "s": "backward", "ArrowLeft": "left",
-        "a": "left", "ArrowRight": "right", "d": "right", " ": "stop", "p": "picture", "r": "report", "l": "read"}
+        "a": "left", "ArrowRight": "right", "d": "right", "x": "stop", "p": "picture", "r": "report", "l": "read"}
 VIEW_WIDTH = 640
 
 
@@ -86,7 +86,7 @@ def _swarm_page(runner: SwarmRunner) -> None:
                 ui.button("▲", on_click=lambda: cmd("forward")).props('data-testid="forward"').tooltip("forward (↑, w)")
                 ui.label()
                 ui.button("⟲", on_click=lambda: cmd("left")).props('data-testid="left"').tooltip("rotate left (←, a)")
-                ui.button("■", on_click=lambda: cmd("stop")).props('data-testid="stop"').tooltip("stop (space)")
+                ui.button("■", on_click=lambda: cmd("stop")).props('data-testid="stop"').tooltip("stop (x)")
                 ui.button("⟳", on_click=lambda: cmd("right")).props('data-testid="right"').tooltip("rotate right (→, d)")
                 ui.label()
                 ui.button("▼", on_click=lambda: cmd("backward")).props('data-testid="backward"').tooltip("backward (↓, s)")
@@ -112,7 +112,7 @@ def _swarm_page(runner: SwarmRunner) -> None:
                           ).props('data-testid="run"')
                 ui.switch("auto loop", value=op.auto, on_change=lambda e: setattr(op, "auto", e.value))
                 ui.button("step", on_click=runner.step).props('data-testid="step" flat')
-            ui.label("keys: arrows/wasd drive, space stop, p picture, r report, l read").classes("text-xs")
+            ui.label("keys: arrows/wasd drive, x stop, p picture, r report, l read, [ ] robot").classes("text-xs")
     chart = ui.echart({
         "animation": False, "legend": {"top": 0}, "grid": [{"top": 30, "height": 110}, {"top": 180, "height": 90}],
         "xAxis": [{"type": "value", "name": "t [s]", "gridIndex": 0}, {"type": "value", "gridIndex": 1}],
@@ -238,9 +238,11 @@ def _launch_page(follower, truth, reference: str | None) -> None:
         if state["assembly"] and time.monotonic() - last_chart[0] > 0.5:
             last_chart[0] = time.monotonic()
             series = launch_series(follower, state["assembly"], state["coord"], truth, reference)
+            styles = {"truth": {"lineStyle": {"type": "dashed", "color": "#000"}, "showSymbol": False},
+                      reference: {"lineStyle": {"width": 4}}}
             chart.options["series"] = [
-                {"name": name, "type": "line", "showSymbol": name != "truth", "data": [list(p) for p in pts],
-                 **({"lineStyle": {"type": "dashed", "color": "#000"}} if name == "truth" else {})}
+                {"name": name + (" (reference)" if name == reference else ""), "type": "line", "showSymbol": True,
+                 "data": [list(p) for p in pts], **styles.get(name, {})}
                 for name, pts in series.items()]
             chart.update()
 

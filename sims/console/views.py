@@ -81,6 +81,10 @@ class Replay:
     """
 
     def __init__(self, log, estimate, truth=None):
+        from decentral.errors import InputError
+
+        if not estimate.steps:
+            raise InputError("has no steps to replay", field="steps")
         self.log, self.estimate, self.truth = log, estimate, truth
         self.reference = estimate.reference
         self.times = np.array([s.t for s in estimate.steps])
