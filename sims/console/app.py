@@ -15,7 +15,7 @@ import time
 from nicegui import app, ui
 
 from sims.console.scene import svg
-from sims.console.views import launch_rows, launch_series, swarm_frame
+from sims.console.views import error_series, launch_rows, launch_series, swarm_frame
 
 __all__ = ["SwarmRunner", "serve"]
 
@@ -114,15 +114,11 @@ def _swarm_page(runner: SwarmRunner) -> None:
                 ui.button("step", on_click=runner.step).props('data-testid="step" flat')
             ui.label("keys: arrows/wasd drive, x stop, p picture, r report, l read, [ ] robot").classes("text-xs")
     chart = ui.echart({
-        "animation": False, "legend": {"top": 0}, "grid": [{"top": 30, "height": 110}, {"top": 180, "height": 90}],
+        "animation": False, "legend": {"type": "scroll", "top": 0}, "grid": [{"top": 50, "height": 100}, {"top": 190, "height": 80}],
         "xAxis": [{"type": "value", "name": "t [s]", "gridIndex": 0}, {"type": "value", "gridIndex": 1}],
         "yAxis": [{"type": "value", "name": "error [m]", "gridIndex": 0},
-                  {"type": "value", "name": "kB sent", "gridIndex": 1}],
-        "series": [{"name": "selected robot", "type": "line", "showSymbol": False, "data": []},
-                   {"name": "swarm median", "type": "line", "showSymbol": False, "data": []},
-                   {"name": "messages", "type": "line", "showSymbol": False, "data": [], "xAxisIndex": 1,
-                    "yAxisIndex": 1},
-                   {"name": "kB", "type": "line", "showSymbol": False, "data": [], "xAxisIndex": 1, "yAxisIndex": 1}],
+                  {"type": "value", "name": "sent", "gridIndex": 1}],
+        "series": [],
     }).style("height: 300px; width: 1000px").props('data-testid="errors"')
 
     def on_key(e) -> None:
@@ -151,18 +147,17 @@ def _swarm_page(runner: SwarmRunner) -> None:
         now = time.monotonic()
         if now - last_chart[0] > 1.0 and op.history:
             last_chart[0] = now
-            i = op.names.index(state["selected"])
             hist = list(op.history)
-            sel, med = [], []
-            for h in hist:
-                e = h.error[i]
-                sel.append([round(h.t, 2), None if not math.isfinite(e) else round(float(e), 4)])
-                fin = [float(v) for v in h.error if math.isfinite(v)]
-                med.append([round(h.t, 2), round(sorted(fin)[len(fin) // 2], 4) if fin else None])
-            chart.options["series"][0]["data"] = sel
-            chart.options["series"][1]["data"] = med
-            chart.options["series"][2]["data"] = [[round(h.t, 2), h.messages] for h in hist]
-            chart.options["series"][3]["data"] = [[round(h.t, 2), round(h.bytes / 1e3, 1)] for h in hist]
+            lines = error_series(op, state["selected"])
+            series = [{"name": name, "type": "line", "showSymbol": False, "data": pts, "connectNulls": False,
+                       "lineStyle": {"width": 3 if name in (state["selected"], "median") else 1},
+                       **({"lineStyle": {"width": 3, "type": "dashed", "color": "#000"}} if name == "median" else {})}
+                      for name, pts in lines.items()]
+            series += [{"name": "messages", "type": "line", "showSymbol": False, "xAxisIndex": 1, "yAxisIndex": 1,
+                        "data": [[round(h.t, 2), h.messages] for h in hist]},
+                       {"name": "kB", "type": "line", "showSymbol": False, "xAxisIndex": 1, "yAxisIndex": 1,
+                        "data": [[round(h.t, 2), round(h.bytes / 1e3, 1)] for h in hist]}]
+            chart.options["series"] = series
             chart.update()
 
     ui.timer(min(0.1, op.config.dt / 2), refresh)

@@ -10,7 +10,10 @@ import numpy as np
 from sims.console.scene import Body, Cone, Frame, Link, Mark
 from sims.console.streams import StreamFollower, record_pose
 
-__all__ = ["swarm_frame", "Replay", "launch_rows", "launch_series"]
+__all__ = ["swarm_frame", "error_series", "Replay", "launch_rows", "launch_series"]
+
+#: up to this many robots the error panel has a line per robot; beyond, the selected one and the median
+PER_ROBOT_LINES = 12
 
 
 def swarm_frame(op, selected: str | None, mode: str = "by", links: str = "selected") -> Frame:
@@ -61,6 +64,27 @@ def swarm_frame(op, selected: str | None, mode: str = "by", links: str = "select
     a = c.arena
     label = f"step {op.k}  t = {op.t:.1f} s" + ("  (auto)" if op.auto else "")
     return Frame((0.0, 0.0, a, a), tuple(bodies), tuple(marks), tuple(cones), tuple(out_links), selected, (), label)
+
+
+def error_series(op, selected: str, per_robot: int = PER_ROBOT_LINES) -> dict[str, list]:
+    """The error panel's lines: ``name -> [[t, error_m or None], ...]`` over the kept history.
+
+    One line per robot (its mean position error against truth over the robots it tracks; ``None``
+    while it tracks nobody) when there are at most ``per_robot`` robots, else only ``selected``'s; and
+    the swarm's median as ``"median"``.
+    """
+    hist = list(op.history)
+    names = op.names if len(op.names) <= per_robot else (selected,)
+    out = {n: [] for n in names}
+    out["median"] = []
+    for h in hist:
+        t = round(h.t, 2)
+        for n in names:
+            e = h.error[op.index[n]]
+            out[n].append([t, round(float(e), 4) if math.isfinite(e) else None])
+        fin = h.error[np.isfinite(h.error)]
+        out["median"].append([t, round(float(np.median(fin)), 4) if fin.size else None])
+    return out
 
 
 def _yaw(R: np.ndarray) -> float:

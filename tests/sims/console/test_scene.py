@@ -61,3 +61,18 @@ def test_loss_colours_run_from_green_to_red_and_grey_for_silence():
     """No loss is green, total loss is red, an unused link grey."""
     assert loss_colour(0.0).startswith("#00") and loss_colour(1.0).startswith("#ff00")
     assert loss_colour(None) == loss_colour(float("nan")) == "#bbbbbb"
+
+
+def test_error_panel_has_a_line_per_robot_or_the_selected_one_and_the_median():
+    """Up to twelve robots each get an error line (None while tracking nobody); beyond, the selected
+    robot's line and the median only."""
+    from sims.console.views import error_series
+
+    op = OperatorSwarm(SwarmConfig(n_robots=4, dt=0.1, dropout=0.0), 8)
+    op.picture("R1")
+    op.tick()
+    lines = error_series(op, "R1")
+    assert set(lines) == {"R0", "R1", "R2", "R3", "median"}
+    assert lines["R0"][-1][1] is None and lines["R1"][-1][1] == pytest.approx(op.history[-1].error[1], abs=1e-4)
+    big = OperatorSwarm(SwarmConfig(n_robots=13, dt=0.1), 1)
+    assert set(error_series(big, "R5")) == {"R5", "median"}
