@@ -54,3 +54,12 @@ def test_bad_swarm_option_is_one_line_and_exit_2(tmp_path):
     """A swarm option out of range (negative loss) is refused in one line with exit status 2."""
     out = _cli("--swarm", "--loss", "-0.5", "--mcap", str(tmp_path / "x.mcap"))
     assert out.returncode == 2 and "--loss" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_without_the_console_extra_the_page_says_what_to_install():
+    """Serving without NiceGUI installed ends in one line naming the extra to install, exit status 2."""
+    code = ("import sys; sys.modules['nicegui'] = None\n"
+            "from sims.cli.main import main\n"
+            "sys.exit(main(['console', '--swarm', '--robots', '3']))\n")
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2 and "decentral[console]" in out.stderr and len(out.stderr.strip().splitlines()) == 1
