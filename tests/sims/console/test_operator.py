@@ -150,3 +150,26 @@ def test_own_traffic_totals_match_the_radio_books():
         op.tick()
     total = op.sim.network.stats().total
     assert (op.history[-1].messages, op.history[-1].bytes) == (total.sent, total.bytes_sent)
+
+
+def test_a_moved_robot_reaches_a_readers_estimate_through_a_report():
+    """R0 drives about 0.3 m; after R1's picture and report, R2 (which cannot see R0) reads and places
+    R0 at its new place, its error falling to under half."""
+    op = OperatorSwarm(CFG, SEED)
+    op.loop_all()
+    op.tick()
+    for _ in range(6):
+        op.drive("R0", "forward")  # a held key renews the command every step
+        op.tick()
+    for _ in range(6):
+        op.tick()
+    assert "R0" not in op.in_view("R2")
+    held = op.estimates_of("R2")["R0"]["error"]
+    op.picture("R1")
+    op.tick()
+    op.report("R1")
+    op.tick()
+    assert op.estimates_of("R2")["R0"]["error"] == pytest.approx(held, abs=0.03)  # unread: nothing changes
+    op.read("R2")
+    op.tick()
+    assert op.estimates_of("R2")["R0"]["error"] < 0.5 * held
