@@ -210,7 +210,7 @@ def test_launch_view_shows_every_agent_and_follows_it(browser, streams_dir):
     try:
         page, errors = _page(browser, console.url)
         page.wait_for_selector("[data-testid=agents]", timeout=60_000)
-        writer = threading.Thread(target=_write_agents, args=(streams_dir, 8, 12, 0.1, stop))
+        writer = threading.Thread(target=_write_agents, args=(streams_dir, 8, 20, 0.1, stop))
         writer.start()
 
         def steps():
@@ -229,7 +229,7 @@ def test_launch_view_shows_every_agent_and_follows_it(browser, streams_dir):
         final = steps()
         assert sorted(first) == [f"A{i}" for i in range(8)]
         assert all(later[a] > first[a] for a in first)
-        assert all(v == 11 for v in final.values())
+        assert all(v == 19 for v in final.values())
         assert errors == []
         page.close()
     finally:
