@@ -59,6 +59,7 @@ class SwarmRunner:
 
 def _swarm_page(runner: SwarmRunner) -> None:
     op = runner.op
+    # last_k: the step drawn (-2 after a change of what to show: redraw even while paused)
     state = {"selected": op.names[0], "mode": "by", "links": "selected", "last_k": -1, "seen": ""}
     ui.page_title("decentral console: swarm")
     with ui.row().classes("w-full no-wrap items-start"):
@@ -68,7 +69,7 @@ def _swarm_page(runner: SwarmRunner) -> None:
             ui.label("Kanovsky's operator loop").classes("text-lg")
             status = ui.label().props('data-testid="status"')
             select = ui.select(list(op.names), value=state["selected"], label="robot",
-                               on_change=lambda e: state.update(selected=e.value)).props('data-testid="robot"')
+                               on_change=lambda e: state.update(selected=e.value, last_k=-2)).props('data-testid="robot"')
 
             def cmd(what: str) -> None:
                 try:
@@ -79,6 +80,7 @@ def _swarm_page(runner: SwarmRunner) -> None:
                         op.command(state["selected"], what)
                 except Exception as err:  # noqa: BLE001 - a bad command is a notification, not a crash
                     ui.notify(str(err), type="warning")
+                state["last_k"] = -2
                 # paused: commands wait for "step", so several robots can act at one instant
 
             with ui.grid(columns=3).classes("gap-1"):
@@ -104,9 +106,9 @@ def _swarm_page(runner: SwarmRunner) -> None:
                 ui.button("all read", on_click=lambda: everyone("read")).props('data-testid="all-read" flat')
             seen = ui.label().props('data-testid="seen"')
             ui.toggle({"by": "estimates by robot", "of": "estimates of robot", "all": "all"}, value="by",
-                      on_change=lambda e: state.update(mode=e.value)).props('data-testid="mode"')
+                      on_change=lambda e: state.update(mode=e.value, last_k=-2)).props('data-testid="mode"')
             ui.toggle({"selected": "its links", "all": "all links", "none": "no links"}, value="selected",
-                      on_change=lambda e: state.update(links=e.value))
+                      on_change=lambda e: state.update(links=e.value, last_k=-2))
             with ui.row().classes("gap-1 items-center"):
                 ui.switch("run", value=runner.running, on_change=lambda e: setattr(runner, "running", e.value)
                           ).props('data-testid="run"')
