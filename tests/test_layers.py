@@ -53,3 +53,41 @@ def test_cli_registry_matches_the_command_modules():
     registered = {module.rsplit(".", 1)[1] for module in COMMANDS.values()}
     assert on_disk == registered
     build_parser()  # every module imports and attaches its arguments
+
+
+#: the console's web and export libraries, and the one module allowed to import each
+CONSOLE_ONLY = {"nicegui": "sims/console/app.py", "mcap": "sims/console/mcap_export.py", "playwright": None}
+
+
+def test_console_libraries_are_imported_only_by_their_module():
+    """nicegui is imported only by sims/console/app.py, mcap only by sims/console/mcap_export.py, playwright
+    by no package module (the tests and benchmarks drive the browser)."""
+    offenders = []
+    for layer in ORDER:
+        for path in (ROOT / layer).rglob("*.py"):
+            rel = str(path.relative_to(ROOT))
+            for node in ast.walk(ast.parse(path.read_text(), filename=rel)):
+                names = []
+                if isinstance(node, ast.Import):
+                    names = [a.name for a in node.names]
+                elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                    names = [node.module]
+                for n in names:
+                    top = n.split(".")[0]
+                    if top in CONSOLE_ONLY and CONSOLE_ONLY[top] != rel:
+                        offenders.append(f"{rel}: {n}")
+    assert not offenders, offenders
+
+
+def test_cli_and_console_library_load_no_web_library():
+    """Building the CLI (every command's parser, `console` included) and importing the console's library
+    modules loads neither nicegui, mcap nor playwright."""
+    code = (
+        "import sys\n"
+        "from sims.cli.main import build_parser\n"
+        "build_parser()\n"
+        "import sims.console.operator, sims.console.views, sims.console.streams, sims.console.scene\n"
+        "bad = [m for m in ('nicegui', 'mcap', 'playwright', 'fastapi', 'uvicorn') if m in sys.modules]\n"
+        "assert not bad, bad\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)

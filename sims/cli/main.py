@@ -40,6 +40,7 @@ COMMANDS: dict[str, str] = {
     "launch": "sims.cli.launch",
     "study": "sims.cli.study",
     "report": "sims.cli.report",
+    "console": "sims.cli.console",
 }
 
 EXIT_BAD_INPUT = 2

@@ -157,17 +157,21 @@ class SwarmWorld:
         cam = c.cam_in_root()
         f = 0.5 * (K[0, 0] + K[1, 1])
         half = np.radians(c.max_angle_deg)
+        # every robot's position in every robot's root frame at once: rel[i, j] = R_i^T (p_j - p_i)
+        cs, sn = np.cos(self.state[:, 2]), np.sin(self.state[:, 2])
+        d = self.state[None, :, :2] - self.state[:, None, :2]  # (n, n, 2)
+        rel_x = cs[:, None] * d[..., 0] + sn[:, None] * d[..., 1]
+        rel_y = -sn[:, None] * d[..., 0] + cs[:, None] * d[..., 1]
+        pcs = (np.stack([rel_x, rel_y, np.zeros_like(rel_x)], -1) - cam.p) @ cam.R  # (n, n, 3): R^T (x - p)
         for i, n in enumerate(self.names):
             rng = self.streams[f"{n}/cam0"]
             cands = []
-            for j in range(c.n_robots):
+            ahead = (pcs[i, :, 2] > 0.05) & (np.hypot(rel_x[i], rel_y[i]) <= c.max_distance)
+            for j in map(int, np.flatnonzero(ahead)):
                 if j == i:
                     continue
-                rel = self.relative(i, j)
-                dist = float(np.hypot(rel[0], rel[1]))
-                pc = cam.R.T @ (np.array([rel[0], rel[1], 0.0]) - cam.p)
-                if pc[2] <= 0.05:
-                    continue
+                dist = float(np.hypot(rel_x[i, j], rel_y[i, j]))
+                pc = pcs[i, j]
                 angle = float(np.arctan2(pc[0], pc[2]))
                 u = K[0, 0] * pc[0] / pc[2] + K[0, 2]
                 v = K[1, 1] * pc[1] / pc[2] + K[1, 2]

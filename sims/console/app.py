@@ -1,0 +1,274 @@
+"""The console's web page (NiceGUI): a thin layer that draws :mod:`sims.console.views` and forwards the
+operator's keys and buttons to :class:`sims.console.operator.OperatorSwarm`.
+
+Only this module imports NiceGUI (the optional ``console`` extra); nothing else in the package imports
+it. The simulation state lives in the library objects; a page holds only what the person chose to look
+at (the selected robot, which estimates to show).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+
+from nicegui import app, ui
+
+from sims.console.scene import svg
+from sims.console.views import error_series, launch_rows, launch_series, swarm_frame
+
+__all__ = ["SwarmRunner", "serve"]
+
+KEYS = {"ArrowUp": "forward", "w": "forward", "ArrowDown": "backward", "s": "backward", "ArrowLeft": "left",
+        "a": "left", "ArrowRight": "right", "d": "right", "x": "stop", "p": "picture", "r": "report", "l": "read"}
+VIEW_WIDTH = 640
+
+
+class SwarmRunner:
+    """Steps an :class:`OperatorSwarm` on the wall clock (one step per ``dt``) while it runs.
+
+    Every page calls :meth:`advance` from its timer; the lock makes sure that several pages step the
+    swarm once, not once each. ``rate`` is simulated seconds per wall second.
+    """
+
+    def __init__(self, op, rate: float = 1.0):
+        self.op = op
+        self.rate = rate
+        self.running = True
+        self.lock = threading.Lock()
+        self._last = time.monotonic()
+
+    def advance(self) -> bool:
+        """Step once if a step is due; return whether it stepped."""
+        with self.lock:
+            now = time.monotonic()
+            if not self.running:
+                self._last = now
+                return False
+            if now - self._last < self.op.config.dt / self.rate * 0.95:
+                return False
+            self._last = now if now - self._last > 2 * self.op.config.dt / self.rate else self._last + \
+                self.op.config.dt / self.rate
+            self.op.tick()
+            return True
+
+    def step(self) -> None:
+        with self.lock:
+            self.op.tick()
+
+
+def _swarm_page(runner: SwarmRunner) -> None:
+    op = runner.op
+    # last_k: the step drawn (-2 after a change of what to show: redraw even while paused)
+    state = {"selected": op.names[0], "mode": "by", "links": "selected", "last_k": -1, "seen": ""}
+    ui.page_title("decentral console: swarm")
+    with ui.row().classes("w-full no-wrap items-start"):
+        view = ui.html(svg(swarm_frame(op, state["selected"]), VIEW_WIDTH), sanitize=False).props(
+            'data-testid="topview-host"')
+        with ui.column().classes("gap-1").style("min-width: 360px"):
+            ui.label("Kanovsky's operator loop").classes("text-lg")
+            status = ui.label().props('data-testid="status"')
+            select = ui.select(list(op.names), value=state["selected"], label="robot",
+                               on_change=lambda e: state.update(selected=e.value, last_k=-2)).props('data-testid="robot"')
+
+            def cmd(what: str) -> None:
+                try:
+                    if what == "picture":
+                        state["seen"] = f"{state['selected']} sees: " + (", ".join(op.picture(state["selected"]))
+                                                                        or "nobody")
+                    else:
+                        op.command(state["selected"], what)
+                except Exception as err:  # noqa: BLE001 - a bad command is a notification, not a crash
+                    ui.notify(str(err), type="warning")
+                state["last_k"] = -2
+                # paused: commands wait for "step", so several robots can act at one instant
+
+            with ui.grid(columns=3).classes("gap-1"):
+                ui.label()
+                ui.button("▲", on_click=lambda: cmd("forward")).props('data-testid="forward"').tooltip("forward (↑, w)")
+                ui.label()
+                ui.button("⟲", on_click=lambda: cmd("left")).props('data-testid="left"').tooltip("rotate left (←, a)")
+                ui.button("■", on_click=lambda: cmd("stop")).props('data-testid="stop"').tooltip("stop (x)")
+                ui.button("⟳", on_click=lambda: cmd("right")).props('data-testid="right"').tooltip("rotate right (→, d)")
+                ui.label()
+                ui.button("▼", on_click=lambda: cmd("backward")).props('data-testid="backward"').tooltip("backward (↓, s)")
+                ui.label()
+            with ui.row().classes("gap-1"):
+                ui.button("take a picture", on_click=lambda: cmd("picture")).props('data-testid="picture"').tooltip("p")
+                ui.button("report", on_click=lambda: cmd("report")).props('data-testid="report"').tooltip("r")
+                ui.button("read & localize", on_click=lambda: cmd("read")).props('data-testid="read"').tooltip("l")
+            with ui.row().classes("gap-1"):
+                def everyone(what: str) -> None:
+                    for n in op.names:
+                        op.command(n, what)
+                ui.button("everyone: picture + report + read", on_click=op.loop_all).props(
+                    'data-testid="loop-all" flat')
+                ui.button("all read", on_click=lambda: everyone("read")).props('data-testid="all-read" flat')
+            seen = ui.label().props('data-testid="seen"')
+            ui.toggle({"by": "estimates by robot", "of": "estimates of robot", "all": "all"}, value="by",
+                      on_change=lambda e: state.update(mode=e.value, last_k=-2)).props('data-testid="mode"')
+            ui.toggle({"selected": "its links", "all": "all links", "none": "no links"}, value="selected",
+                      on_change=lambda e: state.update(links=e.value, last_k=-2))
+            with ui.row().classes("gap-1 items-center"):
+                ui.switch("run", value=runner.running, on_change=lambda e: setattr(runner, "running", e.value)
+                          ).props('data-testid="run"')
+                ui.switch("auto loop", value=op.auto, on_change=lambda e: setattr(op, "auto", e.value))
+                ui.button("step", on_click=runner.step).props('data-testid="step" flat')
+            ui.label("keys: arrows/wasd drive, x stop, p picture, r report, l read, [ ] robot").classes("text-xs")
+    chart = ui.echart({
+        "animation": False, "legend": {"type": "scroll", "top": 0}, "grid": [{"top": 50, "height": 100}, {"top": 190, "height": 80}],
+        "xAxis": [{"type": "value", "name": "t [s]", "gridIndex": 0}, {"type": "value", "gridIndex": 1}],
+        "yAxis": [{"type": "value", "name": "error [m]", "gridIndex": 0},
+                  {"type": "value", "name": "sent", "gridIndex": 1}],
+        "series": [],
+    }).style("height: 300px; width: 1000px").props('data-testid="errors"')
+
+    def on_key(e) -> None:
+        if not e.action.keydown:
+            return
+        name = getattr(e.key, "name", str(e.key))
+        what = KEYS.get(name) or KEYS.get(name.lower() if len(name) == 1 else name)
+        if what:
+            cmd(what)
+        elif name in ("[", "]"):
+            i = op.names.index(state["selected"]) + (1 if name == "]" else -1)
+            select.value = op.names[i % len(op.names)]
+
+    ui.keyboard(on_key=on_key, ignore=["input", "select", "textarea"])
+    last_chart = [0.0]
+
+    def refresh() -> None:
+        runner.advance()
+        if op.k != state["last_k"]:
+            state["last_k"] = op.k
+            view.set_content(svg(swarm_frame(op, state["selected"], state["mode"], state["links"]), VIEW_WIDTH))
+            status.set_text(f"step {op.k}, t = {op.t:.1f} s | {op.sent_copies} messages, "
+                            f"{op.sent_bytes / 1e3:.1f} kB | stale reports discarded {op.stale_discarded} | "
+                            f"unread by {state['selected']}: {len(op.inbox[state['selected']])}")
+            seen.set_text(state["seen"])
+        now = time.monotonic()
+        if now - last_chart[0] > 1.0 and op.history:
+            last_chart[0] = now
+            hist = list(op.history)
+            lines = error_series(op, state["selected"])
+            series = [{"name": name, "type": "line", "showSymbol": False, "data": pts, "connectNulls": False,
+                       "lineStyle": {"width": 3 if name in (state["selected"], "median") else 1},
+                       **({"lineStyle": {"width": 3, "type": "dashed", "color": "#000"}} if name == "median" else {})}
+                      for name, pts in lines.items()]
+            series += [{"name": "messages", "type": "line", "showSymbol": False, "xAxisIndex": 1, "yAxisIndex": 1,
+                        "data": [[round(h.t, 2), h.messages] for h in hist]},
+                       {"name": "kB", "type": "line", "showSymbol": False, "xAxisIndex": 1, "yAxisIndex": 1,
+                        "data": [[round(h.t, 2), round(h.bytes / 1e3, 1)] for h in hist]}]
+            chart.options["series"] = series
+            chart.update()
+
+    ui.timer(min(0.1, op.config.dt / 2), refresh)
+
+
+def _replay_page(replay) -> None:
+    ui.page_title("decentral console: replay")
+    state = {"k": 0}
+    with ui.row().classes("w-full no-wrap items-start"):
+        view = ui.html(svg(replay.frame(0), VIEW_WIDTH), sanitize=False).props('data-testid="topview-host"')
+        with ui.column():
+            ui.label(f"replay: {len(replay)} steps, reference {replay.reference}").classes("text-lg")
+            info = ui.label().props('data-testid="status"')
+
+            def show(k: int) -> None:
+                state["k"] = int(k)
+                fr = replay.frame(state["k"])
+                view.set_content(svg(fr, VIEW_WIDTH))
+                errs = [m.error for m in fr.marks if m.error is not None]
+                info.set_text(f"{fr.label}" + (f" | mean error {sum(errs) / len(errs):.3f} m" if errs else ""))
+
+            slider = ui.slider(min=0, max=max(len(replay) - 1, 0), value=0, on_change=lambda e: show(e.value)
+                               ).props('data-testid="time" label-always').style("width: 320px")
+            with ui.row():
+                ui.button("◀", on_click=lambda: slider.set_value(max(int(slider.value) - 1, 0))).props(
+                    'data-testid="prev" flat')
+                ui.button("▶", on_click=lambda: slider.set_value(min(int(slider.value) + 1, len(replay) - 1))).props(
+                    'data-testid="next" flat')
+            playing = {"on": False}
+            ui.switch("play", on_change=lambda e: playing.update(on=e.value)).props('data-testid="play"')
+
+    def tick() -> None:
+        if playing["on"] and len(replay):
+            slider.value = (int(slider.value) + 1) % len(replay)
+
+    show(0)
+    ui.timer(0.2, tick)
+
+
+def _launch_page(follower, truth, reference: str | None) -> None:
+    ui.page_title("decentral console: agents")
+    state = {"assembly": None, "coord": 0}
+    ui.label("agents (from their --stream files)").classes("text-lg")
+    status = ui.label().props('data-testid="status"')
+    columns = [{"name": k, "label": k, "field": k} for k in
+               ("agent", "step", "t", "rounds", "converged", "status", "placed", "messages", "bytes", "rejected",
+                "provisional", "restarts", "age")]
+    table = ui.table(columns=columns, rows=[], row_key="agent").props('data-testid="agents" dense')
+    with ui.row():
+        pick = ui.select([], label="assembly", on_change=lambda e: state.update(assembly=e.value)).style("width: 160px")
+        ui.toggle({0: "x", 1: "y", 2: "theta"}, value=0, on_change=lambda e: state.update(coord=e.value))
+    chart = ui.echart({"animation": False, "legend": {"top": 0}, "xAxis": {"type": "value", "name": "t [s]"},
+                       "yAxis": {"type": "value", "scale": True}, "series": []}).style("height: 320px; width: 1000px")
+    last_chart = [0.0]
+
+    def refresh() -> None:
+        follower.poll()
+        now = time.time()
+        rows = launch_rows(follower, now)
+        for r in rows:
+            r["rejected"] = ", ".join(f"{k} {v}" for k, v in sorted(r["rejected"].items()) if v) or "0"
+            r["provisional"] = ", ".join(map(str, r["provisional"])) or "-"
+            r["age"] = "" if r["age"] is None else f"{r['age']:.1f} s"
+            r["t"] = "" if not isinstance(r["t"], (int, float)) else f"{r['t']:.2f}"
+        table.rows = rows
+        table.update()
+        names = follower.assemblies()
+        if names != pick.options:
+            pick.set_options(names, value=state["assembly"] if state["assembly"] in names else
+                             next((n for n in names if n != reference), names[0] if names else None))
+        status.set_text(f"{len(rows)} agents | {sum(r['messages'] for r in rows)} messages, "
+                        f"{sum(r['bytes'] for r in rows) / 1e3:.1f} kB | unreadable lines {follower.bad_lines}")
+        if state["assembly"] and time.monotonic() - last_chart[0] > 0.5:
+            last_chart[0] = time.monotonic()
+            series = launch_series(follower, state["assembly"], state["coord"], truth, reference)
+            styles = {"truth": {"lineStyle": {"type": "dashed", "color": "#000"}, "showSymbol": False},
+                      reference: {"lineStyle": {"width": 4}}}
+            chart.options["series"] = [
+                {"name": name + (" (reference)" if name == reference else ""), "type": "line", "showSymbol": True,
+                 "data": [list(p) for p in pts], **styles.get(name, {})}
+                for name, pts in series.items()]
+            chart.update()
+
+    ui.timer(0.1, refresh)
+
+
+def serve(source: dict, host: str = "127.0.0.1", port: int = 8765, title: str = "decentral console") -> None:
+    """Serve the page for ``source`` until interrupted.
+
+    Parameters
+    ----------
+    source : dict
+        ``{"kind": "swarm", "runner": SwarmRunner}``, ``{"kind": "replay", "replay": Replay}`` or
+        ``{"kind": "launch", "follower": StreamFollower, "truth": Truth | None, "reference": str | None}``.
+    """
+    kind = source["kind"]
+
+    @ui.page("/")
+    def index():
+        if kind == "swarm":
+            _swarm_page(source["runner"])
+        elif kind == "replay":
+            _replay_page(source["replay"])
+        else:
+            _launch_page(source["follower"], source.get("truth"), source.get("reference"))
+
+    @app.get("/healthz")
+    def healthz():
+        return {"ok": True, "kind": kind}
+
+    ui.run(host=host, port=port, title=title, reload=False, show=False, show_welcome_message=False,
+           favicon="🛰", uvicorn_logging_level="warning")
