@@ -22,7 +22,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="this assembly's part of the log (decentral.log/1 with its own data only)")
     parser.add_argument("--peers", required=True, metavar="PEERS.json",
                         help="every assembly's address and public key (decentral.peers/1)")
-    parser.add_argument("--key", required=True, metavar="KEYFILE", help="this agent's private key (decentral.key/1)")
+    parser.add_argument("--key", required=True, metavar="KEYFILE",
+                        help="this agent's private key (decentral.key/1, mode 0600); '-' reads it as one line "
+                             "from stdin, so that it never touches a disk")
+    parser.add_argument("--allow-readable-key", action="store_true",
+                        help="accept a key file that group or others may read, with a warning (default: refuse)")
     parser.add_argument("-o", "--output", metavar="EST.json",
                         help="write this agent's estimate (poses relative to itself) when it ends")
     parser.add_argument("--reference", default=None,
@@ -52,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from protocols.network import LinkConfig
-    from protocols.peers import load_peers, load_private_key
+    from protocols.peers import key_file_exposure, load_peers, load_private_key, read_private_key_text
     from protocols.zmq_transport import ZmqTransport
     from sims.agent_run import Pace, process_agent_config, run_agent
     from sims.io.log_json import write_estimate
@@ -64,7 +68,13 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"must be in [0, 1), got {args.loss}", field="--loss")
     part = read_part(args.log, args.name)
     peers = load_peers(args.peers)
-    key_name, key = load_private_key(args.key)
+    if args.key == "-":
+        key_name, key = read_private_key_text(sys.stdin.readline(), "<stdin>")
+    else:
+        key_name, key = load_private_key(args.key, allow_readable=args.allow_readable_key)
+        exposure = key_file_exposure(args.key)
+        if exposure:
+            feedback.warn(f"{args.key}: private key {exposure}")
     if key_name != args.name:
         raise InputError(f"is {key_name!r}'s key, not {args.name!r}'s", source=args.key, field="name")
     missing = [a for a in part.assemblies if a not in peers]
