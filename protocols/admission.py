@@ -39,9 +39,9 @@ class SuspectBudget:
     >>> budget = SuspectBudget(rate=2, burst=2, clock=lambda: t[0])
     >>> budget.flag(7); budget.suspect(7), budget.suspect(8)
     (True, False)
-    >>> [budget.take(100) for _ in range(3)]
+    >>> [budget.take(0) for _ in range(3)]
     [True, True, False]
-    >>> t[0] = 0.5; budget.take(100)
+    >>> t[0] = 0.5; budget.take(0)
     True
     """
 

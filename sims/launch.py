@@ -401,7 +401,8 @@ def _compose(log, reference, records, config, incarnations, timed_out, failures)
     by_step = {}
     for incarnation in records[reference]:
         for rec in incarnation:
-            by_step[rec["step"]] = rec  # a later incarnation's record of the same step wins
+            if "step" in rec:  # (the last line of a process that ended by itself holds its final counts)
+                by_step[rec["step"]] = rec  # a later incarnation's record of the same step wins
     # a step the reference's processes did not finish (down, or the run timed out) holds no agreed pose
     not_run = {name: "no_consensus" for name in log.assemblies if name != reference}
     steps = tuple(EstimateStep(s.t, poses_of(by_step[k]["poses"]), by_step[k].get("unplaced", {})) if k in by_step
@@ -419,7 +420,7 @@ def _compose(log, reference, records, config, incarnations, timed_out, failures)
     heard = set()
     for run in records[reference]:
         if run:
-            heard |= set(run[-1].get("heard", []))
+            heard |= set(next((rec.get("heard", []) for rec in reversed(run) if "step" in rec), []))
     stats = {
         "unplaced": count_reasons(step.unplaced for step in steps),
         "estimator": "consensus-admm",
@@ -434,7 +435,7 @@ def _compose(log, reference, records, config, incarnations, timed_out, failures)
         "messages": {"total": int(sum(messages.values())), "per_agent": messages},
         "bytes": {"total": int(sum(nbytes.values())), "per_agent": nbytes},
         "rejected": rejected,
-        "steps_reported": len(set(rec["step"] for run in records[reference] for rec in run)),
+        "steps_reported": len(set(rec["step"] for run in records[reference] for rec in run if "step" in rec)),
         "converged_per_step": [bool(by_step[k]["converged"]) if k in by_step else False for k in range(len(log.steps))],
         "rounds_per_step": [int(by_step[k]["rounds"]) if k in by_step else 0 for k in range(len(log.steps))],
         "missing": sorted(n for n in log.assemblies if n != reference and n not in heard),

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import signal
 import sys
@@ -44,6 +45,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--loss", type=float, default=0.0,
                         help="drop each arriving frame with this probability (testing; default 0)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the receive-side losses (default: 0)")
+    parser.add_argument("--clock-tolerance", type=float, default=5.0, metavar="SECONDS",
+                        help="refuse frames sent more than this long ago (or ahead) by the sender's clock, so that "
+                             "frames of an earlier run are refused; peers' clocks must agree within it (default: 5)")
     parser.add_argument("--stream", metavar="FILE",
                         help="append each finished step to FILE as one JSON line at once (survives a kill)")
 
@@ -58,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
     from protocols.network import LinkConfig
     from protocols.peers import key_file_exposure, load_peers, load_private_key, read_private_key_text
     from protocols.zmq_transport import ZmqTransport
-    from sims.agent_run import Pace, process_agent_config, run_agent
+    from sims.agent_run import Pace, _counts, process_agent_config, run_agent
     from sims.io.log_json import write_estimate
     from sims.parts import read_part
 
@@ -66,6 +70,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"must be >= 1, got {args.window}", field="--window")
     if not 0.0 <= args.loss < 1.0:
         raise InputError(f"must be in [0, 1), got {args.loss}", field="--loss")
+    if not (math.isfinite(args.clock_tolerance) and args.clock_tolerance > 0):
+        raise InputError(f"must be a positive number of seconds, got {args.clock_tolerance}", field="--clock-tolerance")
     part = read_part(args.log, args.name)
     peers = load_peers(args.peers)
     if args.key == "-":
@@ -87,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, _sigterm)
     faults = LinkConfig(drop=args.loss)
     transport = ZmqTransport({args.name: key}, {n: peers[n] for n in part.assemblies},
-                             rng=np.random.default_rng(args.seed), faults=faults)
+                             rng=np.random.default_rng(args.seed), faults=faults, max_age=args.clock_tolerance)
     stream = open(args.stream, "a", encoding="utf-8") if args.stream else None
     try:
         if args.start == "-":
@@ -102,11 +108,19 @@ def run(args: argparse.Namespace) -> int:
         result = run_agent(part, args.name, transport, config, pace, stream=stream,
                            wait=lambda seconds: transport.wait(seconds))
     finally:
-        transport.close()
+        transport.close()  # counts what is still queued as unread
         if stream is not None:
-            stream.close()
+            try:
+                stream.write(json.dumps({"final": True, "counts": _counts(transport, args.name)}) + "\n")
+            finally:
+                stream.close()
+    offsets = transport.clock_offsets(args.name)
     if args.output:
         write_estimate(args.output, result.estimate)
+    for peer, (lo, hi) in sorted(offsets.items()):
+        if peer != args.name and (lo > args.clock_tolerance or hi < -args.clock_tolerance):
+            feedback.warn(f"{peer}'s frames arrived {lo:+.2f} to {hi:+.2f} s from this clock: beyond the "
+                          f"{args.clock_tolerance:g} s tolerance, refused as stale (clocks or start times disagree)")
     if result.stats["missing"]:
         feedback.warn(f"{args.name} never heard from {', '.join(result.stats['missing'])}")
     stats = result.stats
