@@ -162,19 +162,20 @@ def _flooder(work: str, rate: float, seconds: float, out: str) -> None:
     push = ctx.socket(zmq.PUSH)
     push.setsockopt(zmq.SNDHWM, 100_000)
     push.connect(peers["A2"].address)
-    sent, peak = 0, {}
+    sent, tried, peak = 0, 0, {}
     t0 = time.monotonic()
     end = t0 + seconds
     next_sample = t0
     while time.monotonic() < end:
         now = time.monotonic()
         due = int((now - t0) * rate)
-        while sent < due:
+        while tried < due:
+            tried += 1
             try:
                 push.send(frames[sent % len(frames)], zmq.NOBLOCK)
-            except zmq.Again:
+                sent += 1
+            except zmq.Again:  # the agent's queue is full: TCP pushes back (not sent, not counted)
                 pass
-            sent += 1
         if now >= next_sample:
             next_sample = now + 0.2
             for pid in pids:
@@ -187,7 +188,8 @@ def _flooder(work: str, rate: float, seconds: float, out: str) -> None:
         time.sleep(0.005)
     push.close(linger=0)
     ctx.term()
-    Path(out).write_text(json.dumps({"sent": sent, "seconds": seconds, "peak_rss_bytes": max(peak.values(), default=0)}))
+    Path(out).write_text(json.dumps({"sent": sent, "tried": tried, "seconds": seconds,
+                                     "peak_rss_bytes": max(peak.values(), default=0)}))
 
 
 def flood_absorbed(rates: list[float], steps: int) -> list[dict]:
@@ -229,7 +231,7 @@ def flood_absorbed(rates: list[float], steps: int) -> list[dict]:
                     worst = max(worst, float(np.linalg.norm(np.asarray(pose.p) - np.asarray(c.poses[name].p))))
                 else:
                     worst = float("inf")
-        rows.append({"rate": rate, "flood_sent": flood.get("sent"), "converged_steps": int(sum(conv)),
+        rows.append({"rate": rate, "flood_sent": flood.get("sent"), "flood_tried": flood.get("tried"), "converged_steps": int(sum(conv)),
                      "steps": len(conv), "max_gap_converged_m": worst,
                      "rejected": {k: v for k, v in est.stats["rejected"].items() if v},
                      "agent_peak_rss_mb": flood.get("peak_rss_bytes", 0) / 1e6, "wall_s": wall,

@@ -30,8 +30,9 @@ that can be refused without it costs a parse and a look-up:
    of exactly ``98 + L + N`` -- else ``malformed`` (a truncated or padded frame is malformed);
 2. the sender is in the peers file -- else ``unknown_sender``;
 3. the pair (epoch, seq) is fresh for that sender (:class:`ReplayWindow`) -- else ``replay``;
-4. when the gate has a clock tolerance (``max_age``), ``sent_at`` is within ``max_age`` seconds
-   before the receiver's clock and ``max_ahead`` after it -- else ``stale``;
+4. when the gate has a clock tolerance (``max_age``), ``sent_at`` is no earlier than the
+   receiver's own start (``since``) minus ``max_age``, and no later than the receiver's clock plus
+   ``max_ahead`` -- else ``stale``;
 5. the signature verifies with that sender's public key -- else ``bad_signature``;
 6. the inner frame decodes -- else ``malformed``;
 7. the inner message names the envelope's sender as its sender -- else ``bad_signature`` (a member
@@ -52,11 +53,14 @@ accepted), a frame of an older epoch is a replay (so captured frames of a dead p
 and so do its own frames still in flight when it was killed). The scheme needs each sender's wall
 clock not to step back across its own restart by more than the restart took. A receiver that itself
 restarts has no memory of the windows; with a clock tolerance (step 4) it still refuses every frame
-sent more than ``max_age`` seconds before its own clock (a frame of an earlier run, or of an earlier
-life of a peer), so what it can be made to accept twice is limited to frames captured in the last
-``max_age`` seconds of the sender's current process. The tolerance is also a statement about
-clocks: agents whose clocks differ by more than it refuse each other's frames as ``stale`` (and
-:meth:`Gate.clock_offsets` reports the offsets seen, so the skew is named, not silent).
+sent before it started (less the tolerance): a frame of an earlier run, or of a peer's life that
+ended before it started. What it can be made to accept once more is limited to frames sent during
+its own life (and the tolerance before it) by a sender process it has not yet heard from again.
+The age of a frame is not held against it once the receiver runs (a receiver busy for seconds
+still takes what was queued meanwhile). The tolerance is also a statement about clocks: a sender
+whose clock runs ahead of the receiver's by more than it, or behind by more than it at the
+receiver's start, is refused as ``stale`` (and :meth:`Gate.clock_offsets` reports the offsets seen,
+so the skew is named, not silent).
 """
 
 from __future__ import annotations
@@ -338,20 +342,24 @@ class Gate:
     window : int
         Replay window size per sender (:class:`ReplayWindow`).
     max_age : float, optional
-        Refuse (``stale``) a frame whose ``sent_at`` is more than this many seconds before the
-        receiver's clock (the ``now`` given to :meth:`screen`); None (default) checks no clock.
+        Refuse (``stale``) a frame whose ``sent_at`` is more than this many seconds before ``since``;
+        None (default) checks no clock.
     max_ahead : float, optional
-        ... or more than this many seconds after it (default: ``max_age``).
+        ... or more than this many seconds after the receiver's clock (the ``now`` given to
+        :meth:`screen`; default: ``max_age``).
+    since : float, optional
+        The receiver's start on the senders' clock (default: ``time.time()`` when the gate is made).
     """
 
     def __init__(self, name: str, public_keys: Mapping[str, bytes], window: int = 1024, *,
-                 max_age: float | None = None, max_ahead: float | None = None):
+                 max_age: float | None = None, max_ahead: float | None = None, since: float | None = None):
         self.name = name
         self._keys = {who: VerifyKey(bytes(raw)) for who, raw in public_keys.items()}
         self._window = int(window)
         self._windows: dict[str, ReplayWindow] = {}
         self.max_age = None if max_age is None else float(max_age)
         self.max_ahead = self.max_age if max_ahead is None else float(max_ahead)
+        self.since = time.time() if since is None else float(since)
         self._offsets: dict[str, tuple[float, float]] = {}  # sender -> (min, max) of now - sent_at seen
 
     def admit(self, frame: bytes, now: float | None = None) -> tuple[Opened, Message]:
@@ -383,9 +391,10 @@ class Gate:
             lag = float(now) - env.sent_at
             lo, hi = self._offsets.get(env.sender, (lag, lag))
             self._offsets[env.sender] = (min(lo, lag), max(hi, lag))
-            if self.max_age is not None and not -self.max_ahead <= lag <= self.max_age:
-                raise Rejected("stale", f"{env.sender!r} sent it {lag:+.3f} s from this clock (tolerance "
-                                        f"{self.max_age:g} s behind, {self.max_ahead:g} s ahead)")
+            if self.max_age is not None and (env.sent_at < self.since - self.max_age or lag < -self.max_ahead):
+                raise Rejected("stale", f"{env.sender!r} sent it {lag:+.3f} s before this clock, "
+                                        f"{self.since - env.sent_at:+.3f} s before this receiver started "
+                                        f"(tolerance {self.max_age:g} s before the start, {self.max_ahead:g} s ahead)")
         return env
 
     def own_epoch(self, epoch: int) -> None:

@@ -156,9 +156,10 @@ class ZmqTransport(Transport):
     suspect_rate : float
         Signature checks per second shared by the connections that sent refused frames.
     max_age : float, optional
-        Clock tolerance (s) of :class:`protocols.auth.Gate`: refuse frames sent longer ago than this
-        (or this far ahead) by the sender's clock, as ``stale``. Needs ``now`` to be ``time.time()``
-        in :meth:`send` and :meth:`poll`. None (default): no clock check.
+        Clock tolerance (s) of :class:`protocols.auth.Gate`: refuse, as ``stale``, frames sent more
+        than this long before the transport was made or this far ahead of the receiver's clock.
+        Needs ``now`` to be ``time.time()`` in :meth:`send` and :meth:`poll`. None (default): no
+        clock check.
     """
 
     def __init__(

@@ -439,6 +439,8 @@ def _compose(log, reference, records, config, incarnations, timed_out, failures)
         "converged_per_step": [bool(by_step[k]["converged"]) if k in by_step else False for k in range(len(log.steps))],
         "rounds_per_step": [int(by_step[k]["rounds"]) if k in by_step else 0 for k in range(len(log.steps))],
         "missing": sorted(n for n in log.assemblies if n != reference and n not in heard),
+        # members whose data the others contradicted, left out of the reference's joint solution
+        "excluded": sorted({a for run in records[reference] for rec in run for a in rec.get("excluded", ())}),
         "absent": list(config.absent),
         "status": "timeout" if timed_out else "ok",
     }

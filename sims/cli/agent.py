@@ -46,8 +46,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="drop each arriving frame with this probability (testing; default 0)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the receive-side losses (default: 0)")
     parser.add_argument("--clock-tolerance", type=float, default=5.0, metavar="SECONDS",
-                        help="refuse frames sent more than this long ago (or ahead) by the sender's clock, so that "
-                             "frames of an earlier run are refused; peers' clocks must agree within it (default: 5)")
+                        help="refuse frames sent more than this long before this agent started, or this far ahead of its "
+                             "clock, so that frames of an earlier run are refused; peers' clocks must agree within "
+                             "it (default: 5)")
     parser.add_argument("--stream", metavar="FILE",
                         help="append each finished step to FILE as one JSON line at once (survives a kill)")
 
