@@ -16,6 +16,9 @@ Two measurements, both on loopback:
   converged, how many steps converged, the frames the agents refused, and the largest resident
   memory of an agent. The largest rate with every converged step within 1 mm and at least as many
   converged steps as without a flood minus one is the rate "absorbed".
+* **CurveZMQ**: CPU per frame over loopback with and without ZeroMQ's CURVE encryption (keys
+  derived from Ed25519 keys), small and 64 KiB frames: the cost of refusing outsiders at the
+  connection instead.
 
 The machine is shared: every timing is printed beside the load average, and the per-frame costs
 are also given as ratios to the genuine frame measured in the same run. Run it once on the code to
@@ -141,6 +144,55 @@ def _captured(sender_transport) -> bytes:
                                                                            t=0.0).to_bytes())
 
 
+# ---------------------------------------------------------------------------- CurveZMQ
+def curve_cost(sizes=(300, 65536), reps: int = 3) -> dict:
+    """CPU (both ends, libzmq's I/O threads included) per frame over loopback, plain TCP against CurveZMQ with
+    keys derived from Ed25519 ones (as agents would derive them from their signing keys); medians of ``reps``."""
+    import numpy as np
+    import zmq
+    import zmq.utils.z85
+    from nacl.bindings import crypto_sign_ed25519_pk_to_curve25519, crypto_sign_ed25519_sk_to_curve25519
+    from nacl.signing import SigningKey
+
+    def curve_keys(sk):
+        public = crypto_sign_ed25519_pk_to_curve25519(bytes(sk.verify_key))
+        secret = crypto_sign_ed25519_sk_to_curve25519(bytes(sk) + bytes(sk.verify_key))
+        return zmq.utils.z85.encode(public), zmq.utils.z85.encode(secret)
+
+    def once(curve: bool, n: int, size: int) -> float:
+        ctx = zmq.Context()
+        pull, push = ctx.socket(zmq.PULL), ctx.socket(zmq.PUSH)
+        if curve:
+            (spk, ssk), (cpk, csk) = curve_keys(SigningKey.generate()), curve_keys(SigningKey.generate())
+            pull.curve_server, pull.curve_secretkey, pull.curve_publickey = True, ssk, spk
+            push.curve_serverkey, push.curve_publickey, push.curve_secretkey = spk, cpk, csk
+        pull.bind("tcp://127.0.0.1:*")
+        push.setsockopt(zmq.SNDHWM, 0)
+        push.connect(pull.getsockopt_string(zmq.LAST_ENDPOINT))
+        msg = os.urandom(size)
+        push.send(msg)
+        pull.recv()
+        t0 = time.process_time()
+        for _ in range(n):
+            push.send(msg)
+        for _ in range(n):
+            pull.recv()
+        cpu = time.process_time() - t0
+        push.close(0)
+        pull.close(0)
+        ctx.term()
+        return 1e6 * cpu / n
+
+    out = {}
+    for size in sizes:
+        n = 20000 if size <= 1024 else 2000
+        plain = [once(False, n, size) for _ in range(reps)]
+        curve = [once(True, n, size) for _ in range(reps)]
+        out[f"{size}B"] = {"plain_cpu_us": float(np.median(plain)), "curve_cpu_us": float(np.median(curve)),
+                           "ratio": float(np.median(curve) / np.median(plain)), "loadavg": list(os.getloadavg())}
+    return out
+
+
 # ---------------------------------------------------------------------------- flood absorbed
 def _flooder(work: str, rate: float, seconds: float, out: str) -> None:
     """Send forged small frames naming A1 at A2 at ``rate`` per second; sample the agents' memory."""
@@ -258,6 +310,8 @@ def main(argv=None) -> int:
                              "launch": {"assemblies": 5, "rate": 0.2, "round_period": 0.05, "target": "A2"}}}
     result["cost_per_frame"] = cost_per_frame(args.frames)
     print(json.dumps(result["cost_per_frame"], indent=1), flush=True)
+    result["curve"] = curve_cost()
+    print(json.dumps(result["curve"], indent=1), flush=True)
     result["flood"] = flood_absorbed(args.rates, args.steps)
     exact = [row["rate"] for row in result["flood"] if row["exact"]]
     result["absorbed_rate"] = max(exact) if exact else None
