@@ -214,8 +214,7 @@ def test_a_member_claiming_anothers_node_ids_is_named_and_never_placed(tmp_path,
     """A3's part lists A1's node ids as its own: the reference names A3 in `excluded` and never places it.
 
     (Real processes at 20 rounds per step do not yet reach the centralized estimate without A3 on every
-    step: the excluded member's agent still runs the ADMM with its neighbours; the simulated runtime does,
-    see the next test.)"""
+    step; the simulated runtime, which runs each window until every agent is quiet, does: next test.)"""
     import sims.launch as launch_module
 
     sim = simulate(get_scenario("multi", n_assemblies=5, steps=10), seed=1)
