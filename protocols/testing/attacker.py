@@ -83,14 +83,15 @@ def as_expected(rejected: Mapping[str, int]) -> dict[str, int]:
 
 
 def _forged(rng: np.random.Generator, sender: str) -> bytes:
-    """A well-formed envelope from ``sender`` signed with a random key, with a fresh (epoch, seq).
+    """A well-formed envelope from ``sender`` signed with a random key, with a fresh (epoch, seq), sent now.
 
-    The epoch is above any clock-derived one, so that the receiver cannot refuse it as a replay
-    before checking its signature (which it does first when it can: a cheaper refusal).
+    The epoch is above any clock-derived one and ``sent_at`` is the attacker's clock, so that the
+    receiver cannot refuse it as a replay or as stale before checking its signature (which it does
+    first when it can: a cheaper refusal).
     """
     key = private_key_from_bytes(rng.bytes(32))
     inner = Heartbeat(sender=sender, receiver=BROADCAST, round=int(rng.integers(0, 2**31)), t=0.0).to_bytes()
-    return seal(key, sender, 2**63 + int(rng.integers(0, 2**62)), int(rng.integers(0, 2**62)), 0.0, inner)
+    return seal(key, sender, 2**63 + int(rng.integers(0, 2**62)), int(rng.integers(0, 2**62)), time.time(), inner)
 
 
 def _frame(attack: str, rng: np.random.Generator, senders: Sequence[str], captured: Sequence[bytes],
@@ -120,7 +121,7 @@ def _frame(attack: str, rng: np.random.Generator, senders: Sequence[str], captur
         victim = [s for s in senders if s != name][int(rng.integers(len(senders) - 1))]
         inner = Heartbeat(sender=victim, receiver=BROADCAST, round=0, t=0.0).to_bytes()
         # an epoch above any clock-derived one, so the frame is fresh and refused for whom it speaks
-        return seal(private_key_from_bytes(raw), name, 2**63 + int(rng.integers(0, 2**62)), 0, 0.0, inner)
+        return seal(private_key_from_bytes(raw), name, 2**63 + int(rng.integers(0, 2**62)), 0, time.time(), inner)
     if attack == "unknown_sender":
         return _forged(rng, "intruder-" + rng.bytes(6).hex())
     if attack == "replay":
