@@ -128,10 +128,13 @@ def screen_members(problems: Sequence[LocalProblem], gauge: tuple, value=None, *
         for a in candidates:
             rest = [p for p in kept if all(k[0] != a for k in p.keys)]
             rests[a] = rest
-            left[a] = residual(rest, solve(rest, gauge, value).poses) if rest else 0.0
+            try:
+                left[a] = residual(rest, solve(rest, gauge, value).poses) if rest else 0.0
+            except np.linalg.LinAlgError:  # the rest does not tie its variables: no verdict on this member
+                left[a] = np.inf
         order = sorted(candidates, key=lambda a: (left[a], repr(a)))
         best, second = left[order[0]], left[order[1]]
-        if not (second > ratio * best and second - best > floor):
+        if not (np.isfinite(best) and second > ratio * best and second - best > floor):
             break
         excluded.append(order[0])
         kept = rests[order[0]]
