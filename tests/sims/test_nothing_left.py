@@ -64,31 +64,35 @@ def _settled(check, timeout: float = 15.0):
         time.sleep(0.1)
 
 
-def _kill_at_random(argv: list[str], tmp: Path, delay: float, extra_env: dict | None = None) -> str:
+def _kill_at_random(argv: list[str], tmp: Path, delay: float, busy: int = 0) -> str:
+    """Start the command, wait until ``busy`` tagged processes run (0: do not wait), then ``delay`` s, then SIGKILL."""
     tag = uuid.uuid4().hex
-    env = {**os.environ, "DECENTRAL_TEST_TAG": tag, "TMPDIR": str(tmp), "OPENBLAS_NUM_THREADS": "1",
-           **(extra_env or {})}
+    env = {**os.environ, "DECENTRAL_TEST_TAG": tag, "TMPDIR": str(tmp), "OPENBLAS_NUM_THREADS": "1"}
     proc = subprocess.Popen([sys.executable, "-m", "sims.cli.main", *argv], cwd=tmp, env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 60
+    while busy and len(_tagged(tag)) < busy and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    assert not busy or len(_tagged(tag)) >= busy, "the command never got busy"
     time.sleep(delay)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     return tag
 
 
-def _study_trial(tmp: Path, delay: float) -> None:
+def _study_trial(tmp: Path, delay: float, busy: int = 0) -> None:
     spec = tmp / "spec.toml"
     spec.write_text(STUDY_SPEC)
-    tag = _kill_at_random(["study", str(spec), "-o", str(tmp / "out"), "--workers", "2"], tmp, delay)
+    tag = _kill_at_random(["study", str(spec), "-o", str(tmp / "out"), "--workers", "2"], tmp, delay, busy)
     left = _settled(lambda: _tagged(tag))
     assert not left, f"killed after {delay:.2f} s, still alive: {left}"
 
 
-def _launch_trial(tmp: Path, log: Path, delay: float) -> None:
+def _launch_trial(tmp: Path, log: Path, delay: float, busy: int = 0) -> None:
     scratch = tmp / "tmp"
     scratch.mkdir()
     tag = _kill_at_random(["launch", str(log), "-o", str(tmp / "est.json"), "--rate", "0.4", "--round-period",
-                           "0.025"], scratch, delay)
+                           "0.025"], scratch, delay, busy)
     left = _settled(lambda: _tagged(tag))
     assert not left, f"killed after {delay:.2f} s, still alive: {left}"
     files = _settled(lambda: list(scratch.rglob("*")))
@@ -104,12 +108,12 @@ def launch_log(tmp_path_factory) -> Path:
 
 def test_a_study_killed_with_sigkill_leaves_no_worker(tmp_path):
     """SIGKILL of `study` while its two workers run cells: no worker and no resource tracker survives it."""
-    _study_trial(tmp_path, 4.0)
+    _study_trial(tmp_path, 0.5, busy=3)  # the study and its two workers (and the tracker) are up
 
 
 def test_a_launch_killed_with_sigkill_leaves_no_agent_and_no_key(tmp_path, launch_log):
     """SIGKILL of `launch` while its agents run: no agent survives, and its temporary folder is gone."""
-    _launch_trial(tmp_path, launch_log, 5.0)
+    _launch_trial(tmp_path, launch_log, 1.0, busy=5)  # launch, its janitor and three agents are up
 
 
 @pytest.mark.slow
