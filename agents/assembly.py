@@ -107,6 +107,8 @@ class AssemblyAgent:
         self._busy_seen = -(10**9)  # last round with ADMM values of this window from a neighbour still at work
         self._watchers: set[str] = set()  # observers named by the last complete set of forms
         self._shared: dict[str, list[LocalProblem]] = {}  # target -> its pair's forms, one per step
+        #: members whose data the others' contradicted in the last window this agent solved (left out of it)
+        self.excluded: tuple = ()
         # the sharing of every window's cost forms (tree or broadcast), its records and the neighbours' tree places
         limit = config.max_yaw_std if config.noise.weighting == "information" else np.inf
         self._sharing = WindowAggregation(config.name, config.assemblies, config.reference,
@@ -218,11 +220,12 @@ class AssemblyAgent:
         unknown = set()
         for k in self._steps:
             for node, t, w in self._seen.get(k, []):
-                hit = self._configs.owner_of(node, k)
-                if hit is None:
+                hits = self._configs.owners_of(node, k)  # several: someone lies; each claim is tried
+                if not hits:
                     unknown.add(int(node))
                     continue
-                rows.setdefault(hit[0], []).append((k, hit[1], t, w))
+                for owner, centre in hits:
+                    rows.setdefault(owner, []).append((k, centre, t, w))
         self.counters["unknown_nodes"] = len(unknown)
         self._configs.unknown = unknown
         self._pair_steps = {k for r in rows.values() for k, *_ in r}
@@ -341,6 +344,7 @@ class AssemblyAgent:
             # fixed point (100-250 rounds per window at 50 % loss): stay silent while the rest may still come
             self._hold = self._round + self.config.share_timeout
         joint = sharing.joint(share)
+        self.excluded = tuple(share.excluded)
         if joint is None:
             return  # no forms, or the gauge's value at this window is unknown here: the ADMM goes on
         seeds = joint.poses

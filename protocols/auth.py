@@ -22,22 +22,28 @@ Envelope, version 1 (all integers little-endian; ``L`` = sender name length, ``N
     34+L+N      64    Ed25519 signature of bytes [0, 34+L+N)
 
 So the envelope adds ``98 + L`` bytes to a frame. A receiver accepts a frame only if, in this order
-(the first failing check names the reason it is refused with, see :data:`REJECT_REASONS`):
+(the first failing check names the reason it is refused with, see :data:`REJECT_REASONS`); the
+cheap checks (1-4, :meth:`Gate.screen`) come before the signature (:meth:`Gate.verify`), so a frame
+that can be refused without it costs a parse and a look-up:
 
 1. it parses exactly: magic, a known version, a valid name, a finite ``sent_at`` and a total length
    of exactly ``98 + L + N`` -- else ``malformed`` (a truncated or padded frame is malformed);
 2. the sender is in the peers file -- else ``unknown_sender``;
-3. the signature verifies with that sender's public key -- else ``bad_signature``;
-4. the pair (epoch, seq) is fresh for that sender (:class:`ReplayWindow`) -- else ``replay``;
-5. the inner frame decodes -- else ``malformed``;
-6. the inner message names the envelope's sender as its sender -- else ``bad_signature`` (a member
+3. the pair (epoch, seq) is fresh for that sender (:class:`ReplayWindow`) -- else ``replay``;
+4. when the gate has a clock tolerance (``max_age``), ``sent_at`` is no earlier than the
+   receiver's own start (``since``) minus ``max_age``, and no later than the receiver's clock plus
+   ``max_ahead`` -- else ``stale``;
+5. the signature verifies with that sender's public key -- else ``bad_signature``;
+6. the inner frame decodes -- else ``malformed``;
+7. the inner message names the envelope's sender as its sender -- else ``bad_signature`` (a member
    speaking for another member is a forgery, even when signed with its own key);
-7. the message is addressed to the receiving agent, or to everyone but is not the receiving agent's
+8. the message is addressed to the receiving agent, or to everyone but is not the receiving agent's
    own broadcast -- else ``replay`` (a genuine frame that shows up at an agent it was not meant for
    can only be a copy of someone else's traffic, or of the agent's own, reflected back).
 
-Step 4 only looks: the window remembers (epoch, seq) once the frame has passed every step, so a
-refused frame never moves a sender's window.
+Step 3 only looks: the window remembers (epoch, seq) once the frame has passed every step, so a
+refused frame never moves a sender's window (and a forged frame with a high sequence number, which
+passes step 3, fails step 5 and moves nothing).
 
 Restarts and replays. A sender's epoch is its process's start time in nanoseconds since the Unix
 epoch (``time.time_ns()``), so a restarted sender, which starts its sequence at 0 again, comes back
@@ -46,8 +52,15 @@ over that epoch's sequence numbers: a frame of a newer epoch resets the window (
 accepted), a frame of an older epoch is a replay (so captured frames of a dead process stay dead,
 and so do its own frames still in flight when it was killed). The scheme needs each sender's wall
 clock not to step back across its own restart by more than the restart took. A receiver that itself
-restarts has no memory: it accepts each genuine frame of a sender's current epoch at most once more
-(any of them until the sender's next frame arrives, then only those within one window of the newest).
+restarts has no memory of the windows; with a clock tolerance (step 4) it still refuses every frame
+sent before it started (less the tolerance): a frame of an earlier run, or of a peer's life that
+ended before it started. What it can be made to accept once more is limited to frames sent during
+its own life (and the tolerance before it) by a sender process it has not yet heard from again.
+The age of a frame is not held against it once the receiver runs (a receiver busy for seconds
+still takes what was queued meanwhile). The tolerance is also a statement about clocks: a sender
+whose clock runs ahead of the receiver's by more than it, or behind by more than it at the
+receiver's start, is refused as ``stale`` (and :meth:`Gate.clock_offsets` reports the offsets seen,
+so the skew is named, not silent).
 """
 
 from __future__ import annotations
@@ -93,8 +106,11 @@ ENVELOPE_MAGIC = b"DCSE"
 ENVELOPE_VERSION = 1
 SIGNATURE_SIZE = 64
 KEY_SIZE = 32
-#: why a frame was refused; the counters in ``TransportStats.rejected`` use exactly these names
-REJECT_REASONS = ("bad_signature", "replay", "unknown_sender", "malformed")
+#: why a frame was refused; the counters in ``TransportStats.rejected`` use exactly these names. The first
+#: four are the envelope checks; ``stale`` is a frame sent too long ago (or too far ahead) by the sender's
+#: clock, ``rate`` a frame from a connection that sent refused frames, past the budget for checking them,
+#: ``unread`` a frame still queued when the receiver closed
+REJECT_REASONS = ("bad_signature", "replay", "unknown_sender", "malformed", "stale", "rate", "unread")
 _PREFIX = struct.Struct("<4sBB")  # magic, version, L
 _FIELDS = struct.Struct("<QQdI")  # epoch, seq, sent_at, N
 _MAX_NAME = 255
@@ -315,7 +331,7 @@ class ReplayWindow:
 
 
 class Gate:
-    """The receiving half: checks every inbound frame for one agent (steps 1-7 of the module docstring).
+    """The receiving half: checks every inbound frame for one agent (steps 1-8 of the module docstring).
 
     Parameters
     ----------
@@ -325,34 +341,96 @@ class Gate:
         Every known sender's raw 32-byte Ed25519 public key (from the peers file).
     window : int
         Replay window size per sender (:class:`ReplayWindow`).
+    max_age : float, optional
+        Refuse (``stale``) a frame whose ``sent_at`` is more than this many seconds before ``since``;
+        None (default) checks no clock.
+    max_ahead : float, optional
+        ... or more than this many seconds after the receiver's clock (the ``now`` given to
+        :meth:`screen`; default: ``max_age``).
+    since : float, optional
+        The receiver's start on the senders' clock (default: ``time.time()`` when the gate is made).
     """
 
-    def __init__(self, name: str, public_keys: Mapping[str, bytes], window: int = 1024):
+    def __init__(self, name: str, public_keys: Mapping[str, bytes], window: int = 1024, *,
+                 max_age: float | None = None, max_ahead: float | None = None, since: float | None = None):
         self.name = name
         self._keys = {who: VerifyKey(bytes(raw)) for who, raw in public_keys.items()}
         self._window = int(window)
         self._windows: dict[str, ReplayWindow] = {}
+        self.max_age = None if max_age is None else float(max_age)
+        self.max_ahead = self.max_age if max_ahead is None else float(max_ahead)
+        self.since = time.time() if since is None else float(since)
+        self._offsets: dict[str, tuple[float, float]] = {}  # sender -> (min, max) of now - sent_at seen
 
-    def admit(self, frame: bytes) -> tuple[Opened, Message]:
-        """The envelope and its message if ``frame`` passes every check.
+    def admit(self, frame: bytes, now: float | None = None) -> tuple[Opened, Message]:
+        """The envelope and its message if ``frame`` passes every check (:meth:`screen`, then :meth:`verify`).
 
         Raises
         ------
         Rejected
             With the reason of the first failing check.
         """
+        env = self.screen(frame, now)
+        return env, self.verify(env)
+
+    def screen(self, frame: bytes, now: float | None = None) -> Opened:
+        """Checks 1-4 (no signature): the envelope, if it is worth verifying.
+
+        Raises
+        ------
+        Rejected
+            ``malformed``, ``unknown_sender``, ``replay`` or ``stale``.
+        """
         env = parse(frame)
-        key = self._keys.get(env.sender)
-        if key is None:
+        if env.sender not in self._keys:
             raise Rejected("unknown_sender", f"{env.sender!r} is not in the peers file")
+        window = self._windows.get(env.sender)
+        if window is not None and not window.fresh(env.epoch, env.seq):
+            raise Rejected("replay", f"{env.sender!r} epoch {env.epoch} seq {env.seq} is not fresh")
+        if now is not None:
+            lag = float(now) - env.sent_at
+            lo, hi = self._offsets.get(env.sender, (lag, lag))
+            self._offsets[env.sender] = (min(lo, lag), max(hi, lag))
+            if self.max_age is not None and (env.sent_at < self.since - self.max_age or lag < -self.max_ahead):
+                raise Rejected("stale", f"{env.sender!r} sent it {lag:+.3f} s before this clock, "
+                                        f"{self.since - env.sent_at:+.3f} s before this receiver started "
+                                        f"(tolerance {self.max_age:g} s before the start, {self.max_ahead:g} s ahead)")
+        return env
+
+    def own_epoch(self, epoch: int) -> None:
+        """Tell the gate the epoch this agent itself sends with (its :class:`Signer`'s).
+
+        Only this process sends as this agent, so a frame in its name from an older epoch is a
+        capture of an earlier life of it, refused as ``replay`` before any signature check.
+        """
+        window = self._windows.setdefault(self.name, ReplayWindow(self._window))
+        if epoch > window.epoch:
+            window.epoch, window.top, window._bits = int(epoch), -1, 0
+
+    def clock_offsets(self) -> dict[str, tuple[float, float]]:
+        """Per claimed sender: the smallest and largest ``now - sent_at`` seen (s), refused frames included.
+
+        The smallest is the sender's clock offset plus the quickest delivery; a value beyond the
+        tolerance names a clock (or a start time) that is off. Frames of unknown senders are not kept.
+        """
+        return dict(self._offsets)
+
+    def verify(self, env: Opened) -> Message:
+        """Checks 5-8 on an envelope :meth:`screen` passed: signature, inner frame, sender, receiver.
+
+        Raises
+        ------
+        Rejected
+            ``bad_signature``, ``replay`` or ``malformed``.
+        """
         try:
-            key.verify(env.signed, env.signature)
+            self._keys[env.sender].verify(env.signed, env.signature)
         except BadSignatureError:
             raise Rejected("bad_signature", f"signature does not verify for {env.sender!r}") from None
         window = self._windows.get(env.sender)
         if window is None:
             window = self._windows[env.sender] = ReplayWindow(self._window)
-        if not window.fresh(env.epoch, env.seq):
+        if not window.fresh(env.epoch, env.seq):  # checked again: the frame may have been screened long ago
             raise Rejected("replay", f"{env.sender!r} epoch {env.epoch} seq {env.seq} is not fresh")
         try:
             message = decode(env.inner)
@@ -363,4 +441,4 @@ class Gate:
         if message.receiver not in (self.name, BROADCAST) or (env.sender == self.name and message.is_broadcast):
             raise Rejected("replay", f"a frame from {env.sender!r} to {message.receiver!r} reached {self.name!r}")
         window.mark(env.epoch, env.seq)  # only a frame admitted whole moves the window
-        return env, message
+        return message

@@ -69,6 +69,33 @@ class ConfigTable:
                 return name, conf[node]
         return None
 
+    def owners_of(self, node: int, step: int) -> list[tuple[str, np.ndarray]]:
+        """Every assembly that lists ``node`` at ``step``, with the centre (3,) it gives, in name order.
+
+        Two or more means a member lies about its nodes (the centralized reader refuses such a log:
+        "node id 4 also belongs to A1"); an observer cannot tell which from the announcements alone,
+        so it attributes the detection to each claimant and the consistency test of the joint
+        window (:func:`decentral.consistency.screen_members`) finds the member whose data the
+        others contradict.
+        """
+        out = []
+        for name in sorted(self.history):
+            hist = self.history[name]
+            usable = [h for h in hist if h[0] <= step] or hist[:1]
+            if usable and node in usable[-1][1]:
+                out.append((name, usable[-1][1][node]))
+        return out
+
+    def contested(self, step: int) -> dict[int, tuple[str, ...]]:
+        """Node ids more than one assembly lists at ``step``: node -> the claimants, in name order."""
+        claims: dict[int, list[str]] = {}
+        for name in sorted(self.history):
+            hist = self.history[name]
+            usable = [h for h in hist if h[0] <= step] or hist[:1]
+            for node in (usable[-1][1] if usable else {}):
+                claims.setdefault(int(node), []).append(name)
+        return {node: tuple(names) for node, names in claims.items() if len(names) > 1}
+
     def relays(self, request: ConfigRequest, sender: str, round_index: int) -> list[ConfigAnnounce]:
         """Answers to ``request`` from ``sender``: the configurations held here that list a requested node
         (the owner's own answer and the request each cross one lossy link; every relay is another chance)."""
@@ -131,6 +158,10 @@ class ConfigGossip:
     def owner_of(self, node: int, step: int) -> tuple[str, np.ndarray] | None:
         """The assembly that lists ``node`` at ``step`` and the node's centre (3,), or ``None``."""
         return self.table.owner_of(node, step)
+
+    def owners_of(self, node: int, step: int) -> list[tuple[str, np.ndarray]]:
+        """Every assembly that lists ``node`` at ``step`` (:meth:`ConfigTable.owners_of`)."""
+        return self.table.owners_of(node, step)
 
     def set_own(self, config: dict, step: int, round_index: int, observers) -> list[ConfigAnnounce]:
         """The own configuration at ``step``; the announcements due: a broadcast when it changed (rare:

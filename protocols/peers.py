@@ -22,9 +22,11 @@ handing to whoever assembles the peers file. Loading any of them raises
 
 from __future__ import annotations
 
+import ipaddress
 import json
 import os
 import re
+import socket
 from dataclasses import dataclass
 from typing import Any, Mapping
 
@@ -51,6 +53,10 @@ __all__ = [
     "load_peers",
     "peers_json",
     "load_private_key",
+    "key_file_exposure",
+    "read_private_key_text",
+    "parse_private_key",
+    "address_identity",
     "private_key_json",
     "public_key_json",
 ]
@@ -99,6 +105,33 @@ def check_address(address: object, *, allow_any_port: bool = False) -> str:
     return address
 
 
+def address_identity(address: str) -> frozenset:
+    """What ``address`` reaches, for telling two addresses apart: a set of ``(ip, port)`` pairs.
+
+    A ``tcp://`` host is resolved (``localhost``, ``127.0.0.1`` and ``127.0.0.01`` are all
+    ``("127.0.0.1", port)``; a name gives every address it resolves to; one that does not resolve
+    stands for itself, lower-cased); an ``ipc://`` path is made absolute. Two peers whose
+    identities intersect would listen on the same socket.
+    """
+    if address.startswith("ipc://"):
+        return frozenset({("ipc", os.path.abspath(address[len("ipc://"):]))})
+    m = _TCP.match(address)
+    if m is None:
+        return frozenset({("raw", address)})
+    host, port = m.group(1).strip("[]"), int(m.group(2))
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+    except (socket.gaierror, UnicodeError, OSError):
+        return frozenset({(host.lower(), port)})
+    out = set()
+    for family, *_, sockaddr in infos:
+        ip = sockaddr[0]
+        if family == socket.AF_INET6 and ip.startswith("::ffff:") and "." in ip:
+            ip = ip[len("::ffff:"):]  # an IPv4-mapped address is that IPv4 address
+        out.add((ipaddress.ip_address(ip.split("%")[0]).compressed, port))
+    return frozenset(out)
+
+
 def check_name(name: object) -> str:
     """Return ``name`` if it can name an agent (1-255 UTF-8 bytes, not the broadcast marker), else ``ValueError``."""
     if not isinstance(name, str) or not name or len(name.encode("utf-8")) > 255 or name == BROADCAST:
@@ -126,6 +159,10 @@ def _read_json(path: str | os.PathLike, fmt: str) -> dict:
             raw = fh.read(_MAX_FILE + 1)
     except OSError as err:
         raise InputError(f"cannot read ({err.strerror})", source=source) from None
+    return _parse_json(raw, source, fmt)
+
+
+def _parse_json(raw: bytes, source: str, fmt: str) -> dict:
     if len(raw) > _MAX_FILE:
         raise InputError(f"larger than {_MAX_FILE} bytes", source=source)
     try:
@@ -168,7 +205,7 @@ def load_peers(path: str | os.PathLike) -> dict[str, Peer]:
         raise InputError("must be a non-empty object of name -> {address, public_key}", source=source,
                          field="peers")
     out: dict[str, Peer] = {}
-    addresses: dict[str, str] = {}
+    reached: dict[tuple, str] = {}  # (ip, port) -> the peer listening there
     for name, entry in peers.items():
         where = f"peers.{name}"
         try:
@@ -178,9 +215,12 @@ def load_peers(path: str | os.PathLike) -> dict[str, Peer]:
         if not isinstance(entry, dict):
             raise InputError("must be an object with address and public_key", source=source, field=where)
         address = _field(entry, "address", source, where, check_address)
-        if address in addresses:
-            raise InputError(f"same address as {addresses[address]!r}", source=source, field=f"{where}.address")
-        addresses[address] = name
+        identity = address_identity(address)
+        clash = next((reached[i] for i in identity if i in reached), None)
+        if clash is not None:
+            raise InputError(f"same address as {clash!r} ({address} resolves to where {clash!r} listens)",
+                             source=source, field=f"{where}.address")
+        reached.update((i, name) for i in identity)
         key = _field(entry, "public_key", source, where, lambda v: check_public_key(b64decode_key(v)))
         out[name] = Peer(name, address, key)
     return out
@@ -203,17 +243,44 @@ def public_key_json(name: str, key: SigningKey) -> dict:
     return {"format": PUBKEY_FORMAT, "name": name, "public_key": b64encode(public_key_bytes(key))}
 
 
-def load_private_key(path: str | os.PathLike) -> tuple[str, SigningKey]:
+def load_private_key(path: str | os.PathLike, *, allow_readable: bool = False) -> tuple[str, SigningKey]:
     """Read a ``decentral.key/1`` file: (agent name, signing key).
+
+    A key file that its group or other users may read (any of the mode bits ``0o077``) is refused
+    unless ``allow_readable`` (:func:`key_file_exposure` tells the caller so it can warn).
 
     Raises
     ------
     InputError
-        Unreadable file, wrong format, bad name or key, or a public key that does not belong to the
-        private key.
+        Unreadable file, readable by others, wrong format, bad name or key, or a public key that does
+        not belong to the private key.
     """
     source = str(path)
-    data = _read_json(path, KEY_FORMAT)
+    exposure = key_file_exposure(path)
+    if exposure and not allow_readable:
+        raise InputError(f"{exposure}: a private key must be readable by its owner only (chmod 600 it)",
+                         source=source)
+    return parse_private_key(_read_json(path, KEY_FORMAT), source)
+
+
+def key_file_exposure(path: str | os.PathLike) -> str | None:
+    """``"readable by group and others (mode 0644)"`` if users other than the owner may read ``path``, else None."""
+    try:
+        mode = os.stat(path).st_mode & 0o777
+    except OSError:
+        return None  # reading it says why
+    who = [w for w, bits in (("group", 0o070), ("others", 0o007)) if mode & bits]
+    return f"readable by {' and '.join(who)} (mode {mode:04o})" if who else None
+
+
+def read_private_key_text(text: str | bytes, source: str = "<stdin>") -> tuple[str, SigningKey]:
+    """A ``decentral.key/1`` document given as text (e.g. one line on a pipe): (agent name, signing key)."""
+    raw = text.encode("utf-8") if isinstance(text, str) else bytes(text)
+    return parse_private_key(_parse_json(raw, source, KEY_FORMAT), source)
+
+
+def parse_private_key(data: Mapping, source: str) -> tuple[str, SigningKey]:
+    """The (name, signing key) of a parsed ``decentral.key/1`` object (``source`` names it in errors)."""
     name = _field(data, "name", source, "", check_name)
     key = private_key_from_bytes(_field(data, "private_key", source, "", b64decode_key))
     if "public_key" in data:

@@ -15,6 +15,11 @@ from typing import Any, Mapping
 import numpy as np
 
 from decentral.admm import LocalProblem, solve_joint
+from decentral.consistency import screen_members
+
+#: windows of at most this many members are screened for a member whose data the others contradict (the
+#: test solves the window once more per member; larger windows are solved as they come)
+SCREEN_MAX_MEMBERS = 8
 from decentral.geometry import rot2
 from decentral.placement import unplaced_reasons
 from protocols.admm_messages import FormAck, FormBundle, pack_bundle
@@ -74,6 +79,9 @@ class WindowShare:
         The joint solution of the records (once :meth:`solve` has run: ``solved``).
     placeable : frozenset or None
         ``(assembly, step)`` keys the joint placement test places, and ``yaw_std`` its yaw deviations.
+    excluded : tuple
+        Members whose data the others contradict, left out of the joint solution
+        (:func:`decentral.consistency.screen_members`); ``kept`` the forms it was solved from.
     """
 
     step: int
@@ -92,6 +100,8 @@ class WindowShare:
     joint: Any = _UNSOLVED
     placeable: frozenset | None = None
     yaw_std: Any = None
+    excluded: tuple = ()
+    kept: list | None = None
 
     @property
     def solved(self) -> bool:
@@ -110,7 +120,14 @@ class WindowShare:
         if problems and (pin is not None and int(pin[0]) == first or first == 0):
             value = (rot2(float(pin[4])), np.array(pin[1:4])) if pin is not None and int(pin[0]) == first else None
             try:
-                self.joint = solve_joint(problems, (reference, first), value)
+                # a member whose data the others contradict is left out, with every form over its poses
+                members = {k[0] for prob in problems for k in prob.keys}
+                if len(members) <= SCREEN_MAX_MEMBERS:
+                    screening = screen_members(problems, (reference, first), value)
+                    self.excluded, self.kept = screening.excluded, screening.kept
+                else:
+                    self.excluded, self.kept = (), problems
+                self.joint = solve_joint(screening.kept, (reference, first), value)
             except np.linalg.LinAlgError:
                 return False
         return True
@@ -126,7 +143,7 @@ class WindowShare:
         """Why the joint placement test leaves an assembly out at ``step`` (assembly -> reason code of
         :func:`decentral.placement.unplaced_reasons`)."""
         placed = {a for a, _ in self.placeable_keys(joint, name, step, limit)}
-        problems = self.problems()
+        problems = self.kept if self.kept is not None else self.problems()
         return unplaced_reasons(
             names, name, placed,
             with_data={a for prob in problems if len({k[0] for k in prob.keys}) > 1 for a, _ in prob.keys},

@@ -10,6 +10,18 @@ process waits on exit for frames nobody will read.
 
 Every frame is a signed envelope (:mod:`protocols.auth`); a receiver refuses forged, replayed,
 malformed and unknown-sender frames, counts them by reason in ``stats().rejected`` and goes on.
+
+The cost of what arrives is bounded, cheapest refusal first: libzmq refuses a frame over
+``max_frame_bytes`` from its header, before reading it (it drops the connection; nothing is
+allocated, and libzmq does not say why, so such frames are not counted); each inbound connection
+queues at most ``rcvhwm`` frames (past that, TCP pushes back on the sender); what can be refused
+without a signature check is (:meth:`protocols.auth.Gate.screen`); connections that sent a refused
+frame share a budget of signature checks (:class:`protocols.admission.SuspectBudget`, refusals past
+it counted as ``rate``); :meth:`poll` spends at most ``poll_budget`` seconds reading, and
+:meth:`wait` uses the caller's idle time to read and check what arrives, waking the caller only
+for frames that pass (a flood of refused frames never wakes it). Frames still queued when the
+transport closes are counted as ``unread``. ZeroMQ fair-queues the inbound connections, so a
+flood on one connection delays the others' frames by at most its share of each read.
 Loss, duplication and delay can be injected *at the receiving side*, after a frame is admitted,
 with the behaviour of a :class:`protocols.network.LinkConfig` (``drop``, ``duplicate``,
 ``latency``, ``jitter``), each link's random stream derived and drawn as the simulated network
@@ -59,7 +71,8 @@ import zmq
 from nacl.signing import SigningKey
 
 from decentral.errors import InputError, ProtocolError
-from protocols.auth import Gate, Rejected, Signer, new_private_key, public_key_bytes
+from protocols.admission import SuspectBudget
+from protocols.auth import Gate, Opened, Rejected, Signer, new_private_key, public_key_bytes
 from protocols.messages import Message
 from protocols.network import LinkConfig, link_root, link_stream
 from protocols.peers import Peer, check_address
@@ -67,8 +80,15 @@ from protocols.transport import Delivery, Ledger, Transport, TransportStats
 
 __all__ = ["ZmqTransport", "open_loopback"]
 
-#: frames above this size are refused by the socket itself (libzmq drops the connection that sent it)
-DEFAULT_MAX_FRAME = 16 * 2**20
+#: frames above this size are refused by the socket itself (libzmq drops the connection that sent it); the
+#: largest frame of the protocol, a window's whole bundle, is ~1 MB at 512 assemblies (the assembly limit)
+DEFAULT_MAX_FRAME = 4 * 2**20
+#: frames each inbound connection may queue before TCP pushes back on its sender
+DEFAULT_RCVHWM = 64
+#: seconds of reading and checking one poll may spend (the rest waits for the next poll, or a wait)
+DEFAULT_POLL_BUDGET = 0.005
+#: frames counted as unread at close, at most (the rest are discarded uncounted)
+_MAX_UNREAD = 100_000
 
 
 @dataclass(frozen=True, slots=True)
@@ -91,6 +111,7 @@ class _Endpoint:
         self.signer = signer
         self.gate = gate
         self.held: list[tuple[float, int, _Held]] = []
+        self.admitted: list[tuple[Opened, Message, int]] = []  # checked, waiting for a poll to apply faults
         self.address = socket.getsockopt_string(zmq.LAST_ENDPOINT)
 
 
@@ -121,14 +142,24 @@ class ZmqTransport(Transport):
         Bind a local agent somewhere else than its peers-file address (``tcp://127.0.0.1:0`` binds a
         free port; :attr:`addresses` tells which).
     hwm : int
-        Frames each outbound and inbound queue holds (ZeroMQ high-water mark).
+        Frames each outbound queue holds (ZeroMQ send high-water mark).
     window : int
         Replay window per sender (:class:`protocols.auth.ReplayWindow`).
     max_frame_bytes : int
-        Larger inbound frames are refused by the socket.
+        Larger inbound frames are refused by the socket (default 4 MiB).
     max_batch : int
-        At most this many frames are read per :meth:`poll` (a flood cannot stall the caller's loop;
-        about 50 ms of checks at most).
+        At most this many frames are read per :meth:`poll`.
+    rcvhwm : int
+        Frames each inbound connection queues (ZeroMQ receive high-water mark).
+    poll_budget : float
+        Seconds of reading and checking per :meth:`poll`.
+    suspect_rate : float
+        Signature checks per second shared by the connections that sent refused frames.
+    max_age : float, optional
+        Clock tolerance (s) of :class:`protocols.auth.Gate`: refuse, as ``stale``, frames sent more
+        than this long before the transport was made or this far ahead of the receiver's clock.
+        Needs ``now`` to be ``time.time()`` in :meth:`send` and :meth:`poll`. None (default): no
+        clock check.
     """
 
     def __init__(
@@ -144,6 +175,10 @@ class ZmqTransport(Transport):
         window: int = 1024,
         max_frame_bytes: int = DEFAULT_MAX_FRAME,
         max_batch: int = 1000,
+        rcvhwm: int = DEFAULT_RCVHWM,
+        poll_budget: float = DEFAULT_POLL_BUDGET,
+        suspect_rate: float = 200.0,
+        max_age: float | None = None,
     ):
         if not keys:
             raise InputError("needs at least one local agent", field="keys")
@@ -167,6 +202,9 @@ class ZmqTransport(Transport):
         self._root = link_root(rng) if rng is not None else None
         self._rngs: dict[tuple[str, str], np.random.Generator] = {}
         self._hwm, self._max_batch = int(hwm), int(max_batch)
+        self._poll_budget = float(poll_budget)
+        self._budget = SuspectBudget(rate=suspect_rate)
+        self._admitted = 0
         self._ledger = Ledger()
         self._order = 0
         self._closed = False
@@ -179,14 +217,16 @@ class ZmqTransport(Transport):
             for name, key in keys.items():
                 address = (bind or {}).get(name, self._peers[name].address)
                 socket = self._socket(zmq.PULL)
-                socket.setsockopt(zmq.RCVHWM, self._hwm)
+                socket.setsockopt(zmq.RCVHWM, int(rcvhwm))
                 socket.setsockopt(zmq.MAXMSGSIZE, int(max_frame_bytes))
                 try:
                     check_address(address, allow_any_port=True)
                     socket.bind(address[:-2] + ":*" if address.endswith(":0") else address)
                 except (zmq.ZMQError, ValueError) as err:
                     raise InputError(f"cannot listen on {address!r}: {err}", field=f"peers.{name}.address") from None
-                self._local[name] = _Endpoint(name, socket, Signer(name, key), Gate(name, public, window))
+                self._local[name] = _Endpoint(name, socket, Signer(name, key),
+                                              Gate(name, public, window, max_age=max_age))
+                self._local[name].gate.own_epoch(self._local[name].signer.epoch)
                 self._peers[name] = Peer(name, self._local[name].address, self._peers[name].public_key)
             for name in self._peers:
                 self._connect(name)
@@ -245,12 +285,10 @@ class ZmqTransport(Transport):
         if ep is None:
             raise ProtocolError(f"agent {agent!r} is not a local agent of this transport")
         self._check_open()
-        for _ in range(self._max_batch):
-            try:
-                frame = ep.socket.recv(zmq.NOBLOCK)
-            except zmq.Again:
-                break
-            self._admit(ep, frame, float(now))
+        self._read(ep, time.perf_counter() + self._poll_budget, float(now), self._max_batch)
+        for env, message, size in ep.admitted:
+            self._deliver(ep, env, message, size, float(now))
+        ep.admitted.clear()
         out = []
         while ep.held and ep.held[0][0] <= now:
             h = heapq.heappop(ep.held)[2]
@@ -264,13 +302,29 @@ class ZmqTransport(Transport):
 
     # ------------------------------------------------------------------ runtime helpers
     def wait(self, timeout: float) -> bool:
-        """Block until a frame is readable on a local agent's socket or ``timeout`` seconds pass.
+        """Block until a frame that passes every check has arrived for a local agent, or ``timeout`` seconds pass.
 
-        Returns whether a frame is readable. Copies held back by injected delay do not wake it: a
-        runtime that injects delay also wakes at :meth:`next_release`.
+        While it waits it reads and checks what arrives (refused frames are counted and never wake
+        it; admitted ones wait for the next :meth:`poll`). Returns whether a frame was admitted
+        during this call (frames admitted earlier and not yet polled do not make it return at once).
+        Copies held back by injected delay do not wake it: a runtime that injects delay also wakes
+        at :meth:`next_release`. The clock check (``max_age``) reads ``time.time()`` here.
         """
         self._check_open()
-        return bool(self._poller.poll(max(0, int(math.ceil(timeout * 1000)))))
+        deadline = time.perf_counter() + max(0.0, timeout)
+        before = self._admitted
+        while True:
+            if self._admitted > before:
+                return True
+            left = deadline - time.perf_counter()
+            if left <= 0 or not self._poller.poll(max(0, int(math.ceil(left * 1000)))):
+                return self._admitted > before
+            for ep in self._local.values():
+                self._read(ep, deadline, time.time(), None)
+
+    def clock_offsets(self, agent: str) -> dict[str, tuple[float, float]]:
+        """Per sender, the smallest and largest ``now - sent_at`` that ``agent`` has seen (:meth:`protocols.auth.Gate.clock_offsets`)."""
+        return self._local[agent].gate.clock_offsets()
 
     def next_release(self, agent: str) -> float | None:
         """Arrival time of the earliest copy held back by injected delay for ``agent`` (None if none)."""
@@ -304,6 +358,7 @@ class ZmqTransport(Transport):
         """
         if self._closed:
             return
+        self._count_unread()
         self._closed = True
         deadline = time.monotonic() + max(0.0, linger)
         outbound = set(self._out.values())
@@ -343,14 +398,60 @@ class ZmqTransport(Transport):
     def _random(cfg: LinkConfig) -> bool:
         return cfg.drop > 0 or cfg.duplicate > 0 or cfg.jitter > 0
 
-    def _admit(self, ep: _Endpoint, frame: bytes, now: float) -> None:
-        """Check one inbound frame; count a refusal by reason, else apply the link's faults and hold it."""
+    def _read(self, ep: _Endpoint, deadline: float, now: float, most: int | None) -> None:
+        """Read and check frames for ``ep`` until none is queued, ``deadline`` (perf_counter) or ``most`` frames."""
+        n = 0
+        while most is None or n < most:
+            if n and time.perf_counter() > deadline:
+                break
+            try:
+                frame = ep.socket.recv(zmq.NOBLOCK, copy=False)
+            except zmq.Again:
+                break
+            n += 1
+            try:
+                conn = frame.get(zmq.SRCFD)  # which connection it came on (a file descriptor)
+            except zmq.ZMQError:
+                conn = -1  # its connection is gone already: such frames are judged together
+            self._admit(ep, frame.bytes, conn, now)
+
+    def _admit(self, ep: _Endpoint, frame: bytes, conn: int, now: float) -> None:
+        """Check one inbound frame from connection ``conn``, cheapest checks first; count a refusal by
+        reason, else queue it for the next poll."""
+        budget = self._budget
         try:
-            env, message = ep.gate.admit(frame)
+            env = ep.gate.screen(frame, now)
+            if budget.suspect(conn) and not budget.take(len(frame)):
+                raise Rejected("rate", "a connection that sent refused frames, past the budget of checks")
+            message = ep.gate.verify(env)
         except Rejected as err:
             self._ledger.reject(err.reason)
+            if err.reason != "rate":
+                budget.flag(conn)
             return
-        a, b, kind, size = env.sender, ep.name, message.KIND, len(frame)
+        budget.trust(conn)
+        self._admitted += 1
+        ep.admitted.append((env, message, len(frame)))
+
+    def _count_unread(self) -> None:
+        """Count what is still queued on the inbound sockets as ``unread`` (at most ``_MAX_UNREAD``, 0.5 s)."""
+        deadline = time.perf_counter() + 0.5
+        n = 0
+        for ep in self._local.values():
+            n += len(ep.admitted)
+            ep.admitted.clear()
+            while n < _MAX_UNREAD and time.perf_counter() < deadline:
+                try:
+                    ep.socket.recv(zmq.NOBLOCK, copy=False)
+                except (zmq.Again, zmq.ZMQError):
+                    break
+                n += 1
+        if n:
+            self._ledger.reject("unread", n)
+
+    def _deliver(self, ep: _Endpoint, env: Opened, message: Message, size: int, now: float) -> None:
+        """Apply the link's faults to an admitted frame and hold its copies until their arrival time."""
+        a, b, kind = env.sender, ep.name, message.KIND
         cfg = self._links.get((a, b), self._faults)
         # the simulated network's six draws per copy, in its order (drop, corrupt, duplicate, jitter, jitter of
         # the duplicate, corrupt position): the k-th copy on a link meets the fate it meets in a simulation

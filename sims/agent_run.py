@@ -189,7 +189,8 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
                  for a, pose in sorted(local.window_estimate.items())}
         record = {"step": step, "t": part.steps[step].t, "poses": poses, "unplaced": dict(local.window_unplaced),
                   "converged": local.converged,
-                  "rounds": local.rounds, "window_seconds": took, "counts": _counts(transport, name), "heard": sorted(heard)}
+                  "rounds": local.rounds, "window_seconds": took, "counts": _counts(transport, name), "heard": sorted(heard),
+                  "excluded": list(getattr(local.agent, "excluded", ()))}
         records.append(record)
         if stream is not None:
             stream.write(json.dumps(record) + "\n")

@@ -9,6 +9,13 @@ what its processes streamed (a killed process has still reported every step it f
 No process it started outlives it: children die with it (``PR_SET_PDEATHSIG`` = SIGKILL, set in the
 child before it runs), and launch kills every child when it returns, raises, or gets SIGINT/SIGTERM
 (signal handlers, ``atexit`` and ``finally``).
+
+No key outlives it either. Without a work folder the private keys never touch a disk: each agent
+gets its key as one line on its stdin (``decentral agent --key -``). The temporary folder (parts,
+peers file, streams) is removed on return, on error and on SIGINT/SIGTERM, and a small janitor
+process removes it when launch dies by SIGKILL: it waits for the end of a pipe only launch holds.
+With ``--workdir`` the key files are created with mode 0600 (never readable by others, not even
+for an instant) and kept, as asked.
 """
 
 from __future__ import annotations
@@ -19,6 +26,7 @@ import json
 import os
 import re
 import select
+import shutil
 import signal
 import socket
 import subprocess
@@ -121,6 +129,43 @@ def _free_ports(n: int) -> list[int]:
     return ports
 
 
+#: the janitor: wait for launch's end of the pipe to close (launch exited or was killed), then remove the folder
+_JANITOR = """
+import os, shutil, signal, sys, time
+signal.signal(signal.SIGINT, signal.SIG_IGN)
+signal.signal(signal.SIGTERM, signal.SIG_IGN)
+while os.read(0, 4096):
+    pass
+for _ in range(50):  # agents are being SIGKILLed by the kernel and may still hold files open for a moment
+    shutil.rmtree(sys.argv[1], ignore_errors=True)
+    if not os.path.exists(sys.argv[1]):
+        break
+    time.sleep(0.05)
+"""
+
+
+class _Janitor:
+    """Removes ``folder`` when this process ends, however it ends (SIGKILL included)."""
+
+    def __init__(self, folder: Path, python: str):
+        self.folder = folder
+        self.proc = subprocess.Popen([python, "-c", _JANITOR, str(folder)], stdin=subprocess.PIPE,
+                                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+
+    def close(self) -> None:
+        """Remove the folder now and let the janitor go."""
+        shutil.rmtree(self.folder, ignore_errors=True)
+        try:
+            self.proc.stdin.close()
+        except OSError:
+            pass
+        try:
+            self.proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+
+
 def _die_with_parent() -> None:  # runs in the child between fork and exec
     try:
         libc = ctypes.CDLL("libc.so.6", use_errno=True)
@@ -147,6 +192,9 @@ class _Children:
 
     def _on_signal(self, signum, frame):
         self.kill_all()
+        old = self._old.get(signum)
+        if callable(old):  # the command's own handler: one line on stderr and its exit status
+            old(signum, frame)
         raise KeyboardInterrupt if signum == signal.SIGINT else SystemExit(128 + signum)
 
     def kill_all(self) -> None:
@@ -232,13 +280,23 @@ def launch(log: ObservationLog, config: LaunchConfig = LaunchConfig(), workdir: 
             raise InputError(f"no assembly {name!r} in the log", field="--absent")
     if reference in config.absent:
         raise InputError("the reference agent must run", field="--absent")
+    python = python or sys.executable
     if workdir is None:
-        with tempfile.TemporaryDirectory(prefix="decentral-launch-") as tmp:
-            return _launch(log, config, reference, Path(tmp), python or sys.executable)
-    return _launch(log, config, reference, Path(workdir), python or sys.executable)
+        tmp = Path(tempfile.mkdtemp(prefix="decentral-launch-"))  # mode 0700
+        try:
+            janitor = _Janitor(tmp, python)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        try:
+            return _launch(log, config, reference, tmp, python, keep_keys=False)
+        finally:
+            janitor.close()
+    return _launch(log, config, reference, Path(workdir), python, keep_keys=True)
 
 
-def _launch(log: ObservationLog, config: LaunchConfig, reference: str, work: Path, python: str) -> LaunchResult:
+def _launch(log: ObservationLog, config: LaunchConfig, reference: str, work: Path, python: str, *,
+            keep_keys: bool) -> LaunchResult:
     from protocols.auth import new_private_key, public_key_bytes
     from protocols.peers import Peer, peers_json, private_key_json
     from sims.io.atomic import write_json_atomic
@@ -250,15 +308,15 @@ def _launch(log: ObservationLog, config: LaunchConfig, reference: str, work: Pat
     peers = {name: Peer(name, f"tcp://127.0.0.1:{port}", public_key_bytes(keys[name]))
              for name, port in zip(names, ports)}
     write_json_atomic(work / "peers.json", peers_json(peers))
-    for i, (name, part) in enumerate(split_log(log).items()):
-        key_path = work / f"{name}.key"
-        write_json_atomic(key_path, private_key_json(name, keys[name]))
-        os.chmod(key_path, 0o600)
+    for name, part in split_log(log).items():
+        if keep_keys:  # created 0600 (written to a 0600 temporary file, then renamed)
+            write_json_atomic(work / f"{name}.key", private_key_json(name, keys[name]), mode=0o600)
         write_part(work / f"{name}.part.json", part, name)
+    key_lines = {name: json.dumps(private_key_json(name, keys[name])) + "\n" for name in names}
 
     def args(name: str, incarnation: int, start: str) -> list[str]:
         return [python, "-m", "sims.cli.main", "agent", name, "--log", str(work / f"{name}.part.json"),
-                "--peers", str(work / "peers.json"), "--key", str(work / f"{name}.key"),
+                "--peers", str(work / "peers.json"), "--key", str(work / f"{name}.key") if keep_keys else "-",
                 "--stream", str(work / f"{name}.{incarnation}.jsonl"), "--start", start,
                 "--reference", reference, "--window", str(config.window), "--loss", repr(config.loss),
                 "--seed", str(config.seed), "--rate", repr(config.rate), "--round-period", repr(config.round_period),
@@ -282,8 +340,14 @@ def _launch(log: ObservationLog, config: LaunchConfig, reference: str, work: Pat
                                         text=True, bufsize=1, env=env)
             finally:
                 err.close()
-            (work / f"{name}.{incarnations[name]}.pid").write_text(str(proc.pid))
             children.procs.append(proc)
+            (work / f"{name}.{incarnations[name]}.pid").write_text(str(proc.pid))
+            if not keep_keys:
+                try:
+                    proc.stdin.write(key_lines[name])  # the key travels on the pipe, never on disk
+                    proc.stdin.flush()
+                except OSError:
+                    pass  # it died already: waiting for it to listen reports why
             started.append((name, incarnations[name], proc))
             return proc
 
@@ -337,7 +401,8 @@ def _compose(log, reference, records, config, incarnations, timed_out, failures)
     by_step = {}
     for incarnation in records[reference]:
         for rec in incarnation:
-            by_step[rec["step"]] = rec  # a later incarnation's record of the same step wins
+            if "step" in rec:  # (the last line of a process that ended by itself holds its final counts)
+                by_step[rec["step"]] = rec  # a later incarnation's record of the same step wins
     # a step the reference's processes did not finish (down, or the run timed out) holds no agreed pose
     not_run = {name: "no_consensus" for name in log.assemblies if name != reference}
     steps = tuple(EstimateStep(s.t, poses_of(by_step[k]["poses"]), by_step[k].get("unplaced", {})) if k in by_step
@@ -355,7 +420,7 @@ def _compose(log, reference, records, config, incarnations, timed_out, failures)
     heard = set()
     for run in records[reference]:
         if run:
-            heard |= set(run[-1].get("heard", []))
+            heard |= set(next((rec.get("heard", []) for rec in reversed(run) if "step" in rec), []))
     stats = {
         "unplaced": count_reasons(step.unplaced for step in steps),
         "estimator": "consensus-admm",
@@ -370,10 +435,12 @@ def _compose(log, reference, records, config, incarnations, timed_out, failures)
         "messages": {"total": int(sum(messages.values())), "per_agent": messages},
         "bytes": {"total": int(sum(nbytes.values())), "per_agent": nbytes},
         "rejected": rejected,
-        "steps_reported": len(set(rec["step"] for run in records[reference] for rec in run)),
+        "steps_reported": len(set(rec["step"] for run in records[reference] for rec in run if "step" in rec)),
         "converged_per_step": [bool(by_step[k]["converged"]) if k in by_step else False for k in range(len(log.steps))],
         "rounds_per_step": [int(by_step[k]["rounds"]) if k in by_step else 0 for k in range(len(log.steps))],
         "missing": sorted(n for n in log.assemblies if n != reference and n not in heard),
+        # members whose data the others contradicted, left out of the reference's joint solution
+        "excluded": sorted({a for run in records[reference] for rec in run for a in rec.get("excluded", ())}),
         "absent": list(config.absent),
         "status": "timeout" if timed_out else "ok",
     }

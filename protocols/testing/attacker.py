@@ -32,7 +32,7 @@ import zmq
 from protocols.auth import ENVELOPE_MAGIC, ENVELOPE_VERSION, parse, private_key_from_bytes, seal
 from protocols.messages import BROADCAST, Heartbeat
 
-__all__ = ["ATTACKS", "FloodReport", "flood", "Tap", "raw_tcp_garbage"]
+__all__ = ["ATTACKS", "FloodReport", "flood", "Tap", "raw_tcp_garbage", "as_expected"]
 
 #: attack -> the reason the receiver must refuse it with
 ATTACKS: Mapping[str, str] = {
@@ -41,7 +41,8 @@ ATTACKS: Mapping[str, str] = {
     "padded": "malformed",  # ... with bytes appended
     "old_version": "malformed",  # ... with another envelope version
     "forged": "bad_signature",  # a member's name, signed with a key that is not the member's
-    "bitflip": "bad_signature",  # a genuine frame with one byte of its message or signature changed
+    "bitflip": "replay",  # a genuine frame (already admitted) with one byte of its message or signature changed:
+    # its (epoch, seq) is no longer fresh, which the receiver checks before the signature
     "impersonation": "bad_signature",  # an insider's valid signature on a message from another member
     "unknown_sender": "unknown_sender",  # a name not in the peers file
     "replay": "replay",  # a genuine frame sent again
@@ -68,11 +69,29 @@ class FloodReport:
     expected: Mapping[str, int] = field(default_factory=dict)
 
 
+def as_expected(rejected: Mapping[str, int]) -> dict[str, int]:
+    """A receiver's ``rejected`` counts in the terms of :attr:`FloodReport.expected`.
+
+    Frames that reach the signature check from a connection that already sent refused frames may
+    be refused as ``rate`` instead (:class:`protocols.admission.SuspectBudget`); every hostile
+    frame that reaches that check is a ``bad_signature`` one, so ``rate`` is counted there.
+    """
+    out = {k: int(v) for k, v in rejected.items() if v and k != "rate"}
+    if rejected.get("rate"):
+        out["bad_signature"] = out.get("bad_signature", 0) + int(rejected["rate"])
+    return dict(sorted(out.items()))
+
+
 def _forged(rng: np.random.Generator, sender: str) -> bytes:
-    """A well-formed envelope from ``sender`` signed with a random key."""
+    """A well-formed envelope from ``sender`` signed with a random key, with a fresh (epoch, seq), sent now.
+
+    The epoch is above any clock-derived one and ``sent_at`` is the attacker's clock, so that the
+    receiver cannot refuse it as a replay or as stale before checking its signature (which it does
+    first when it can: a cheaper refusal).
+    """
     key = private_key_from_bytes(rng.bytes(32))
     inner = Heartbeat(sender=sender, receiver=BROADCAST, round=int(rng.integers(0, 2**31)), t=0.0).to_bytes()
-    return seal(key, sender, int(rng.integers(0, 2**62)), int(rng.integers(0, 2**62)), 0.0, inner)
+    return seal(key, sender, 2**63 + int(rng.integers(0, 2**62)), int(rng.integers(0, 2**62)), time.time(), inner)
 
 
 def _frame(attack: str, rng: np.random.Generator, senders: Sequence[str], captured: Sequence[bytes],
@@ -102,7 +121,7 @@ def _frame(attack: str, rng: np.random.Generator, senders: Sequence[str], captur
         victim = [s for s in senders if s != name][int(rng.integers(len(senders) - 1))]
         inner = Heartbeat(sender=victim, receiver=BROADCAST, round=0, t=0.0).to_bytes()
         # an epoch above any clock-derived one, so the frame is fresh and refused for whom it speaks
-        return seal(private_key_from_bytes(raw), name, 2**63 + int(rng.integers(0, 2**62)), 0, 0.0, inner)
+        return seal(private_key_from_bytes(raw), name, 2**63 + int(rng.integers(0, 2**62)), 0, time.time(), inner)
     if attack == "unknown_sender":
         return _forged(rng, "intruder-" + rng.bytes(6).hex())
     if attack == "replay":

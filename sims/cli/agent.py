@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import signal
 import sys
@@ -22,7 +23,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="this assembly's part of the log (decentral.log/1 with its own data only)")
     parser.add_argument("--peers", required=True, metavar="PEERS.json",
                         help="every assembly's address and public key (decentral.peers/1)")
-    parser.add_argument("--key", required=True, metavar="KEYFILE", help="this agent's private key (decentral.key/1)")
+    parser.add_argument("--key", required=True, metavar="KEYFILE",
+                        help="this agent's private key (decentral.key/1, mode 0600); '-' reads it as one line "
+                             "from stdin, so that it never touches a disk")
+    parser.add_argument("--allow-readable-key", action="store_true",
+                        help="accept a key file that group or others may read, with a warning (default: refuse)")
     parser.add_argument("-o", "--output", metavar="EST.json",
                         help="write this agent's estimate (poses relative to itself) when it ends")
     parser.add_argument("--reference", default=None,
@@ -40,6 +45,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--loss", type=float, default=0.0,
                         help="drop each arriving frame with this probability (testing; default 0)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the receive-side losses (default: 0)")
+    parser.add_argument("--clock-tolerance", type=float, default=5.0, metavar="SECONDS",
+                        help="refuse frames sent more than this long before this agent started, or this far ahead of its "
+                             "clock, so that frames of an earlier run are refused; peers' clocks must agree within "
+                             "it (default: 5)")
     parser.add_argument("--stream", metavar="FILE",
                         help="append each finished step to FILE as one JSON line at once (survives a kill)")
 
@@ -52,9 +61,9 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from protocols.network import LinkConfig
-    from protocols.peers import load_peers, load_private_key
+    from protocols.peers import key_file_exposure, load_peers, load_private_key, read_private_key_text
     from protocols.zmq_transport import ZmqTransport
-    from sims.agent_run import Pace, process_agent_config, run_agent
+    from sims.agent_run import Pace, _counts, process_agent_config, run_agent
     from sims.io.log_json import write_estimate
     from sims.parts import read_part
 
@@ -62,9 +71,17 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"must be >= 1, got {args.window}", field="--window")
     if not 0.0 <= args.loss < 1.0:
         raise InputError(f"must be in [0, 1), got {args.loss}", field="--loss")
+    if not (math.isfinite(args.clock_tolerance) and args.clock_tolerance > 0):
+        raise InputError(f"must be a positive number of seconds, got {args.clock_tolerance}", field="--clock-tolerance")
     part = read_part(args.log, args.name)
     peers = load_peers(args.peers)
-    key_name, key = load_private_key(args.key)
+    if args.key == "-":
+        key_name, key = read_private_key_text(sys.stdin.readline(), "<stdin>")
+    else:
+        key_name, key = load_private_key(args.key, allow_readable=args.allow_readable_key)
+        exposure = key_file_exposure(args.key)
+        if exposure:
+            feedback.warn(f"{args.key}: private key {exposure}")
     if key_name != args.name:
         raise InputError(f"is {key_name!r}'s key, not {args.name!r}'s", source=args.key, field="name")
     missing = [a for a in part.assemblies if a not in peers]
@@ -77,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, _sigterm)
     faults = LinkConfig(drop=args.loss)
     transport = ZmqTransport({args.name: key}, {n: peers[n] for n in part.assemblies},
-                             rng=np.random.default_rng(args.seed), faults=faults)
+                             rng=np.random.default_rng(args.seed), faults=faults, max_age=args.clock_tolerance)
     stream = open(args.stream, "a", encoding="utf-8") if args.stream else None
     try:
         if args.start == "-":
@@ -92,11 +109,19 @@ def run(args: argparse.Namespace) -> int:
         result = run_agent(part, args.name, transport, config, pace, stream=stream,
                            wait=lambda seconds: transport.wait(seconds))
     finally:
-        transport.close()
+        transport.close()  # counts what is still queued as unread
         if stream is not None:
-            stream.close()
+            try:
+                stream.write(json.dumps({"final": True, "counts": _counts(transport, args.name)}) + "\n")
+            finally:
+                stream.close()
+    offsets = transport.clock_offsets(args.name)
     if args.output:
         write_estimate(args.output, result.estimate)
+    for peer, (lo, hi) in sorted(offsets.items()):
+        if peer != args.name and (lo > args.clock_tolerance or hi < -args.clock_tolerance):
+            feedback.warn(f"{peer}'s frames arrived {lo:+.2f} to {hi:+.2f} s from this clock: beyond the "
+                          f"{args.clock_tolerance:g} s tolerance, refused as stale (clocks or start times disagree)")
     if result.stats["missing"]:
         feedback.warn(f"{args.name} never heard from {', '.join(result.stats['missing'])}")
     stats = result.stats

@@ -17,6 +17,7 @@ DECENTRAL_MAX_AGENTS      100000                  module count of a ``--distribu
 DECENTRAL_MAX_ASSEMBLIES  512                     assemblies of an observation log (a joint window is dense)
 DECENTRAL_MAX_ARRAY_MB    1024                    decompressed bytes of all arrays of one ``.npz``
 DECENTRAL_MAX_PIXELS      40000000                width x height of one image or video frame
+DECENTRAL_MAX_CELLS       100000                  cells of a study (the product of its ``[grid]`` lists)
 ========================  ======================  ====================================================
 """
 
@@ -56,6 +57,9 @@ class Limits:
         Largest total of decompressed array bytes in one ``.npz``, megabytes.
     max_pixels : int
         Largest image or video frame, width x height.
+    max_cells : int
+        Most cells in one study: the product of the lengths of its ``[grid]`` lists, checked before
+        any cell is built (each cell is a parameter row in memory and in the store).
     """
 
     max_file_mb: float = 512.0
@@ -66,6 +70,7 @@ class Limits:
     max_assemblies: int = 512
     max_array_mb: float = 1024.0
     max_pixels: int = 40_000_000
+    max_cells: int = 100_000
 
     @staticmethod
     def variable(name: str) -> str:

@@ -2,7 +2,8 @@
 order they finish; the caller writes the rows. Engines never write the store themselves.
 
 - :class:`LocalEngine`: a pool of ``workers`` processes on this machine (``spawn`` start, one BLAS
-  thread each), at most one cell per worker in flight. When a worker dies (killed, out of memory,
+  thread each), at most one cell per worker in flight; each worker dies with the study process,
+  even a SIGKILLed one (:func:`sims.study.worker.init_worker`). When a worker dies (killed, out of memory,
   crashed) the pool breaks for every cell in flight: each of those is run again alone, and the one
   that kills its worker again gets a 'failed' row; the rest go on in a fresh pool.
 - :class:`RayEngine`: the same cells as Ray tasks (one CPU each), on a local Ray instance or the
@@ -21,7 +22,7 @@ from typing import Any, Callable, Iterator, Sequence
 
 from decentral.errors import InputError
 from sims.study.cells import Cell
-from sims.study.worker import PINNED_ENV, pin_blas_threads, work
+from sims.study.worker import PINNED_ENV, init_worker, work
 
 __all__ = ["ENGINES", "LocalEngine", "RayEngine", "make_engine", "OnResult"]
 
@@ -85,7 +86,7 @@ class LocalEngine:
     @contextlib.contextmanager
     def _pool_of(self, workers: int) -> Iterator[ProcessPoolExecutor]:
         pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=pin_blas_threads)
+                                   initializer=init_worker, initargs=(os.getpid(),))
         try:
             yield pool
         except BaseException:

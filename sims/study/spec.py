@@ -76,8 +76,24 @@ class StudySpec:
         """Every parameter key: ``[fixed]`` keys, then ``[grid]`` keys, in the file's order."""
         return tuple(self.fixed) + tuple(self.grid)
 
+    @property
+    def cell_count(self) -> int:
+        """How many cells the grid makes (the product of its list lengths; 1 without a grid)."""
+        return math.prod(len(v) for v in self.grid.values())
+
     def cells(self) -> list[dict[str, Value]]:
-        """The parameters of every cell, in grid order (first key slowest)."""
+        """The parameters of every cell, in grid order (first key slowest).
+
+        Raises
+        ------
+        InputError
+            If :attr:`cell_count` is over ``DECENTRAL_MAX_CELLS`` (checked before any cell exists).
+        """
+        from sims.io.limits import current_limits, over_limit
+
+        limit = current_limits().max_cells
+        if self.cell_count > limit:
+            raise over_limit("cell count", self.cell_count, "max_cells", limit, source=self.source, field="[grid]")
         names = list(self.grid)
         return [{**self.fixed, **dict(zip(names, combo))}
                 for combo in itertools.product(*(self.grid[k] for k in names))]

@@ -6,14 +6,23 @@ dense factorizations of a cell run 10-100x slower with several threads on a load
 :data:`PINNED_ENV` is put in the environment the worker processes are started with, and
 :func:`pin_blas_threads` (the local pool's initializer) sets it again in the worker before any cell
 imports numpy.
+
+A worker dies with the process that started it: :func:`init_worker` asks Linux to SIGKILL it when
+its parent dies (``PR_SET_PDEATHSIG``), so a study killed with SIGKILL, which cannot run any
+handler, leaves no worker behind; the multiprocessing resource tracker then sees every end of its
+pipe closed and exits too.
 """
 
 from __future__ import annotations
 
+import ctypes
 import os
+import signal
 from typing import Any, Mapping
 
-__all__ = ["PINNED_ENV", "pin_blas_threads", "work"]
+__all__ = ["PINNED_ENV", "pin_blas_threads", "die_with_parent", "init_worker", "work"]
+
+_PR_SET_PDEATHSIG = 1
 
 #: environment of every worker: one thread per BLAS / OpenMP pool
 PINNED_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
@@ -22,6 +31,26 @@ PINNED_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THRE
 def pin_blas_threads() -> None:
     """Set :data:`PINNED_ENV` in this process (call before numpy is imported)."""
     os.environ.update(PINNED_ENV)
+
+
+def die_with_parent(parent: int) -> None:
+    """Have the kernel SIGKILL this process when its parent (pid ``parent``) dies (Linux; elsewhere a no-op).
+
+    Checks the parent after asking, so a parent that died just before is caught too.
+    """
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+    except (OSError, AttributeError):
+        return  # not Linux: the study's own handlers still stop its pool
+    if os.getppid() != parent:
+        os.kill(os.getpid(), signal.SIGKILL)
+
+
+def init_worker(parent: int) -> None:
+    """The local pool's initializer: die with the study process ``parent``, then pin BLAS threads."""
+    die_with_parent(parent)
+    pin_blas_threads()
 
 
 def work(command: str, params: Mapping[str, Any], key: str) -> dict[str, Any]:

@@ -12,7 +12,7 @@ import pytest
 from protocols.auth import new_private_key, private_key_bytes, public_key_bytes
 from protocols.messages import BROADCAST, Heartbeat
 from protocols.peers import Peer
-from protocols.testing.attacker import ATTACKS, Tap, flood, raw_tcp_garbage
+from protocols.testing.attacker import ATTACKS, Tap, as_expected, flood, raw_tcp_garbage
 from protocols.zmq_transport import ZmqTransport
 
 
@@ -59,7 +59,7 @@ def attack(n_frames: int, seed: int) -> None:
             pump(lambda: sum(a1.stats().rejected.values()) >= report.sent and len(got) == k)
         rejected = a1.stats().rejected
     assert report.sent == n_frames and set(report.attacks) == set(ATTACKS)
-    assert rejected == report.expected
+    assert as_expected(rejected) == report.expected  # frames past the budget of checks: `rate`, not verified
     assert [d.message.round for d in got] == list(range(k)) and {d.sender for d in got} == {"A0"}
     assert k > 20  # A0 kept talking during the flood
 
@@ -112,4 +112,4 @@ def test_attacker_command_line(tmp_path):
         while sum(a1.stats().rejected.values()) < 300 and time.monotonic() < deadline:
             a1.wait(0.01)
             assert a1.poll("A1", 0.0) == []
-        assert report["sent"] == 300 and a1.stats().rejected == report["expected"]
+        assert report["sent"] == 300 and as_expected(a1.stats().rejected) == report["expected"]

@@ -29,6 +29,8 @@ def good_peers() -> dict:
 def write(tmp_path, doc, name="peers.json"):
     path = tmp_path / name
     path.write_text(doc if isinstance(doc, str) else json.dumps(doc))
+    if name.endswith(".key.json"):
+        path.chmod(0o600)  # as `decentral keys` writes them
     return path
 
 
@@ -113,3 +115,27 @@ def test_addresses():
         with pytest.raises(ValueError):
             check_address(bad)
     assert check_address("tcp://127.0.0.1:0", allow_any_port=True)
+
+
+@pytest.mark.parametrize("mode", [0o640, 0o604, 0o644])
+def test_a_key_file_others_may_read_is_refused(tmp_path, mode):
+    """A private key file readable by group or others is refused naming the file and its mode."""
+    path = write(tmp_path, private_key_json("A0", KEY), "A0.key.json")
+    path.chmod(mode)
+    with pytest.raises(InputError, match=f"mode {mode:04o}") as err:
+        load_private_key(path)
+    assert err.value.source == str(path)
+    assert load_private_key(path, allow_readable=True)[0] == "A0"
+
+
+@pytest.mark.parametrize("other", ["tcp://localhost:5000", "tcp://127.0.0.01:5000", "tcp://127.0.0.1:5000",
+                                   "tcp://127.1:5000"])
+def test_two_peers_at_one_resolved_address_are_refused(tmp_path, other):
+    """Addresses are compared after resolution: localhost, 127.0.0.01 and 127.0.0.1 are one host."""
+    doc = good_peers()
+    doc["peers"]["A"]["address"] = "tcp://127.0.0.1:5000"
+    doc["peers"]["B"]["address"] = other
+    with pytest.raises(InputError, match="same address as 'A'"):
+        load_peers(write(tmp_path, doc))
+    doc["peers"]["B"]["address"] = other.replace("5000", "5001")
+    assert len(load_peers(write(tmp_path, doc))) == 2

@@ -244,6 +244,7 @@ def test_echo_across_processes(tmp_path):
                  "C": Peer("C", "tcp://127.0.0.1:1", public_key_bytes(keys["C"]))}
         (tmp_path / "peers.json").write_text(json.dumps(peers_json(table)))
         (tmp_path / "C.key.json").write_text(json.dumps(private_key_json("C", keys["C"])))
+        (tmp_path / "C.key.json").chmod(0o600)
         child = subprocess.Popen([sys.executable, "-c", CHILD, str(tmp_path / "C.key.json"),
                                   str(tmp_path / "peers.json"), "25"], cwd=ROOT, stdin=subprocess.PIPE,
                                  stdout=subprocess.PIPE, text=True)

@@ -87,3 +87,25 @@ def test_admm_with_the_bearing_estimator_is_refused(specs):
     """mode = "admm" runs the windowed estimator only: estimator = "bearing" beside it is refused."""
     with pytest.raises(InputError, match="estimator"):
         check_cells(parse_spec(specs["localize"].replace("steps = 4", "steps = 4\nestimator = \"bearing\"")))
+
+
+def test_a_billion_cell_grid_is_refused_before_any_cell_exists(tmp_path):
+    """A small spec whose grid makes 10^9 cells exits 2 with one line naming DECENTRAL_MAX_CELLS, in bounded memory."""
+    from tests.sims.hostile.harness import assert_refused, run_in_process
+
+    values = ", ".join(str(i) for i in range(10))
+    grid = "\n".join(f"k{j} = [{values}]" for j in range(9))
+    spec = tmp_path / "huge.toml"
+    spec.write_text(f'name = "huge"\ncommand = "ensemble"\n[fixed]\nshape = "triple"\n[grid]\n{grid}\n')
+    outcome = run_in_process(["study", spec, "-o", tmp_path / "out"], tmp_path)
+    assert_refused(outcome, "DECENTRAL_MAX_CELLS")
+    assert str(spec) in outcome.lines[0] and "1000000000" in outcome.lines[0]
+
+
+def test_the_cell_limit_is_raised_by_its_variable(specs, monkeypatch):
+    """DECENTRAL_MAX_CELLS=3 refuses a 4-cell study; unset, the same study passes."""
+    spec = parse_spec(specs["localize"], "spec.toml")
+    assert len(spec.cells()) == 4
+    monkeypatch.setenv("DECENTRAL_MAX_CELLS", "3")
+    with pytest.raises(InputError, match="DECENTRAL_MAX_CELLS"):
+        spec.cells()
