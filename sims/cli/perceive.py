@@ -14,12 +14,9 @@ from __future__ import annotations
 import argparse
 from typing import Sequence
 
-import numpy as np
-
 from decentral.errors import InputError
 from sims.cli import feedback
 from sims.io.limits import current_limits, over_limit
-from sims.io.validate import require_range
 
 __all__ = ["HELP", "add_arguments", "run", "perceive_paths", "to_records"]
 
@@ -90,6 +87,8 @@ def to_records(results, *, K: np.ndarray | None = None):
 
     With intrinsics ``K``, each circle becomes its eq. (1) circle (:func:`agents.perception.sphere.eq1_circle`).
     """
+    import numpy as np
+
     from agents.perception.sphere import eq1_circle
     from sims.io.detections_json import DetectionFrame, DetectionRecord, TagRecord
 
@@ -153,6 +152,7 @@ def perceive_paths(
     """
     from agents.perception import AprilTagConfig, AprilTagIdentifier, Perception, make_detector
     from agents.perception.pipeline import perceive_frames
+    from sims.io.validate import require_range
 
     require_range(min_radius, "--min-radius", *RADIUS_RANGE)
     require_range(max_radius, "--max-radius", *RADIUS_RANGE)
@@ -177,6 +177,7 @@ def perceive_paths(
 
 def run(args: argparse.Namespace) -> int:
     from sims.io.detections_json import assemble_log, write_detections
+    from sims.io.validate import require_range
 
     require_range(args.log_min_score, "--log-min-score", -1e6, 1e6)
     limits = current_limits()

@@ -18,8 +18,6 @@ from __future__ import annotations
 import argparse
 import json
 
-import numpy as np
-
 from decentral.errors import InputError
 from sims.cli import feedback
 
@@ -99,6 +97,8 @@ def _check_times_match(unmatched: int, estimate, truth_times, args: argparse.Nam
 
 def ensemble_score(estimate_path: str, truth_path: str) -> dict:
     """Global and local RMS (module radii) of an ensemble estimate file against a truth file, JSON-ready."""
+    import numpy as np
+
     from decentral.ensemble.metrics import evaluate
     from sims.io.ensemble_npz import read_ensemble_positions, read_ensemble_truth
 
