@@ -62,7 +62,12 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"must be >= 1, got {args.window}", field="--window")
     if not 0.0 <= args.loss < 1.0:
         raise InputError(f"must be in [0, 1), got {args.loss}", field="--loss")
+    from protocols.peers import KEY_FORMAT, PEERS_FORMAT
+    from sims.io.kinds import require_kind
+
     part = read_part(args.log, args.name)
+    require_kind(args.peers, PEERS_FORMAT, field="--peers")
+    require_kind(args.key, KEY_FORMAT, field="--key")
     peers = load_peers(args.peers)
     key_name, key = load_private_key(args.key)
     if key_name != args.name:

@@ -38,6 +38,9 @@ def run(args: argparse.Namespace) -> int:
     from sims.io.trajectories import estimate_trajectories, truth_trajectories, write_trajectories
     from sims.world.truth import TRUTH_FORMAT, parse_truth
 
+    from sims.io.kinds import require_kind
+
+    require_kind(args.input, ESTIMATE_FORMAT, TRUTH_FORMAT)
     doc = load_json(args.input)
     kind = doc.get("format") if isinstance(doc, dict) else None
     try:

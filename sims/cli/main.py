@@ -211,7 +211,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 #: longest error line printed (a hostile file can put megabytes into a value we quote)
-MAX_ERROR_CHARS = 400
+MAX_ERROR_CHARS = 1000
 
 
 def _error_line(command: str, text: str) -> str:

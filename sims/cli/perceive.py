@@ -61,8 +61,10 @@ def _check_image_files(paths: Sequence[str], limits) -> None:
     import os
 
     from agents.perception.frames import is_video
+    from sims.io.kinds import require_kind
 
     for path in paths:
+        require_kind(path, "image", "video")
         if not is_video(path) and os.path.isfile(path) and os.path.getsize(path) > limits.max_file_mb * 1e6:
             raise over_limit("file size", round(os.path.getsize(path) / 1e6, 1), "max_file_mb", limits.max_file_mb,
                              " MB", source=path)

@@ -27,6 +27,7 @@ from decentral.observations import (
 )
 from sims.io.atomic import write_json_atomic
 from sims.io.jsonfile import load_json
+from sims.io.kinds import require_kind
 from sims.io.limits import Limits, current_limits, over_limit
 from sims.io.validate import (
     MAX_ANGLE,
@@ -78,6 +79,7 @@ def _check_format(doc: Any, expected: str) -> dict:
 
 def read_log(path: str | os.PathLike, limits: Limits | None = None) -> ObservationLog:
     """Read and validate a ``decentral.log/1`` file (its assembly count within ``limits``)."""
+    require_kind(path, LOG_FORMAT)
     limits = limits or current_limits()
     doc = load_json(path, limits)
     count = len(doc["assemblies"]) if isinstance(doc, dict) and isinstance(doc.get("assemblies"), dict) else 0
@@ -333,6 +335,7 @@ def parse_estimate(doc: Any) -> Estimate:
 
 def read_estimate(path: str | os.PathLike) -> Estimate:
     """Read and validate a ``decentral.estimate/1`` file."""
+    require_kind(path, ESTIMATE_FORMAT)
     doc = load_json(path)
     try:
         return parse_estimate(doc)
