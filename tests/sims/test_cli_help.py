@@ -56,3 +56,12 @@ def test_make_ensemble_errors_name_the_option(tmp_path, capsys, argv, option):
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert f"error: {option}: " in line, line
     assert not (tmp_path / "o.npz").exists()
+
+
+def test_make_ensemble_lists_every_shape_of_the_generator_with_its_dimension():
+    """make-ensemble's SHAPES_2D and SHAPES_3D are exactly the generator's shapes, by dimension."""
+    from sims.cli.make_ensemble import SHAPES_2D, SHAPES_3D
+    from sims.ensembles.generator import SHAPES
+
+    assert SHAPES_2D + SHAPES_3D == tuple(SHAPES)
+    assert {SHAPES[s] for s in SHAPES_2D} == {2} and {SHAPES[s] for s in SHAPES_3D} == {3}
