@@ -56,7 +56,7 @@ def _apply_mode_defaults(args: argparse.Namespace) -> None:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from decentral.factors import NoiseModel
+    from decentral.noise import NoiseModel
 
     parser.add_argument("log", metavar="LOG.json", help="observation log (decentral.log/1)")
     parser.add_argument("-o", "--output", required=True, metavar="EST.json", help="estimate to write")
@@ -103,7 +103,7 @@ SIGMA_RANGE = (1e-9, 1e6)
 
 
 def _noise(args: argparse.Namespace):
-    from decentral.factors import NoiseModel
+    from decentral.noise import NoiseModel
     from sims.io.validate import require_range
 
     for name in ("sigma_pixel", "sigma_radius", "sigma_odom_p", "sigma_odom_theta"):
