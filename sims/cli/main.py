@@ -96,13 +96,26 @@ class _OneLineParser(argparse.ArgumentParser):
         kwargs.setdefault("allow_abbrev", False)
         super().__init__(*args, **kwargs)
 
+    def parse_known_args(self, args=None, namespace=None):
+        self._given = list(sys.argv[1:] if args is None else args)  # for error(): what the user typed
+        return super().parse_known_args(args, namespace)
+
     def error(self, message: str):
+        if message.startswith("the following arguments are required"):
+            # a missing option is often a misspelt one (`--out` for `--output`): say so in the same line
+            strangers = [a for a in getattr(self, "_given", []) if a.startswith("-") and not a[1:2].isdigit()
+                         and a.split("=", 1)[0] not in self._option_string_actions]
+            message += f"; {self._unrecognized(strangers)}" if strangers else ""
         self.exit(EXIT_BAD_INPUT, _error_line(self.prog.removeprefix("decentral").strip(),
                                               f"error: {message}{_did_you_mean_choice(message)}")
                   + f" (see {self.prog} --help)\n")
 
     def unknown(self, extras: list[str]):
         """Refuse the arguments this parser does not know, suggesting the closest option it has."""
+        self.error(self._unrecognized(extras))
+
+    def _unrecognized(self, extras: list[str]) -> str:
+        """``unrecognized option --windw (did you mean --window?)`` for the first unknown option of ``extras``."""
         options = [s for a in self._actions for s in a.option_strings if a.help != argparse.SUPPRESS]
         words = [e for e in extras if e.startswith("-")] or extras
         word = words[0].split("=", 1)[0]
@@ -111,7 +124,7 @@ class _OneLineParser(argparse.ArgumentParser):
         kind = "option" if word.startswith("-") else "argument"
         more = [e for e in words[1:] if e.startswith("-")]
         others = f" (also unrecognized: {' '.join(more)})" if more else ""
-        self.error(f"unrecognized {kind} {word}{hint}{others}")
+        return f"unrecognized {kind} {word}{hint}{others}"
 
 
 _INVALID_CHOICE = re.compile(r"invalid choice: '([^']*)' \(choose from (.*)\)$")

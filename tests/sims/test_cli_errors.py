@@ -80,6 +80,13 @@ def test_an_abbreviated_option_is_refused_not_guessed(files):
     assert "unrecognized option --wind (did you mean --window?)" in line, line
 
 
+def test_a_misspelt_required_option_is_named_beside_the_missing_one(files):
+    """`keys A0 --out DIR` says -o/--output is required and that --out is unknown (did you mean --output?)."""
+    line = one_line(*decentral("keys", "A0", "--out", "k", cwd=files))
+    assert "required: -o/--output; unrecognized option --out (did you mean --output?)" in line, line
+    assert not (files / "k").exists()
+
+
 def test_a_misspelt_command_or_choice_suggests_the_closest(files):
     """`decentral localise` suggests localize; `--mode admn` suggests admm, naming localize's --help."""
     line = one_line(*decentral("localise", "x", cwd=files))
