@@ -27,8 +27,8 @@ import shutil
 import sys
 import textwrap
 from functools import partial
-from typing import Iterable
 from importlib.metadata import PackageNotFoundError, version
+from typing import Iterable
 
 from decentral.errors import DecentralError
 from sims.cli import feedback
@@ -140,10 +140,6 @@ def _did_you_mean_choice(message: str) -> str:
     return f" (did you mean {close[0]}?)" if close else ""
 
 
-class _GroupedHelp(argparse.RawDescriptionHelpFormatter):
-    """The top-level help: the commands are listed by workflow in the description, not as one choice list."""
-
-
 def _grouped_commands(helps: dict[str, str]) -> str:
     """The commands by workflow, each with its one-line help, and one example per workflow."""
     width = max(map(len, helps)) + 2
@@ -189,7 +185,7 @@ def build_parser(only: Iterable[str] | None = None) -> argparse.ArgumentParser:
         usage="decentral [-h] [--version] [-q] COMMAND ...",
         description="Decentralized multi-observer relative localization for modular robots.\n\n"
                     + _grouped_commands({name: module.HELP for name, module in modules.items()}),
-        formatter_class=_GroupedHelp,
+        formatter_class=argparse.RawDescriptionHelpFormatter,  # the description lists the commands
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
     parser.add_argument("-q", "--quiet", action="store_true", help=QUIET_HELP)
