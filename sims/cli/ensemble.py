@@ -168,6 +168,7 @@ def run(args: argparse.Namespace) -> int:
     seconds = time.perf_counter() - t0
     cpu_seconds = time.process_time() - cpu0
     extra["seconds"] = np.float64(seconds)
+    extra["cpu_seconds"] = np.float64(cpu_seconds)
     extra["method"] = np.asarray(args.method + ("/distributed" if args.distributed else ""))
     write_ensemble_estimate(args.output, res.estimate, **extra)
     _report(problem, res, args, _timing(seconds, cpu_seconds))
