@@ -73,9 +73,11 @@ def _check_image_files(paths: Sequence[str], limits) -> None:
 def _tag_table(path: str | None) -> dict[int, int] | None:
     if path is None:
         return None
+    from sims.io.kinds import require_kind
     from sims.io.log_json import load_json
     from sims.io.validate import require_int, require_int_key, require_mapping
 
+    require_kind(path, "tag-table", field="--tag-table")
     doc = load_json(path)
     try:
         doc = require_mapping(doc, "(top level)")

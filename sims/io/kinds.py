@@ -17,7 +17,7 @@ import zipfile
 
 from decentral.errors import InputError
 
-__all__ = ["HEAD_BYTES", "KINDS", "describe", "require_kind", "sniff"]
+__all__ = ["HEAD_BYTES", "KINDS", "describe", "require_folder", "require_kind", "sniff"]
 
 #: bytes read to tell a file's kind
 HEAD_BYTES = 65536
@@ -49,6 +49,8 @@ KINDS: dict[str, tuple[str, str]] = {
     "video": ("a video", "`decentral perceive` reads videos"),
     "sqlite": ("an SQLite database", "`decentral report DIR` reads a study's DIR/study.sqlite"),
     "rosbag": ("a ROS bag", "`decentral build-log` reads it through a rig file (RIG.toml)"),
+    # expected only (nothing tells them from their bytes): plain JSON that the options name
+    "tag-table": ("a tag table (JSON object: tag id -> node id)", "`decentral perceive --tag-table` reads it"),
 }
 
 _IMAGE_MAGIC = (b"\x89PNG\r\n\x1a\n", b"\xff\xd8\xff", b"GIF87a", b"GIF89a", b"BM", b"II*\x00", b"MM\x00*")
@@ -140,3 +142,19 @@ def require_kind(path: str | os.PathLike, *expected: str, field: str | None = No
         field = "format"
     wanted = " or ".join(describe(e) for e in expected)
     raise InputError(f"this is {what}, not {wanted}; {reader}", source=str(path), field=field)
+
+
+def require_folder(path: str | os.PathLike, holds: str) -> None:
+    """Refuse a file given where a folder holding ``holds`` belongs, saying what the file is and what reads it.
+
+    Raises
+    ------
+    InputError
+        Naming the file; a missing path or a folder passes (the reader says what is wrong with it).
+    """
+    if not os.path.isfile(path):
+        return
+    kind = sniff(path)
+    what, reader = KINDS[kind] if kind else ("a file", "")
+    raise InputError(f"this is {what}, not a folder holding {holds}" + (f"; {reader}" if reader else ""),
+                     source=str(path))

@@ -67,6 +67,13 @@ def test_a_file_of_another_kind_says_what_it_is_and_which_command_reads_it(files
     assert not (files / "out.x").exists()
 
 
+def test_a_file_given_for_a_folder_says_what_it_is(files):
+    """`decentral report spec.toml` says the file is a study specification, which `decentral study` reads."""
+    line = one_line(*decentral("report", "spec.toml", cwd=files))
+    assert line == ("decentral report: error: spec.toml: this is a study specification (TOML with [grid]), not a "
+                    "folder holding study.sqlite; `decentral study` reads it"), line
+
+
 def test_an_unknown_option_names_the_command_help_and_the_closest_option(files):
     """`localize --windw 5` suggests --window and points at `decentral localize --help`."""
     line = one_line(*decentral("localize", "log.json", "-o", "e.json", "--windw", "5", cwd=files))

@@ -64,3 +64,19 @@ def test_require_kind_names_what_was_given_what_was_expected_and_who_reads_it(tm
         require_kind(path, "decentral.log/1")
     assert str(err.value).startswith(f"{path}: format: this is an estimate (decentral.estimate/1), not an "
                                       "observation log (decentral.log/1); `decentral score EST TRUTH`")
+
+
+def test_require_folder_refuses_a_file_saying_what_it_is(tmp_path):
+    """A file where a study folder belongs is named with its kind and reader; a folder or a missing path passes."""
+    from sims.io.kinds import require_folder
+
+    db = tmp_path / "study.sqlite"
+    db.write_bytes(b"SQLite format 3\x00" + bytes(84))
+    with pytest.raises(InputError, match=r"study.sqlite: this is an SQLite database, not a folder holding "
+                                         r"study.sqlite; `decentral report DIR` reads a study's DIR/study.sqlite"):
+        require_folder(db, "study.sqlite")
+    (tmp_path / "notes.txt").write_text("x")
+    with pytest.raises(InputError, match="notes.txt: this is a file, not a folder holding study.sqlite$"):
+        require_folder(tmp_path / "notes.txt", "study.sqlite")
+    require_folder(tmp_path, "study.sqlite")
+    require_folder(tmp_path / "missing", "study.sqlite")
