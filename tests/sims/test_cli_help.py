@@ -65,3 +65,17 @@ def test_make_ensemble_lists_every_shape_of_the_generator_with_its_dimension():
 
     assert SHAPES_2D + SHAPES_3D == tuple(SHAPES)
     assert {SHAPES[s] for s in SHAPES_2D} == {2} and {SHAPES[s] for s in SHAPES_3D} == {3}
+
+
+def test_the_choice_lists_repeated_for_a_light_help_equal_their_sources():
+    """simulate's scenario names and odometry formats, and export's formats, equal the registries they repeat."""
+    from sims.cli.export import FORMATS as EXPORT_FORMATS
+    from sims.cli.simulate import ODOMETRY_FORMATS as SIMULATE_ODOMETRY
+    from sims.cli.simulate import SCENARIO_NAMES
+    from sims.io.trajectories import FORMATS
+    from sims.robot_data import ODOMETRY_FORMATS
+    from sims.scenarios import SCENARIOS
+
+    assert SCENARIO_NAMES == tuple(SCENARIOS)
+    assert SIMULATE_ODOMETRY == ODOMETRY_FORMATS
+    assert EXPORT_FORMATS == FORMATS
