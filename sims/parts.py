@@ -20,7 +20,8 @@ import os
 from decentral.errors import InputError
 from decentral.observations import ObservationLog, Step
 from sims.io.atomic import write_json_atomic
-from sims.io.log_json import load_json, log_to_dict, parse_log
+from sims.io.kinds import require_kind
+from sims.io.log_json import LOG_FORMAT, load_json, log_to_dict, parse_log
 
 __all__ = ["split_log", "part_of", "write_part", "read_part"]
 
@@ -62,6 +63,7 @@ _MAKE = "`decentral parts LOG.json -o DIR` makes each assembly's part of a log"
 def read_part(path: str | os.PathLike, name: str) -> ObservationLog:
     """Read a part and check it is ``name``'s: its ``part`` field (if any) names it and it holds no other
     assembly's cameras, configuration, odometry or detections."""
+    require_kind(path, LOG_FORMAT)
     doc = load_json(path)
     try:
         log = parse_log(doc)

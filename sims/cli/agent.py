@@ -73,7 +73,13 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"must be in [0, 1), got {args.loss}", field="--loss")
     if not (math.isfinite(args.clock_tolerance) and args.clock_tolerance > 0):
         raise InputError(f"must be a positive number of seconds, got {args.clock_tolerance}", field="--clock-tolerance")
+    from protocols.peers import KEY_FORMAT, PEERS_FORMAT
+    from sims.io.kinds import require_kind
+
     part = read_part(args.log, args.name)
+    require_kind(args.peers, PEERS_FORMAT, field="--peers")
+    if args.key != "-":  # a key on stdin (how launch hands it over) is read below
+        require_kind(args.key, KEY_FORMAT, field="--key")
     peers = load_peers(args.peers)
     if args.key == "-":
         key_name, key = read_private_key_text(sys.stdin.readline(), "<stdin>")

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 from sims.cli import feedback
+from sims.cli.simulate import SCENARIO_NAMES
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -19,11 +20,9 @@ HELP = "simulate the default scenario, localize it, and print the Table I metric
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from sims.scenarios import SCENARIOS
-
     parser.add_argument("-o", "--output", default="out/demo", metavar="OUTDIR", help="output folder (default: out/demo)")
     parser.add_argument("--scenario", default="table1",
-                        help="scenario name (default: table1): " + ", ".join(SCENARIOS))
+                        help="scenario name (default: table1): " + ", ".join(SCENARIO_NAMES))
     parser.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
     parser.add_argument("--steps", type=int, default=None, help="number of steps (default: the scenario's)")
     parser.add_argument("--window", type=int, default=5, help="estimator window K (default: 5)")

@@ -28,8 +28,6 @@ import time
 from contextlib import nullcontext
 from dataclasses import replace
 
-import numpy as np
-
 from decentral.errors import InputError
 from sims.cli import feedback
 
@@ -73,6 +71,8 @@ def localize(problem, method: str, seed: int, tol: float | None = None, progress
     ``tol`` (module radii) replaces the gradient tolerance of every refinement; ``progress`` is
     passed to the hierarchical method (the baselines report none).
     """
+    import numpy as np
+
     rng = np.random.default_rng(seed)
     if method == "ncut":
         from decentral.ensemble.hierarchical import HierarchyConfig, normcut_localize
@@ -107,6 +107,8 @@ def distributed_config(loss: float = 0.0, tol: float | None = None, check_every:
 
 
 def _distributed(problem, args, progress=None) -> tuple:
+    import numpy as np
+
     try:
         from sims.ensembles.distributed import run_distributed
     except ImportError:
@@ -136,6 +138,8 @@ def _validate(args: argparse.Namespace) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
     _validate(args)
     if args.distributed and args.method != "ncut":
         raise InputError(f"--distributed runs the ncut method only, not {args.method!r}", field="--method")
@@ -151,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
     if args.distributed and problem.n > limits.max_agents:
         raise over_limit("module count", problem.n, "max_agents", limits.max_agents, " for --distributed",
                          source=args.observations, field="n")
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     if args.distributed:
         with feedback.progress("ensemble", unit="stage") as bar:
             res, extra = _distributed(problem, args, progress=bar)
@@ -162,22 +166,31 @@ def run(args: argparse.Namespace) -> int:
             res = localize(problem, args.method, args.seed, args.tol, progress=progress)
         extra = {"cost": np.float64(res.cost), "iterations_per_module": res.iterations_per_module}
     seconds = time.perf_counter() - t0
+    cpu_seconds = time.process_time() - cpu0
     extra["seconds"] = np.float64(seconds)
+    extra["cpu_seconds"] = np.float64(cpu_seconds)
     extra["method"] = np.asarray(args.method + ("/distributed" if args.distributed else ""))
     write_ensemble_estimate(args.output, res.estimate, **extra)
-    _report(problem, res, args, seconds)
+    _report(problem, res, args, _timing(seconds, cpu_seconds))
     return 0
 
 
-def _report(problem, res, args: argparse.Namespace, seconds: float) -> None:
+def _timing(wall: float, cpu: float) -> str:
+    """``wall 18.2 s, CPU 17.9 s``: how long the localization itself took (reading and writing excluded)."""
+    return f"wall {wall:.1f} s, CPU {cpu:.1f} s"
+
+
+def _report(problem, res, args: argparse.Namespace, timing: str) -> None:
     """The summary line and warnings of a finished run."""
-    _summarize(problem, res, args, seconds)
+    _summarize(problem, res, args, timing)
     _warn_hinges(problem)
 
 
 def _warn_hinges(problem) -> None:
     """Warn when single observation pairs join parts of a 3D ensemble (the likelihood is flat about them)."""
     from decentral.ensemble.observability import hinge_pairs, hinged_parts
+
+    import numpy as np
 
     hinges = hinge_pairs(problem)
     if len(hinges):
@@ -189,14 +202,16 @@ def _warn_hinges(problem) -> None:
                       "turned against each other by any angle (each part is right in itself)")
 
 
-def _summarize(problem, res, args: argparse.Namespace, seconds: float) -> None:
+def _summarize(problem, res, args: argparse.Namespace, timing: str) -> None:
     """The summary line, and the warnings about refinements that stopped at their cap."""
+    import numpy as np
+
     head = f"{problem.n} modules ({problem.dim}D), {_method_label(args)}: cost {res.cost:.4g}"
     if args.distributed:
         sent = res.messages
         feedback.summary(f"{head}, messages per module {sent.mean():.1f} (max {int(sent.max())}), "
                          f"{res.rounds} rounds, {res.network['total']['bytes_sent'] / 1e6:.2f} MB, "
-                         f"{res.levels} levels, {seconds:.1f} s -> {args.output}")
+                         f"{res.levels} levels, localization {timing} -> {args.output}")
         capped = res.info.get("capped_levels", [])
         if capped:
             feedback.warn(f"distributed refinement did not converge: level(s) {', '.join(map(str, capped))} "
@@ -204,7 +219,7 @@ def _summarize(problem, res, args: argparse.Namespace, seconds: float) -> None:
                           "the estimate is the last iterate")
         return
     iters = res.iterations_per_module
-    feedback.summary(f"{head}, refinement iterations per module {np.mean(iters):.1f}, {seconds:.1f} s "
+    feedback.summary(f"{head}, refinement iterations per module {np.mean(iters):.1f}, localization {timing} "
                      f"-> {args.output}")
     if res.status != "ok":
         feedback.warn(f"refinement did not converge: {res.status}; the estimate is the best found")

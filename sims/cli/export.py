@@ -19,9 +19,16 @@ __all__ = ["HELP", "add_arguments", "run"]
 HELP = "write an estimate or a ground truth as one TUM, KITTI or CSV trajectory file per assembly"
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from sims.io.trajectories import FORMATS
+#: sims.io.trajectories.FORMATS (format -> the files it writes), repeated here so that ``--help`` does not
+#: import numpy (a test keeps them equal)
+FORMATS = {
+    "tum": "DIR/<NAME>.tum: lines 't x y z qx qy qz qw' (TUM RGB-D; evo_ape tum)",
+    "kitti": "DIR/<NAME>.txt: 3x4 [R|p] row by row per line, and DIR/<NAME>.times.txt (KITTI odometry; evo_ape kitti)",
+    "csv": "DIR/<NAME>.csv: header t,x,y,z,theta,qx,qy,qz,qw",
+}
 
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", metavar="EST.json|TRUTH.json",
                         help="a decentral.estimate/1 or a decentral.truth/1 (told apart by its 'format' field)")
     parser.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder (created if needed)")
@@ -38,6 +45,9 @@ def run(args: argparse.Namespace) -> int:
     from sims.io.trajectories import estimate_trajectories, truth_trajectories, write_trajectories
     from sims.world.truth import TRUTH_FORMAT, parse_truth
 
+    from sims.io.kinds import require_kind
+
+    require_kind(args.input, ESTIMATE_FORMAT, TRUTH_FORMAT)
     doc = load_json(args.input)
     kind = doc.get("format") if isinstance(doc, dict) else None
     try:

@@ -11,8 +11,7 @@ HELP = "make an Ed25519 key per agent (NAME.key.json, mode 0600; NAME.pub.json) 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("names", nargs="+", metavar="NAME", help="agent (assembly) names")
-    parser.add_argument("-o", "--output", "--out", dest="output", required=True, metavar="DIR",
-                        help="folder to write into (created if missing); --out is an older spelling")
+    parser.add_argument("-o", "--output", required=True, metavar="DIR", help="folder to write into (created if missing)")
     parser.add_argument("--host", default="127.0.0.1",
                         help="host written into every peers.json address (default: 127.0.0.1; edit the file "
                              "when agents run on several machines)")

@@ -11,11 +11,7 @@ from __future__ import annotations
 import argparse
 
 from decentral.errors import InputError
-from decentral.factors import NoiseModel
 from sims.cli import feedback
-from sims.io.log_json import read_log, write_estimate
-from sims.io.paths import check_output
-from sims.io.validate import require_range
 
 __all__ = ["HELP", "add_arguments", "run", "ESTIMATORS"]
 
@@ -59,6 +55,8 @@ def _apply_mode_defaults(args: argparse.Namespace) -> None:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from decentral.noise import NoiseModel
+
     parser.add_argument("log", metavar="LOG.json", help="observation log (decentral.log/1)")
     parser.add_argument("-o", "--output", required=True, metavar="EST.json", help="estimate to write")
     parser.add_argument("--window", type=int, default=5, help="steps per sliding window K, 1 = per frame (default: 5)")
@@ -103,7 +101,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 SIGMA_RANGE = (1e-9, 1e6)
 
 
-def _noise(args: argparse.Namespace) -> NoiseModel:
+def _noise(args: argparse.Namespace):
+    from decentral.noise import NoiseModel
+    from sims.io.validate import require_range
+
     for name in ("sigma_pixel", "sigma_radius", "sigma_odom_p", "sigma_odom_theta"):
         require_range(getattr(args, name), "--" + name.replace("_", "-"), *SIGMA_RANGE)
     try:
@@ -113,6 +114,9 @@ def _noise(args: argparse.Namespace) -> NoiseModel:
 
 
 def run(args: argparse.Namespace) -> int:
+    from sims.io.log_json import read_log, write_estimate
+    from sims.io.paths import check_output
+
     _apply_mode_defaults(args)
     if args.window < 1:
         raise InputError(f"must be >= 1, got {args.window}", field="--window")

@@ -4,15 +4,10 @@ from __future__ import annotations
 
 import argparse
 
-import numpy as np
-
 from decentral.errors import InputError
 from sims.cli import feedback
-from sims.ensembles.generator import SHAPES, EnsembleSpec, generate, save_observations, save_truth
-from sims.ensembles.sensors import SensorModel
 from sims.io.limits import current_limits, over_limit
 from sims.io.paths import check_output
-from sims.io.validate import MAX_METRES, MIN_METRES, require_range
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -23,8 +18,16 @@ HELP = "make a module ensemble (2D settled under gravity, or 3D lattice) and its
 OPTIONS = {"n": "-n", "radius": "--radius", "lattice": "--lattice", "jitter": "--jitter"}
 
 
+#: the names of sims.ensembles.generator.SHAPES by dimension, listed here so that ``--help`` does not
+#: import the generator (scipy); a test keeps the two equal
+SHAPES_2D = ("triple", "sparse", "open", "twin", "funnel", "ring", "blobs", "capture-triple", "capture-sparse",
+             "capture-open")
+SHAPES_3D = ("sphere", "box", "torus", "dumbbell", "triple3d")
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("shape", choices=tuple(SHAPES), help="2D container or 3D solid")
+    parser.add_argument("shape", choices=SHAPES_2D + SHAPES_3D, metavar="SHAPE",
+                        help=f"2D container ({', '.join(SHAPES_2D)}) or 3D solid ({', '.join(SHAPES_3D)})")
     parser.add_argument("-n", type=int, default=1000, help="modules requested (default: 1000)")
     parser.add_argument("-o", "--output", required=True, metavar="OBS.npz", help="observations to write")
     parser.add_argument("--truth", metavar="TRUTH.npz", help="also write the true poses here")
@@ -37,6 +40,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from sims.ensembles.generator import EnsembleSpec, generate, save_observations, save_truth
+    from sims.ensembles.sensors import SensorModel
+    from sims.io.validate import MAX_METRES, MIN_METRES, require_range
+
     if not 0 < args.threshold < 1:
         raise InputError("must be in (0, 1)", field="--threshold")
     limits = current_limits()

@@ -14,12 +14,9 @@ from __future__ import annotations
 import argparse
 from typing import Sequence
 
-import numpy as np
-
 from decentral.errors import InputError
 from sims.cli import feedback
 from sims.io.limits import current_limits, over_limit
-from sims.io.validate import require_range
 
 __all__ = ["HELP", "add_arguments", "run", "perceive_paths", "to_records"]
 
@@ -64,8 +61,10 @@ def _check_image_files(paths: Sequence[str], limits) -> None:
     import os
 
     from agents.perception.frames import is_video
+    from sims.io.kinds import require_kind
 
     for path in paths:
+        require_kind(path, "image", "video")
         if not is_video(path) and os.path.isfile(path) and os.path.getsize(path) > limits.max_file_mb * 1e6:
             raise over_limit("file size", round(os.path.getsize(path) / 1e6, 1), "max_file_mb", limits.max_file_mb,
                              " MB", source=path)
@@ -74,9 +73,11 @@ def _check_image_files(paths: Sequence[str], limits) -> None:
 def _tag_table(path: str | None) -> dict[int, int] | None:
     if path is None:
         return None
+    from sims.io.kinds import require_kind
     from sims.io.log_json import load_json
     from sims.io.validate import require_int, require_int_key, require_mapping
 
+    require_kind(path, "tag-table", field="--tag-table")
     doc = load_json(path)
     try:
         doc = require_mapping(doc, "(top level)")
@@ -90,6 +91,8 @@ def to_records(results, *, K: np.ndarray | None = None):
 
     With intrinsics ``K``, each circle becomes its eq. (1) circle (:func:`agents.perception.sphere.eq1_circle`).
     """
+    import numpy as np
+
     from agents.perception.sphere import eq1_circle
     from sims.io.detections_json import DetectionFrame, DetectionRecord, TagRecord
 
@@ -153,6 +156,7 @@ def perceive_paths(
     """
     from agents.perception import AprilTagConfig, AprilTagIdentifier, Perception, make_detector
     from agents.perception.pipeline import perceive_frames
+    from sims.io.validate import require_range
 
     require_range(min_radius, "--min-radius", *RADIUS_RANGE)
     require_range(max_radius, "--max-radius", *RADIUS_RANGE)
@@ -177,6 +181,7 @@ def perceive_paths(
 
 def run(args: argparse.Namespace) -> int:
     from sims.io.detections_json import assemble_log, write_detections
+    from sims.io.validate import require_range
 
     require_range(args.log_min_score, "--log-min-score", -1e6, 1e6)
     limits = current_limits()

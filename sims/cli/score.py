@@ -18,19 +18,43 @@ from __future__ import annotations
 import argparse
 import json
 
-import numpy as np
-
 from decentral.errors import InputError
 from sims.cli import feedback
 
-__all__ = ["HELP", "add_arguments", "run", "format_table"]
+__all__ = ["COLUMNS", "HELP", "add_arguments", "run", "format_table"]
 
 HELP = ("score an estimate against ground truth: a decentral.estimate/1 against a decentral.truth/1 "
         "(positional, relative and angular error), or an ensemble estimate .npz against its truth .npz "
         "(global and local RMS)")
 
 
+#: what every column of the two tables means (``score --help`` prints it; docs/cli.md repeats it)
+COLUMNS = """\
+columns of a decentral.estimate/1 score (one row per assembly, then "overall"; Liu et al. 2024 Table I,
+means over the steps where the assembly is placed, relative to the estimate's reference assembly):
+  pos [m]      mean position error, metres
+  rel [%]      mean position error divided by the true distance to the reference, percent
+  yaw [deg]    mean absolute yaw error, degrees
+  coverage     share of the truth's steps at which the assembly is placed ("-" errors: never placed)
+
+columns of an ensemble score (Funiak et al. 2008 Fig. 10; module radii):
+  modules      number of modules
+  global RMS   RMS centre error after scaling the estimate to the true neighbour spacing and one
+               rigid alignment of the whole ensemble
+  local RMS    RMS centre error after aligning each region (at most six module diameters across)
+               on its own: the error of modules relative to their neighbours
+  scale        factor applied to the estimate before aligning it, so that its mean spacing between
+               observed neighbours equals the truth's (the model does not forbid overlap; 1 = right size)
+  regions      number of regions the local RMS aligned separately
+
+--json prints the same values under their full names (position_m, relative_position_pct, yaw_deg,
+coverage; global_rms, local_rms, scale, regions, and pairs: the neighbour pairs used, pairs_from:
+"observed" or "true contacts")."""
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.epilog = COLUMNS
     parser.add_argument("estimate", metavar="EST", help="estimate: decentral.estimate/1 (JSON) or ensemble estimate (.npz)")
     parser.add_argument("truth", metavar="TRUTH", help="ground truth: decentral.truth/1 (JSON) or decentral.ensemble_truth/1 (.npz)")
     parser.add_argument("--json", action="store_true", help="print the full score as JSON")
@@ -99,6 +123,8 @@ def _check_times_match(unmatched: int, estimate, truth_times, args: argparse.Nam
 
 def ensemble_score(estimate_path: str, truth_path: str) -> dict:
     """Global and local RMS (module radii) of an ensemble estimate file against a truth file, JSON-ready."""
+    import numpy as np
+
     from decentral.ensemble.metrics import evaluate
     from sims.io.ensemble_npz import read_ensemble_positions, read_ensemble_truth
 

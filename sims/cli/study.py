@@ -45,5 +45,5 @@ def run(args: argparse.Namespace) -> int:
         result = run_study(spec, args.output, engine, retry_failed=args.retry_failed, progress=bar)
     feedback.summary(
         f"{spec.name}: {result.ran} cells run ({result.failed} failed), {result.skipped} already done, "
-        f"{result.total} in the grid; {result.seconds:.1f} s on {args.engine} -> {result.path}")
+        f"{result.total} in the grid; wall {result.seconds:.1f} s on {args.engine} -> {result.path}")
     return 0

@@ -29,6 +29,7 @@ import numpy as np
 from decentral.errors import InputError
 from decentral.observations import Detection, ObservationLog, require_log
 from sims.io.atomic import write_json_atomic
+from sims.io.kinds import require_kind
 from sims.io.log_json import load_json
 from sims.io.validate import (
     MAX_PIXELS,
@@ -168,6 +169,7 @@ def parse_detections(doc: Any) -> list[DetectionFrame]:
 
 def read_detections(path: str | os.PathLike) -> list[DetectionFrame]:
     """Read and validate a ``decentral.detections/1`` file; errors name the file and the field."""
+    require_kind(path, DETECTIONS_FORMAT)
     try:
         return parse_detections(load_json(path))
     except InputError as err:

@@ -22,6 +22,7 @@ import numpy as np
 from decentral.ensemble.problem import MAX_RADIUS, MIN_RADIUS, EnsembleEstimate, EnsembleProblem
 from decentral.errors import InputError, SolverError
 from sims.io.atomic import write_atomic
+from sims.io.kinds import require_kind
 from sims.io.limits import Limits, current_limits, over_limit
 from sims.io.validate import MAX_METRES
 
@@ -210,6 +211,7 @@ class EnsembleTruth:
 def read_ensemble_truth(path: str | os.PathLike) -> EnsembleTruth:
     """Load and validate a ``decentral.ensemble_truth/1`` file; raise :class:`InputError` on any defect."""
     src = str(path)
+    require_kind(src, TRUTH_FORMAT)
     data = read_npz_arrays(src)
     _format(data, TRUTH_FORMAT, src)
     position = _points(data, "position", src)
@@ -247,6 +249,7 @@ def read_ensemble_truth(path: str | os.PathLike) -> EnsembleTruth:
 def read_ensemble_positions(path: str | os.PathLike, n: int, dim: int) -> np.ndarray:
     """The ``position`` (n, dim) of an ensemble estimate ``.npz`` (its ``format``, if any, checked)."""
     src = str(path)
+    require_kind(src, ESTIMATE_FORMAT)
     data = read_npz_arrays(src)
     _format(data, ESTIMATE_FORMAT, src, required=False)
     return _points(data, "position", src, n, dim)
@@ -260,6 +263,7 @@ def read_ensemble(path: str | os.PathLike, limits: Limits | None = None) -> Ense
     """
     limits = limits or current_limits()
     src = str(path)
+    require_kind(src, OBSERVATION_FORMAT)
     data = read_npz_arrays(path, limits)
     _format(data, OBSERVATION_FORMAT, src)
     dim = _int_scalar(data, "dim", src)

@@ -27,6 +27,7 @@ from decentral.observations import (
 )
 from sims.io.atomic import write_json_atomic
 from sims.io.jsonfile import load_json
+from sims.io.kinds import require_kind
 from sims.io.limits import Limits, current_limits, over_limit
 from sims.io.validate import (
     MAX_ANGLE,
@@ -95,6 +96,7 @@ def read_log(path: str | os.PathLike, limits: Limits | None = None) -> Observati
     >>> [len(step.detections["A/cam0"]) for step in back.steps] == [len(s.detections["A/cam0"]) for s in log.steps]
     True
     """
+    require_kind(path, LOG_FORMAT)
     limits = limits or current_limits()
     doc = load_json(path, limits)
     count = len(doc["assemblies"]) if isinstance(doc, dict) and isinstance(doc.get("assemblies"), dict) else 0
@@ -364,6 +366,7 @@ def parse_estimate(doc: Any) -> Estimate:
 
 def read_estimate(path: str | os.PathLike) -> Estimate:
     """Read and validate a ``decentral.estimate/1`` file."""
+    require_kind(path, ESTIMATE_FORMAT)
     doc = load_json(path)
     try:
         return parse_estimate(doc)

@@ -38,6 +38,7 @@ import numpy as np
 
 from decentral.errors import InputError
 from decentral.observations import Pose
+from sims.io.kinds import require_kind
 from sims.io.log_json import parse_camera_matrix, parse_pose
 from sims.io.robot_files import Layout, parse_nodes, read_layout
 from sims.io.text import read_text
@@ -267,6 +268,7 @@ def parse_rig(doc: Any, root: str | os.PathLike = ".", source: str = "") -> Rig:
 
 def read_rig(path: str | os.PathLike) -> Rig:
     """Read and validate a rig file; errors name the file and the field."""
+    require_kind(path, RIG_FORMAT)
     text = read_text(path)
     try:
         doc = tomllib.loads(text)

@@ -25,6 +25,7 @@ import numpy as np
 
 from decentral.errors import InputError
 from decentral.observations import Pose
+from sims.io.kinds import require_kind
 from sims.io.log_json import load_json, parse_pose
 from sims.io.text import read_text
 from sims.io.trajectories import Trajectory
@@ -179,6 +180,7 @@ def parse_nodes(value, field: str) -> dict[int, np.ndarray]:
 
 def read_layout(path: str | os.PathLike) -> Layout:
     """Read and validate a ``decentral.layout/1`` file."""
+    require_kind(path, LAYOUT_FORMAT)
     doc = load_json(path)
     try:
         doc = require_mapping(doc, "(top level)")

@@ -6,9 +6,10 @@ caller attributes the error to its file with :meth:`InputError.located`.
 
 from __future__ import annotations
 
+import difflib
 import math
 import re
-from typing import Any
+from typing import Any, Iterable
 
 import numpy as np
 
@@ -22,6 +23,7 @@ __all__ = [
     "MAX_ANGLE",
     "MAX_SECONDS",
     "MAX_ID",
+    "unknown_name",
     "require_mapping",
     "require_list",
     "require_number",
@@ -52,6 +54,23 @@ MAX_SECONDS = 1e12
 MAX_ID = 2**53
 
 _DECIMAL = re.compile(r"-?[0-9]{1,16}")
+
+
+def unknown_name(name: str, known: Iterable[str], what: str, field: str | None = None) -> InputError:
+    """The error for an unknown key, option or parameter ``name``: the closest known name, then all of them.
+
+    ``what`` says what was not known (``unknown key``); ``field`` defaults to ``name``. Returned, not
+    raised, so that the caller's ``raise`` stays visible.
+
+    Examples
+    --------
+    >>> str(unknown_name("n_assembly", ["n_assemblies", "steps"], "unknown key"))
+    'n_assembly: unknown key (n_assembly: did you mean n_assemblies?); known: n_assemblies, steps'
+    """
+    known = sorted(set(known))
+    close = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
+    hint = f" ({name}: did you mean {close[0]}?)" if close else ""
+    return InputError(f"{what}{hint}; known: {', '.join(known)}", field=name if field is None else field)
 
 
 def require_mapping(value: Any, field: str) -> dict:

@@ -9,6 +9,7 @@ returns what the assemblies know at step ``k`` (an :class:`~decentral.observatio
 
 from __future__ import annotations
 
+import difflib
 from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any, ClassVar
 
@@ -17,6 +18,7 @@ import numpy as np
 from decentral.errors import InputError
 from decentral.metrics import GroundTruth
 from decentral.observations import ObservationLog, Step
+from sims.io.validate import unknown_name
 from sims.world.sensors import SensorNoise, detections_at, odometry_at, sensor_streams
 from sims.world.truth import Truth
 from sims.world.world import World
@@ -110,11 +112,11 @@ class Scenario:
         noise_fields = {f.name for f in fields(SensorNoise)}
         unknown = sorted(set(params) - own - noise_fields)
         if unknown:
-            raise InputError(
-                f"unknown parameter(s) {', '.join(unknown)} for scenario {cls.name!r}; "
-                f"known: {', '.join(sorted(own | noise_fields))}",
-                field="params",
-            )
+            known = own | noise_fields
+            # suggest for the first unknown name that is close to a known one
+            first = next((u for u in unknown if difflib.get_close_matches(u, known, n=1, cutoff=0.6)), unknown[0])
+            raise unknown_name(first, known, f"unknown parameter(s) {', '.join(unknown)} for scenario {cls.name!r}",
+                               field="params")
         defaults = {f.name: f.default for f in fields(cls.Config)}
         defaults.update({f.name: f.default for f in fields(SensorNoise)})
         params = {k: _coerce(k, v, defaults[k]) for k, v in params.items()}

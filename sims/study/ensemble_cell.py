@@ -22,6 +22,7 @@ from sims.cli.ensemble import distributed_config, localize
 from sims.ensembles.distributed import run_distributed
 from sims.ensembles.generator import SHAPES, EnsembleSpec, generate
 from sims.ensembles.sensors import SensorModel
+from sims.io.validate import unknown_name
 from sims.study.options import Option, check_value, require
 
 __all__ = ["OPTIONS", "METRICS", "normalize", "run"]
@@ -66,7 +67,7 @@ def normalize(params: Mapping[str, Any]) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for key, value in params.items():
         if key not in OPTIONS:
-            raise InputError("unknown key: neither make-ensemble nor the ensemble command knows it", field=key)
+            raise unknown_name(key, OPTIONS, "unknown key: neither make-ensemble nor the ensemble command knows it")
         out[key] = check_value(key, value, OPTIONS[key])
     shape = out.get("shape", OPTIONS["shape"].default)
     if shape not in tuple(SHAPES):

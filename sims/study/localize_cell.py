@@ -20,6 +20,7 @@ from decentral.estimator import EstimatorConfig, estimate_log
 from decentral.factors import NoiseModel
 from decentral.metrics import score_estimate
 from sims.admm_run import AdmmRunConfig, run_admm
+from sims.io.validate import unknown_name
 from sims.scenarios import SCENARIOS, get_scenario, simulate
 from sims.study.options import Option, check_value, require
 from sims.world.sensors import SensorNoise
@@ -91,8 +92,8 @@ def normalize(params: Mapping[str, Any]) -> dict[str, Any]:
                 value = float(value)
             out[key] = value
         else:
-            raise InputError(f"unknown key: neither scenario {scenario!r} nor the localize command knows it",
-                             field=key)
+            raise unknown_name(key, [*OPTIONS, *scenario_defaults],
+                               f"unknown key: neither scenario {scenario!r} nor the localize command knows it")
     get_scenario(scenario, **_scenario_params(out))
     # unlike `decentral localize` (which refuses an option its mode ignores), a cell accepts the network
     # options (loss, share_forms, ...) in centralized mode, where they change nothing: a grid may cross

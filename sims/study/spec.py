@@ -30,6 +30,8 @@ from pathlib import Path
 from typing import Mapping, Union
 
 from decentral.errors import InputError
+from sims.io.kinds import require_kind
+from sims.io.validate import unknown_name
 
 __all__ = ["Value", "StudySpec", "read_spec", "parse_spec", "cell_key", "cell_hash"]
 
@@ -129,7 +131,7 @@ def parse_spec(text: str, source: str = "<spec>") -> StudySpec:
         raise InputError(f"not valid TOML: {err}", source=source) from None
     for key in data:
         if key not in TOP_KEYS:
-            raise InputError(f"unknown key; a study has {', '.join(TOP_KEYS)}", source=source, field=key)
+            raise unknown_name(key, TOP_KEYS, "unknown key at the top of a study").located(source)
     name = data.get("name")
     if not isinstance(name, str) or not name.strip():
         raise InputError("missing or empty (a study needs a name)", source=source, field="name")
@@ -160,6 +162,7 @@ def parse_spec(text: str, source: str = "<spec>") -> StudySpec:
 
 def read_spec(path: str | Path) -> StudySpec:
     """Read and parse the study file at ``path``."""
+    require_kind(path, "study-spec")
     try:
         text = Path(path).read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as err:

@@ -27,6 +27,7 @@ import numpy as np
 
 from decentral.errors import InputError
 from decentral.metrics import GroundTruth
+from sims.io.kinds import require_kind
 from sims.io.validate import (
     MAX_METRES,
     MAX_SECONDS,
@@ -139,6 +140,7 @@ def read_truth(path: str | os.PathLike) -> Truth:
     """Read and validate a ``decentral.truth/1`` file."""
     from sims.io.log_json import load_json
 
+    require_kind(path, TRUTH_FORMAT)
     doc = load_json(path)
     try:
         return parse_truth(doc)

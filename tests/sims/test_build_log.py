@@ -208,9 +208,17 @@ def test_image_stamps_read_from_the_serialized_header_equal_the_decoded_ones(tmp
     assert [int(image[0, 0, 0]) for _, image in iter_images(bag, "/img")] == [0, 10, 20]
 
 
+#: a node identified in both the PNG frames and their MJPG video is placed alike within this many pixels
+#: (centre and radius; JPEG compression moves the fitted circle by a fraction of a pixel)
+VIDEO_PX = 2.0
+#: share of the PNG frames' identified (step, node) pairs that the video must also identify (JPEG blurs
+#: the tag cells, so some tags are lost; 21-28 of 28 here, depending on the CPU's BLAS and codec paths)
+VIDEO_RECALL = 0.5
+
+
 def test_a_video_with_a_frame_rate_is_perceived_like_its_frames(tmp_path):
-    """The same rendered frames as PNG files (times file) and as an MJPG video (rate, start) give the
-    same steps and nearly the same identified detections."""
+    """The same rendered frames as PNG files (times file) and as an MJPG video (rate, start) give the same
+    steps; the nodes identified in both are placed alike, and the video identifies at least half of them."""
     import cv2
 
     run = simulate(get_scenario("table1", steps=5, noise=False), seed=0)
@@ -227,8 +235,14 @@ def test_a_video_with_a_frame_rate_is_perceived_like_its_frames(tmp_path):
     rig.write_text(text.replace('times = "A0_cam0.times.txt"', f"rate = 5.0\nstart = {run.log.steps[0].t}"))
     video_log, report = build_log(read_rig(rig))
     assert report.frames["A0/cam0"] == len(frames) and not report.unmatched_frames["A0/cam0"]
-    ids = lambda log: {(k, d.node) for k, s in enumerate(log.steps) for d in s.detections.get("A0/cam0", ())}  # noqa: E731
-    assert len(ids(video_log) & ids(png_log)) >= 0.8 * len(ids(png_log)) > 0
+    assert [s.t for s in video_log.steps] == pytest.approx([s.t for s in png_log.steps], abs=1e-9)
+    placed = lambda log: {(k, d.node): d for k, s in enumerate(log.steps) for d in s.detections.get("A0/cam0", ())}  # noqa: E731
+    png, vid = placed(png_log), placed(video_log)
+    both = png.keys() & vid.keys()
+    assert png and len(both) >= VIDEO_RECALL * len(png), (len(both), len(png))
+    for key in both:
+        a, b = png[key], vid[key]
+        assert np.hypot(a.u - b.u, a.v - b.v) < VIDEO_PX and abs(a.r - b.r) < VIDEO_PX, (key, a, b)
 
 
 def test_quiet_silences_the_summary_and_the_summary_names_the_command(tmp_path, sim, capsys):

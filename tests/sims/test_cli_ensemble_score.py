@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -156,3 +158,23 @@ def test_converged_distributed_run_does_not_warn(ens, tmp_path, capsys):
                  "--check-every", "5"]) == 0
     err = capsys.readouterr().err
     assert "warning" not in err and "messages per module" in err
+
+
+def _explained(header: str) -> list[str]:
+    """The column names of a printed table header, units in brackets dropped, compared word by word."""
+    return re.sub(r"\s*\[[^\]]*\]", "", header).split()
+
+
+def test_every_column_of_the_ensemble_score_is_explained_in_help_and_docs(ens, capsys):
+    """Each column the ensemble table prints has a line in `score --help` (COLUMNS) and in docs/cli.md."""
+    from sims.cli.score import COLUMNS
+
+    obs, truth, est = ens
+    assert main(["score", str(est), str(truth)]) == 0
+    header = capsys.readouterr().out.splitlines()[0]
+    section = COLUMNS.split("columns of an ensemble score", 1)[1]
+    explained = [m.group(1) for m in re.finditer(r"^  ([a-zA-Z][a-zA-Z ]*?)  +\S", section, re.MULTILINE)]
+    assert _explained(header) == " ".join(explained).split()
+    docs = (Path(__file__).resolve().parents[2] / "docs" / "cli.md").read_text(encoding="utf-8")
+    for name in explained:
+        assert f"| `{name}` |" in docs, name

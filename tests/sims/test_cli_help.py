@@ -41,12 +41,12 @@ def test_no_help_uses_the_old_default_spelling():
         assert "(default " not in text, name
 
 
-def test_keys_takes_output_like_every_command_and_still_out(tmp_path, capsys):
-    """keys takes -o/--output DIR like the other commands; --out still works."""
+def test_keys_takes_output_like_every_command(tmp_path, capsys):
+    """keys takes -o/--output DIR like the other commands, and its help names no other spelling."""
     assert main(["keys", "A0", "A1", "--output", str(tmp_path / "k1")]) == 0
-    assert main(["keys", "A0", "A1", "--out", str(tmp_path / "k2")]) == 0
-    assert (tmp_path / "k1" / "peers.json").exists() and (tmp_path / "k2" / "peers.json").exists()
-    assert "-o DIR, --output DIR, --out DIR" in command_help("keys")
+    assert (tmp_path / "k1" / "peers.json").exists()
+    assert "-o DIR, --output DIR " in command_help("keys") and "--out " not in command_help("keys")
+    assert "older spelling" not in command_help("keys")
 
 
 @pytest.mark.parametrize("argv,option", [(["-n", "1"], "-n"), (["--jitter", "0.9"], "--jitter")])
@@ -56,3 +56,26 @@ def test_make_ensemble_errors_name_the_option(tmp_path, capsys, argv, option):
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert f"error: {option}: " in line, line
     assert not (tmp_path / "o.npz").exists()
+
+
+def test_make_ensemble_lists_every_shape_of_the_generator_with_its_dimension():
+    """make-ensemble's SHAPES_2D and SHAPES_3D are exactly the generator's shapes, by dimension."""
+    from sims.cli.make_ensemble import SHAPES_2D, SHAPES_3D
+    from sims.ensembles.generator import SHAPES
+
+    assert SHAPES_2D + SHAPES_3D == tuple(SHAPES)
+    assert {SHAPES[s] for s in SHAPES_2D} == {2} and {SHAPES[s] for s in SHAPES_3D} == {3}
+
+
+def test_the_choice_lists_repeated_for_a_light_help_equal_their_sources():
+    """simulate's scenario names and odometry formats, and export's formats, equal the registries they repeat."""
+    from sims.cli.export import FORMATS as EXPORT_FORMATS
+    from sims.cli.simulate import ODOMETRY_FORMATS as SIMULATE_ODOMETRY
+    from sims.cli.simulate import SCENARIO_NAMES
+    from sims.io.trajectories import FORMATS
+    from sims.robot_data import ODOMETRY_FORMATS
+    from sims.scenarios import SCENARIOS
+
+    assert SCENARIO_NAMES == tuple(SCENARIOS)
+    assert SIMULATE_ODOMETRY == ODOMETRY_FORMATS
+    assert EXPORT_FORMATS == FORMATS

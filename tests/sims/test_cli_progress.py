@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from importlib.metadata import version
 
 import numpy as np
@@ -138,6 +139,16 @@ def test_every_command_ends_with_one_summary_line(sim6, ensemble, tmp_path, caps
     assert main(["perceive", *pngs, "-o", str(tmp_path / "d.json")]) == 0
     [line] = _summary_lines(capsys.readouterr().err, "perceive")
     assert line.startswith(f"decentral perceive: {len(pngs)} frames")
+
+
+def test_the_ensemble_summary_says_wall_and_cpu_time(ensemble, tmp_path, capsys):
+    """ensemble's summary gives the localization's wall and CPU seconds; the estimate keeps both."""
+    obs, _, _ = ensemble
+    assert main(["ensemble", str(obs), "-o", str(tmp_path / "m.npz")]) == 0
+    [line] = _summary_lines(capsys.readouterr().err, "ensemble")
+    assert re.search(r", localization wall \d+\.\d s, CPU \d+\.\d s -> ", line), line
+    with np.load(tmp_path / "m.npz", allow_pickle=False) as d:
+        assert d["seconds"] > 0 and d["cpu_seconds"] > 0
 
 
 def test_perceive_and_simulate_frames_keep_bars_out_of_their_files(tmp_path, capsys, bars_on):

@@ -48,3 +48,23 @@ def test_unmatched_steps_are_warned_about_and_the_rest_scored(run, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"decentral score: warning: 2 of {len(doc['steps'])} estimate steps match no truth time "
                    "and are not scored"]
+
+
+def test_every_column_of_the_score_table_is_explained_in_help_and_docs(run, capsys):
+    """Each column the decentral.estimate/1 table prints has a line in `score --help` (COLUMNS) and in docs/cli.md."""
+    import re
+    from pathlib import Path
+
+    from sims.cli.score import COLUMNS
+
+    root, doc = run
+    est = root / "est_all.json"
+    est.write_text(json.dumps(doc))
+    assert main(["score", str(est), str(root / "truth.json")]) == 0
+    header = capsys.readouterr().out.splitlines()[0]
+    columns = re.split(r"\s{2,}", header.strip())[1:]  # the first column names the rows
+    section = COLUMNS.split("columns of an ensemble score", 1)[0]
+    docs = (Path(__file__).resolve().parents[2] / "docs" / "cli.md").read_text(encoding="utf-8")
+    for name in columns:
+        assert f"\n  {name}  " in section, name
+        assert f"| `{name}` |" in docs, name

@@ -94,7 +94,7 @@ def test_progress_goes_to_stderr_never_into_files_and_q_silences_it(specs, write
     assert shown.returncode == 0, shown.stderr
     assert shown.stdout == ""
     assert "/4 [" in shown.stderr and "cell/s" in shown.stderr and "failed=0" in shown.stderr
-    assert "4 cells run (0 failed)" in shown.stderr
+    assert "4 cells run (0 failed)" in shown.stderr and " in the grid; wall " in shown.stderr  # wall time, said so
     for path in (tmp_path / "a").iterdir():
         assert b"cell/s" not in path.read_bytes() and b"failed=" not in path.read_bytes()
     quiet = cli("-q", "study", str(spec), "-o", str(tmp_path / "b"), "--workers", "2",
