@@ -136,3 +136,35 @@ def test_report_puts_figures_in_a_grid_and_states_constants_once(tmp_path):
     stated = re.search(r"The same in every run</h2>.*?</table>", page, re.S).group(0)
     assert "coverage" in stated and "peak memory" in stated and "67.77" in stated
     assert "vs_mode" not in page  # a category beside a numeric sweep is a colour, not an axis
+
+
+@pytest.mark.slow
+def test_the_report_screenshot_is_a_full_width_page(tmp_path):
+    """benchmarks/screenshot_report.py renders report.html in headless Chromium: a 1280 px wide, non-blank PNG."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from PIL import Image
+
+    script = Path(__file__).resolve().parents[3] / "benchmarks" / "screenshot_report.py"
+    spec = _load_script(script)
+    if spec.find_chromium() is None:
+        pytest.skip("no chromium on PATH")
+    _store(tmp_path, _rows())
+    proc = subprocess.run([sys.executable, str(script), str(tmp_path), "--out", str(tmp_path / "shots"),
+                           "--height", "900"], capture_output=True, text=True, timeout=180)
+    assert proc.returncode == 0, proc.stderr
+    with Image.open(tmp_path / "shots" / "report_screenshot.png") as im:
+        assert im.size == (1280, 900)
+        assert len(im.convert("L").getcolors(256) or ()) > 8  # text and plots, not a blank page
+
+
+def _load_script(path):
+    """Import a script by its path (benchmarks/ is not a package)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(path.stem, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
