@@ -15,6 +15,8 @@ from __future__ import annotations
 import contextlib
 import multiprocessing
 import os
+import re
+import socket
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Callable, Iterator, Sequence
@@ -23,7 +25,7 @@ from decentral.errors import InputError
 from sims.study.cells import Cell
 from sims.study.worker import PINNED_ENV, pin_blas_threads, work
 
-__all__ = ["ENGINES", "LocalEngine", "RayEngine", "make_engine", "OnResult"]
+__all__ = ["ENGINES", "LocalEngine", "RayEngine", "make_engine", "OnResult", "one_line", "check_reachable"]
 
 OnResult = Callable[[Cell, dict], None]
 
@@ -41,6 +43,12 @@ def _pinned_environment() -> Iterator[None]:
                 os.environ.pop(k, None)
             else:
                 os.environ[k] = v
+
+
+def _task_args(cell: Cell) -> tuple:
+    """What a worker's task is called with: the input files' texts only when the cell has some."""
+    base = (cell.command, dict(cell.params), cell.key)
+    return (*base, dict(cell.texts)) if cell.texts else base
 
 
 def _died(cell: Cell, why: str) -> dict[str, Any]:
@@ -76,7 +84,7 @@ class LocalEngine:
                 for cell in suspects:  # in flight when a worker died: find out which one it was
                     with self._pool_of(1) as pool:
                         try:
-                            row = pool.submit(self.task, cell.command, dict(cell.params), cell.key).result()
+                            row = pool.submit(self.task, *_task_args(cell)).result()
                         except BrokenProcessPool:
                             row = _died(cell, "worker process died while running this cell "
                                               "(killed, out of memory or crashed)")
@@ -103,7 +111,7 @@ class LocalEngine:
             while queue and len(running) < self.workers:
                 cell = queue[-1]
                 try:
-                    future = pool.submit(self.task, cell.command, dict(cell.params), cell.key)
+                    future = pool.submit(self.task, *_task_args(cell))
                 except BrokenProcessPool:  # a worker died since the last wait: the cells in flight are suspects
                     return queue, list(running.values())
                 running[future] = queue.pop()
@@ -128,13 +136,24 @@ class RayEngine:
     Parameters
     ----------
     address : str, optional
-        A running cluster (``HOST:6379``, ``auto``, or ``ray://HOST:10001``); ``None`` starts a
-        local instance with ``workers`` CPUs and stops it afterwards.
+        A running cluster (``HOST:6379``, ``auto``, or ``ray://HOST:10001`` through Ray Client);
+        ``None`` starts a local instance with ``workers`` CPUs and stops it afterwards.
     workers : int, optional
         CPUs of the local instance (default: all of this machine's).
+
+    Notes
+    -----
+    Workers get :data:`PINNED_ENV` from the environment the local instance starts with (they
+    inherit it), or on a cluster from the job's runtime environment; only on an instance the caller
+    started is it set per task, which costs a fresh worker process per study. A cell's input files
+    travel as one object in Ray's object store per distinct set of files, so no node needs them.
+    A task that fails (a node without the package, a worker that dies) gets a ``failed`` row whose
+    error is one line with the root cause, and the node's address when Ray reports it.
     """
 
     name = "ray"
+    #: set PINNED_ENV on every task (a fresh worker per study) instead of on the job; None: only on a caller's instance
+    per_task_env: bool | None = None
 
     def __init__(self, address: str | None = None, workers: int | None = None):
         try:
@@ -142,24 +161,31 @@ class RayEngine:
         except ImportError:
             raise InputError("Ray is not installed: pip install 'decentral[ray]'", field="--engine") from None
         self.address, self.workers = address, workers
+        self._own = False
 
     @contextlib.contextmanager
     def _session(self):
         import ray
 
         if ray.is_initialized():  # the caller's instance (e.g. a test module's): leave it running
+            self._own = False
             yield ray
             return
         kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False, "logging_level": "ERROR"}
         if self.address:
+            check_reachable(self.address)
             kwargs["address"] = self.address
         elif self.workers:
             kwargs["num_cpus"] = self.workers
+        if self.address and not self.per_task_env:  # a cluster's workers: the job's environment
+            kwargs["runtime_env"] = {"env_vars": dict(PINNED_ENV)}
         try:
             with _pinned_environment():
                 ray.init(**kwargs)
-        except (ConnectionError, RuntimeError, ValueError) as err:
-            raise InputError(f"cannot start or reach Ray: {err}", field="--address") from None
+        except Exception as err:  # ConnectionError, RuntimeError, a gRPC error through Ray Client, ...
+            raise InputError(f"cannot start or reach Ray{' at ' + self.address if self.address else ''}: "
+                             f"{one_line(err)}", field="--address") from None
+        self._own = True
         try:
             yield ray
         finally:
@@ -168,8 +194,20 @@ class RayEngine:
     def run(self, cells: Sequence[Cell], on_result: OnResult) -> None:
         """Run every cell of ``cells``; ``on_result`` gets each row as its cell ends."""
         with self._session() as ray:
-            task = ray.remote(work).options(num_cpus=1, max_retries=2, runtime_env={"env_vars": dict(PINNED_ENV)})
-            pending = {task.remote(c.command, dict(c.params), c.key): c for c in cells}
+            options: dict[str, Any] = {"num_cpus": 1, "max_retries": 2}
+            if self.per_task_env or (self.per_task_env is None and not self._own):
+                options["runtime_env"] = {"env_vars": dict(PINNED_ENV)}
+            task = ray.remote(work).options(**options)
+            shipped: dict[tuple, Any] = {}  # one object per distinct set of input files
+            pending = {}
+            for c in cells:
+                if c.texts:
+                    ident = tuple(sorted((k, hash(v)) for k, v in c.texts.items()))
+                    if ident not in shipped:
+                        shipped[ident] = ray.put(dict(c.texts))
+                    pending[task.remote(c.command, dict(c.params), c.key, shipped[ident])] = c
+                else:
+                    pending[task.remote(c.command, dict(c.params), c.key)] = c
             try:
                 while pending:
                     done, _ = ray.wait(list(pending), num_returns=1)
@@ -177,13 +215,72 @@ class RayEngine:
                         cell = pending.pop(ref)
                         try:
                             row = ray.get(ref)
-                        except ray.exceptions.RayError as err:  # the worker died; the cell's own errors are rows
-                            row = _died(cell, f"Ray task failed: {type(err).__name__}: {str(err).splitlines()[0]}")
+                        except ray.exceptions.RayError as err:  # the task itself failed; a cell's own errors are rows
+                            row = {**_died(cell, "Ray task failed: " + one_line(err)), **_where(err)}
                         on_result(cell, row)
             except BaseException:
                 for ref in pending:
                     ray.cancel(ref, force=True)
                 raise
+
+
+_ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
+_EXCEPTION_LINE = re.compile(r"^([A-Za-z_][\w.]*(?:Error|Exception|Exit|Interrupt)(?:\([\w.]+\))?): (.+)$")
+
+
+def one_line(err: BaseException) -> str:
+    """One line saying what went wrong, with the root cause: ``ModuleNotFoundError: No module named 'sims'``.
+
+    Ray's errors carry the remote traceback, coloured, in their text; the deepest
+    ``SomeError: message`` line in it is the cause. The type of a wrapping error with no such
+    line, and any ANSI colour, is dropped.
+    """
+    seen, chain = set(), []
+    while err is not None and id(err) not in seen:  # the cause chain, outermost first
+        seen.add(id(err))
+        chain.append(err)
+        err = getattr(err, "cause", None) or err.__cause__
+    for e in reversed(chain):
+        text = _ANSI.sub("", str(e))
+        found = [m for m in map(_EXCEPTION_LINE.match, (line.strip() for line in text.splitlines())) if m]
+        if found:
+            kind, message = found[-1].groups()
+            return f"{kind.split('(')[0].rsplit('.', 1)[-1]}: {message.strip()}"
+    e = chain[-1]
+    lines = [line.strip() for line in _ANSI.sub("", str(e)).splitlines() if line.strip()]
+    return f"{type(e).__name__}: {lines[-1] if lines else 'no message'}"
+
+
+def _where(err: BaseException) -> dict[str, Any]:
+    """The address and pid of the worker a Ray error came from, when it says."""
+    out = {}
+    if getattr(err, "ip", None):
+        out["address"] = err.ip
+    if getattr(err, "pid", None):
+        out["pid"] = err.pid
+    return out
+
+
+def check_reachable(address: str, timeout: float = 5.0) -> None:
+    """Refuse a cluster address nothing listens on, before Ray tries (and aborts the process).
+
+    ``HOST:PORT`` and ``ray://HOST:PORT`` are checked with one TCP connection; ``auto`` and other
+    forms are left to Ray. Raises :class:`InputError` naming ``--address`` and what to do.
+    """
+    target = address[len("ray://"):] if address.startswith("ray://") else address
+    host, sep, port = target.rpartition(":")
+    if not sep or not port.isdigit() or not host:
+        if address.startswith("ray://"):
+            raise InputError(f"expected ray://HOST:PORT, got {address!r}", field="--address")
+        return  # "auto", or a form Ray resolves itself
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout):
+            pass
+    except OSError as err:
+        what = "Ray Client server (ray start --head starts one on port 10001)" if address.startswith("ray://") \
+            else "Ray cluster (start one with `ray start --head`, or give HEAD:6379 of a running one)"
+        reason = err.strerror or type(err).__name__
+        raise InputError(f"cannot reach the {what} at {target}: {reason}", field="--address") from None
 
 
 ENGINES = ("local", "ray")

@@ -90,8 +90,19 @@ def provenance(spec: StudySpec, engine: str, workers: int | None, address: str |
         "engine": engine, "workers": workers, "address": address,
         "spec": spec.text, "spec_sha256": hashlib.sha256(spec.text.encode()).hexdigest(),
         "git_revision": _git_revision(), "python": sys.version.split()[0], "platform": platform.platform(),
-        "host": socket.gethostname(), "packages": json.dumps(_versions()), "status": "running",
+        "host": socket.gethostname(), "packages": json.dumps(_versions()), "status": "running", "pid": os.getpid(),
     }
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` exists on this machine."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # exists, owned by someone else
+        return True
+    return True
 
 
 def run_study(spec: StudySpec, directory: str | Path, engine, *, retry_failed: bool = False,
@@ -121,6 +132,7 @@ def run_study(spec: StudySpec, directory: str | Path, engine, *, retry_failed: b
     store = open_store(directory, spec.name, spec.command, spec.keys, metrics, spec.text)
     start = time.perf_counter()
     try:
+        store.close_vanished_invocations(socket.gethostname(), _alive)
         if retry_failed:
             store.delete_failed()
         done = store.done_keys()

@@ -11,7 +11,7 @@ from sims.study.spec import parse_spec
 ray = pytest.importorskip("ray")  # in the test extras; a plain install without it skips
 
 #: columns that may differ between engines: timing, memory and where/when a cell ran
-NOT_COMPARED = ("id", "seconds", "cpu_seconds", "solve_cpu_seconds", "peak_mb", "engine", "host", "pid", "started",
+NOT_COMPARED = ("id", "seconds", "cpu_seconds", "solve_cpu_seconds", "peak_mb", "engine", "host", "pid", "node", "address", "started",
                 "finished", "invocation")
 
 
