@@ -251,13 +251,20 @@ def one_line(err: BaseException) -> str:
     return f"{type(e).__name__}: {lines[-1] if lines else 'no message'}"
 
 
+_WORKER = re.compile(r"\(pid=(\d+), ip=([^\s,)]+)")
+
+
 def _where(err: BaseException) -> dict[str, Any]:
-    """The address and pid of the worker a Ray error came from, when it says."""
-    out = {}
-    if getattr(err, "ip", None):
-        out["address"] = err.ip
-    if getattr(err, "pid", None):
-        out["pid"] = err.pid
+    """The address and pid of the worker a Ray error came from, when it says (attributes or its header)."""
+    out: dict[str, Any] = {}
+    found = _WORKER.search(_ANSI.sub("", str(err)))
+    ip, pid = getattr(err, "ip", None), getattr(err, "pid", None)
+    if found:
+        pid, ip = pid or int(found.group(1)), ip or found.group(2)
+    if ip:
+        out["address"] = ip
+    if pid:
+        out["pid"] = int(pid)
     return out
 
 

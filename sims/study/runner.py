@@ -106,7 +106,8 @@ def _alive(pid: int) -> bool:
 
 
 def run_study(spec: StudySpec, directory: str | Path, engine, *, retry_failed: bool = False,
-              progress: Callable | None = None) -> StudyResult:
+              progress: Callable | None = None, on_failed: Callable[[Cell, dict], None] | None = None
+              ) -> StudyResult:
     """Run the cells of ``spec`` that have no row in ``directory/study.sqlite``.
 
     Parameters
@@ -121,6 +122,8 @@ def run_study(spec: StudySpec, directory: str | Path, engine, *, retry_failed: b
     progress : callable, optional
         ``progress(done, total, failed=...)`` after every finished cell (e.g. a
         :class:`sims.cli.feedback.Progress`).
+    on_failed : callable, optional
+        ``on_failed(cell, row)`` for every cell whose row says 'failed' (after the row is written).
 
     Raises
     ------
@@ -149,6 +152,8 @@ def run_study(spec: StudySpec, directory: str | Path, engine, *, retry_failed: b
             store.add_run(cell.params, row, engine.name, invocation)
             counts["ran"] += 1
             counts["failed"] += row["status"] == "failed"
+            if on_failed and row["status"] == "failed":
+                on_failed(cell, row)
             if progress:
                 progress(counts["ran"], len(pending), failed=counts["failed"])
 
