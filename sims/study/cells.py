@@ -162,7 +162,11 @@ def placement() -> dict[str, str | None]:
     ray = sys.modules.get("ray")  # never imported here: a Ray worker has it already
     if ray is not None and ray.is_initialized():
         try:
-            return {"node": ray.get_runtime_context().get_node_id(), "address": ray.util.get_node_ip_address()}
+            node = ray.get_runtime_context().get_node_id()
         except Exception:  # an older or partial Ray: the hostname still says something
-            pass
+            return {"node": socket.gethostname(), "address": None}
+        worker = getattr(getattr(ray, "_private", None), "worker", None)
+        # the address the node was started with (--node-ip-address), which the cluster knows it by
+        address = getattr(getattr(worker, "global_worker", None), "node_ip_address", None)
+        return {"node": node, "address": address or ray.util.get_node_ip_address()}
     return {"node": socket.gethostname(), "address": None}

@@ -17,6 +17,7 @@ import multiprocessing
 import os
 import re
 import socket
+import sys
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Callable, Iterator, Sequence
@@ -43,6 +44,36 @@ def _pinned_environment() -> Iterator[None]:
                 os.environ.pop(k, None)
             else:
                 os.environ[k] = v
+
+
+@contextlib.contextmanager
+def _held_stderr() -> Iterator[None]:
+    """Hold what this process writes to file descriptor 2 (C++ included) while the block runs.
+
+    While Ray connects, its C++ core logs a warning a second per failed try: when the block fails,
+    what was held is dropped (the caller turns the failure into one line); when it succeeds, it is
+    written to stderr then, so nothing is hidden.
+    """
+    import tempfile
+
+    sys.stderr.flush()
+    with tempfile.TemporaryFile() as hold:
+        saved = os.dup(2)
+        os.dup2(hold.fileno(), 2)
+        failed = True
+        try:
+            yield
+            failed = False
+        finally:
+            sys.stderr.flush()
+            os.dup2(saved, 2)
+            os.close(saved)
+            if not failed:
+                hold.seek(0)
+                text = hold.read()
+                if text:
+                    sys.stderr.write(text.decode(errors="replace"))
+                    sys.stderr.flush()
 
 
 def _task_args(cell: Cell) -> tuple:
@@ -180,11 +211,16 @@ class RayEngine:
         if self.address and not self.per_task_env:  # a cluster's workers: the job's environment
             kwargs["runtime_env"] = {"env_vars": dict(PINNED_ENV)}
         try:
-            with _pinned_environment():
+            with _pinned_environment(), _held_stderr():
                 ray.init(**kwargs)
         except Exception as err:  # ConnectionError, RuntimeError, a gRPC error through Ray Client, ...
-            raise InputError(f"cannot start or reach Ray{' at ' + self.address if self.address else ''}: "
-                             f"{one_line(err)}", field="--address") from None
+            where = f" at {self.address}" if self.address else ""
+            cause = one_line(err)
+            if "AuthenticationError" in cause or "InvalidAuthToken" in cause:
+                raise InputError(f"the Ray cluster{where} requires its token: set RAY_AUTH_MODE=token and give the "
+                                 "token (`ray get-auth-token` on the head) in RAY_AUTH_TOKEN or ~/.ray/auth_token",
+                                 field="--address") from None
+            raise InputError(f"cannot start or reach Ray{where}: {cause}", field="--address") from None
         self._own = True
         try:
             yield ray

@@ -109,4 +109,5 @@ def test_ray_rows_record_the_node_id_and_address(ray_instance, specs, tmp_path):
     with sqlite3.connect(tmp_path / "study.sqlite") as con:
         rows = con.execute("SELECT node, address FROM runs").fetchall()
     node_id = ray.get_runtime_context().get_node_id()
-    assert rows and all(node == node_id and address == ray.util.get_node_ip_address() for node, address in rows)
+    node_address = next(n["NodeManagerAddress"] for n in ray.nodes() if n["NodeID"] == node_id)
+    assert rows and all(node == node_id and address == node_address for node, address in rows)
