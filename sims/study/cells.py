@@ -15,14 +15,14 @@ import sys
 import time
 import traceback
 from dataclasses import dataclass, field
-from pathlib import Path
 from datetime import datetime, timezone
+from pathlib import Path
 from typing import Any, Mapping
 
 from decentral.errors import InputError
 from sims.study.spec import StudySpec, cell_key
 
-__all__ = ["CELL_COMMANDS", "Cell", "metrics_of", "check_cells", "execute", "run_cell"]
+__all__ = ["CELL_COMMANDS", "Cell", "metrics_of", "check_cells", "execute", "run_cell", "placement"]
 
 #: study command -> module with ``OPTIONS``, ``METRICS``, ``normalize(params)`` and ``run(params)``
 CELL_COMMANDS: dict[str, str] = {

@@ -47,33 +47,61 @@ def _pinned_environment() -> Iterator[None]:
 
 
 @contextlib.contextmanager
-def _held_stderr() -> Iterator[None]:
+def _held_stderr(patience: float = 90.0, what: str = "Ray") -> Iterator[None]:
     """Hold what this process writes to file descriptor 2 (C++ included) while the block runs.
 
     While Ray connects, its C++ core logs a warning a second per failed try: when the block fails,
     what was held is dropped (the caller turns the failure into one line); when it succeeds, it is
-    written to stderr then, so nothing is hidden.
+    written to stderr then, so nothing is hidden. A block still running after ``patience`` seconds
+    gives stderr back, with what was held, after one line saying it is still waiting.
     """
     import tempfile
+    import threading
 
     sys.stderr.flush()
     with tempfile.TemporaryFile() as hold:
         saved = os.dup(2)
         os.dup2(hold.fileno(), 2)
+        lock, state = threading.Lock(), {"held": True}
+
+        def give_back(note: str = "") -> None:
+            with lock:
+                if not state["held"]:
+                    return
+                state["held"] = False
+                sys.stderr.flush()
+                os.dup2(saved, 2)
+                if note:
+                    os.write(2, note.encode())
+                hold.seek(0)
+                text = hold.read()
+                if text and note:
+                    os.write(2, text)
+
+        timer = threading.Timer(patience, give_back, kwargs={"note": f"still waiting for {what} after "
+                                                                  f"{patience:g} s; its messages follow\n"})
+        timer.daemon = True
+        timer.start()
         failed = True
         try:
             yield
             failed = False
         finally:
-            sys.stderr.flush()
-            os.dup2(saved, 2)
+            timer.cancel()
+            with lock:
+                was_held = state["held"]
+            if was_held:
+                sys.stderr.flush()
+                with lock:
+                    state["held"] = False
+                    os.dup2(saved, 2)
+                if not failed:
+                    hold.seek(0)
+                    text = hold.read()
+                    if text:
+                        sys.stderr.write(text.decode(errors="replace"))
+                        sys.stderr.flush()
             os.close(saved)
-            if not failed:
-                hold.seek(0)
-                text = hold.read()
-                if text:
-                    sys.stderr.write(text.decode(errors="replace"))
-                    sys.stderr.flush()
 
 
 def _task_args(cell: Cell) -> tuple:
@@ -211,7 +239,7 @@ class RayEngine:
         if self.address and not self.per_task_env:  # a cluster's workers: the job's environment
             kwargs["runtime_env"] = {"env_vars": dict(PINNED_ENV)}
         try:
-            with _pinned_environment(), _held_stderr():
+            with _pinned_environment(), _held_stderr(what=f"Ray{' at ' + self.address if self.address else ''}"):
                 ray.init(**kwargs)
         except Exception as err:  # ConnectionError, RuntimeError, a gRPC error through Ray Client, ...
             where = f" at {self.address}" if self.address else ""
@@ -304,26 +332,39 @@ def _where(err: BaseException) -> dict[str, Any]:
     return out
 
 
-def check_reachable(address: str, timeout: float = 5.0) -> None:
-    """Refuse a cluster address nothing listens on, before Ray tries (and aborts the process).
+#: the client preface of HTTP/2 (RFC 9113 §3.4) and an empty SETTINGS frame: a gRPC server answers with SETTINGS
+_H2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + b"\x00\x00\x00\x04\x00\x00\x00\x00\x00"
 
-    ``HOST:PORT`` and ``ray://HOST:PORT`` are checked with one TCP connection; ``auto`` and other
-    forms are left to Ray. Raises :class:`InputError` naming ``--address`` and what to do.
+
+def check_reachable(address: str, timeout: float = 5.0) -> None:
+    """Refuse a cluster address where no Ray answers, before Ray tries (and retries for minutes).
+
+    ``HOST:PORT`` and ``ray://HOST:PORT`` are checked with one TCP connection that opens an HTTP/2
+    conversation, as Ray's gRPC services speak: nothing listening, or a listener that does not
+    answer as a gRPC server within ``timeout``, is refused. ``auto`` and other forms are left to
+    Ray. Raises :class:`InputError` naming ``--address`` and what to do.
     """
-    target = address[len("ray://"):] if address.startswith("ray://") else address
+    client = address.startswith("ray://")
+    target = address[len("ray://"):] if client else address
     host, sep, port = target.rpartition(":")
     if not sep or not port.isdigit() or not host:
-        if address.startswith("ray://"):
+        if client:
             raise InputError(f"expected ray://HOST:PORT, got {address!r}", field="--address")
         return  # "auto", or a form Ray resolves itself
+    what = ("Ray Client server (ray start --head starts one on port 10001)" if client
+            else "Ray cluster (start one with `ray start --head`, or give HEAD:6379 of a running one)")
     try:
-        with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout):
-            pass
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout) as conn:
+            conn.sendall(_H2_PREFACE)
+            reply = conn.recv(9)
+    except socket.timeout:
+        reply = b""
     except OSError as err:
-        what = "Ray Client server (ray start --head starts one on port 10001)" if address.startswith("ray://") \
-            else "Ray cluster (start one with `ray start --head`, or give HEAD:6379 of a running one)"
         reason = err.strerror or type(err).__name__
         raise InputError(f"cannot reach the {what} at {target}: {reason}", field="--address") from None
+    if len(reply) < 4 or reply[3] != 0x04:  # the 4th byte of a frame header is its type; SETTINGS = 4
+        raise InputError(f"{target} does not answer as a {what.split(' (')[0]} (no gRPC reply within {timeout:g} s): "
+                         "is it the right host and port?", field="--address")
 
 
 ENGINES = ("local", "ray")

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import socket
 import sqlite3
 import subprocess
 import sys
+import threading
 
 import pytest
 
@@ -64,6 +66,28 @@ def test_a_malformed_ray_client_address_is_refused():
         check_reachable("ray://headnode")
 
 
+@contextlib.contextmanager
+def _grpc_like_server():
+    """A loopback listener that answers a connection with an HTTP/2 SETTINGS frame, as a gRPC server does."""
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen()
+
+    def answer():
+        conn, _ = server.accept()
+        with conn:
+            conn.recv(64)
+            conn.sendall(b"\x00\x00\x00\x04\x00\x00\x00\x00\x00")
+
+    thread = threading.Thread(target=answer, daemon=True)
+    thread.start()
+    try:
+        yield server.getsockname()[1]
+    finally:
+        server.close()
+        thread.join(timeout=5)
+
+
 def test_a_ray_client_address_is_passed_to_ray_init_as_given(monkeypatch):
     """--address ray://HOST:PORT reaches ray.init unchanged (Ray Client), with the pinned job environment."""
     ray = pytest.importorskip("ray")
@@ -75,10 +99,8 @@ def test_a_ray_client_address_is_passed_to_ray_init_as_given(monkeypatch):
 
     monkeypatch.setattr(ray, "init", fake_init)
     monkeypatch.setattr(ray, "is_initialized", lambda: False)
-    with socket.socket() as server:
-        server.bind(("127.0.0.1", 0))
-        server.listen()
-        address = f"ray://127.0.0.1:{server.getsockname()[1]}"
+    with _grpc_like_server() as port:
+        address = f"ray://127.0.0.1:{port}"
         with pytest.raises(InputError, match="ConnectionError: stop here"):
             RayEngine(address).run([], lambda cell, row: None)
     assert seen["address"] == address and seen["runtime_env"]["env_vars"]["OPENBLAS_NUM_THREADS"] == "1"
@@ -159,3 +181,26 @@ def test_a_store_written_before_the_placement_columns_gains_them(specs, tmp_path
     with sqlite3.connect(db) as con:
         nodes = [r[0] for r in con.execute("SELECT node FROM runs ORDER BY id")]
     assert result.ran == 2 and nodes[:2] == [None, None] and all(nodes[2:])
+
+
+def test_a_listener_that_is_not_ray_is_refused_quickly():
+    """A port that accepts but never answers as gRPC is refused after the timeout, not waited on for minutes."""
+    with socket.socket() as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen()
+        with pytest.raises(InputError, match="does not answer") as err:
+            check_reachable(f"127.0.0.1:{server.getsockname()[1]}", timeout=0.5)
+    assert err.value.field == "--address"
+
+
+def test_failed_cells_are_reported_one_line_each_on_stderr(capsys):
+    """The CLI prints each failed cell's grid values and error in one warning line, then stops after ten."""
+    from sims.cli.study import _FailureLines
+    from sims.study.cells import Cell
+
+    lines = _FailureLines(("loss",))
+    for k in range(12):
+        lines(Cell("localize", {"scenario": "multi", "loss": k / 10}, str(k)), {"error": f"Boom: {k}"})
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 11 and "loss=0.0" in err[0] and "Boom: 0" in err[0] and "scenario" not in err[0]
+    assert "error' column" in err[-1]
