@@ -65,8 +65,6 @@ LABELS = {
 SEEDS = ("seed", "scenario_seed")
 #: metrics that are not worth a figure of their own (they follow the size parameter)
 NOT_PLOTTED = ("n_modules", "observations")
-#: parameters that name input files: shown by file name
-FILES = ("log", "truth")
 
 
 def _label(name: str) -> str:
@@ -173,8 +171,7 @@ def _figures(p: Plan, ok: list[dict], out: Path) -> list[Figure]:
 
 
 def _show(name: str, value: Any) -> str:
-    if name in FILES and isinstance(value, str):
-        return Path(value).name
+    """A parameter's value as text (a path as written: two logs may share a file name)."""
     return fmt(value)
 
 
@@ -299,8 +296,6 @@ def _medians_html(p: Plan, metrics: Sequence[str], ok: list[dict]) -> str:
     stated = {s.name for s in p.stated}
     shown = [m for m in metrics if m not in stated and any(is_number(r.get(m)) for r in ok)]
     head, rows = medians_per_setting(p.swept, shown, ok)
-    rows = [[_show(k, v) if k in FILES else v for k, v in zip(p.swept, r[:len(p.swept)])] + r[len(p.swept):]
-            for r in rows]
     head, rows, constants = collapse_constant_columns(head, rows, keep=len(p.swept))
     also = [(c, v) for c, v in constants if c not in stated]
     text = "<h2>Medians per setting</h2>"

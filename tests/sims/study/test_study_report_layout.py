@@ -168,3 +168,13 @@ def _load_script(path):
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+def test_logs_sharing_a_file_name_stay_apart_in_the_table(tmp_path):
+    """Two recorded logs both called log.json appear by the paths written in the spec, not by file name."""
+    rows = [{"log": f"runs/{day}/log.json", "window": w, "pos_error_m": 0.01 * w + (day == "b") * 0.003}
+            for day in ("a", "b") for w in (1, 5)]
+    _store(tmp_path, rows)
+    page = write_report(tmp_path).html.read_text()
+    table = page[page.index("Medians per setting"):]
+    assert "runs/a/log.json" in table and "runs/b/log.json" in table
