@@ -26,7 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=int, default=None,
                         help="worker processes (local) or CPUs of a local Ray instance (default: this machine's CPUs)")
     parser.add_argument("--address", default=None, metavar="ADDR",
-                        help="ray: address of a running cluster, e.g. HEAD:6379 (default: start a local instance)")
+                        help="ray: a running cluster: HEAD:6379, auto (one started on this machine) or "
+                             "ray://HEAD:10001 (Ray Client, from outside the cluster) (default: start a local instance)")
     parser.add_argument("--retry-failed", action="store_true", help="run the cells whose row says 'failed' again")
 
 
@@ -42,8 +43,26 @@ def run(args: argparse.Namespace) -> int:
     workers = args.workers or (default_workers() if args.engine == "local" or not args.address else None)
     engine = make_engine(args.engine, workers, args.address)
     with feedback.progress(spec.name, unit="cell", leave=False) as bar:
-        result = run_study(spec, args.output, engine, retry_failed=args.retry_failed, progress=bar)
+        result = run_study(spec, args.output, engine, retry_failed=args.retry_failed, progress=bar,
+                           on_failed=_FailureLines(tuple(spec.grid)))
     feedback.summary(
         f"{spec.name}: {result.ran} cells run ({result.failed} failed), {result.skipped} already done, "
         f"{result.total} in the grid; wall {result.seconds:.1f} s on {args.engine} -> {result.path}")
     return 0
+
+
+class _FailureLines:
+    """One warning line on stderr per failed cell (its [grid] values and error), the first :attr:`LIMIT` of them."""
+
+    LIMIT = 10
+
+    def __init__(self, keys: tuple[str, ...]) -> None:
+        self.keys, self.count = keys, 0
+
+    def __call__(self, cell, row: dict) -> None:
+        self.count += 1
+        if self.count <= self.LIMIT:
+            params = ", ".join(f"{k}={v}" for k, v in cell.params.items() if k in self.keys or not self.keys)
+            feedback.warn(f"cell failed ({params}): {row.get('error')}")
+        elif self.count == self.LIMIT + 1:
+            feedback.warn("more cells failed: their errors are in the store's 'error' column")

@@ -11,16 +11,18 @@ from __future__ import annotations
 import importlib
 import os
 import socket
+import sys
 import time
 import traceback
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
+from pathlib import Path
 from typing import Any, Mapping
 
 from decentral.errors import InputError
 from sims.study.spec import StudySpec, cell_key
 
-__all__ = ["CELL_COMMANDS", "Cell", "metrics_of", "check_cells", "execute", "run_cell"]
+__all__ = ["CELL_COMMANDS", "Cell", "metrics_of", "check_cells", "execute", "run_cell", "placement"]
 
 #: study command -> module with ``OPTIONS``, ``METRICS``, ``normalize(params)`` and ``run(params)``
 CELL_COMMANDS: dict[str, str] = {
@@ -50,32 +52,41 @@ class Cell:
     params : Mapping[str, Value]
         Normalized parameters ([fixed] and [grid] values).
     key : str
-        :func:`sims.study.spec.cell_key` of ``params``: the cell's identity in the store.
+        :func:`sims.study.spec.cell_key` of ``params`` (and of the input files' hashes): the cell's
+        identity in the store.
+    texts : Mapping[str, str]
+        Contents of the cell's input files by key (``log``, ``truth``), read on the driver; empty
+        for a simulated cell.
     """
 
     command: str
     params: Mapping[str, Any]
     key: str
+    texts: Mapping[str, str] = field(default_factory=dict)
 
 
 def check_cells(spec: StudySpec) -> list[Cell]:
     """Every cell of ``spec``, checked and normalized; raises :class:`InputError` before any runs.
 
-    The error names the spec file and the key (``[fixed] n_asemblies``).
+    The error names the spec file and the key (``[fixed] n_asemblies``). Input files a cell names
+    (a recorded ``log``) are read and validated here, once each; an error in one names that file
+    and its field.
     """
     module = _module(spec.command)
-    cells, seen = [], set()
+    base = Path(spec.source).parent if spec.source and not spec.source.startswith("<") else Path.cwd()
+    cells, seen, cache = [], set(), {}
     for params in spec.cells():
         try:
             normalized = module.normalize(params)
         except InputError as err:
-            field = f"{spec.section_of(err.field)} {err.field}" if err.field in params else err.field
-            raise InputError(err.message, source=spec.source, field=field) from None
-        key = cell_key(normalized)
+            where = f"{spec.section_of(err.field)} {err.field}" if err.field in params else err.field
+            raise InputError(err.message, source=spec.source, field=where) from None
+        texts = module.inputs(normalized, base, cache) if hasattr(module, "inputs") else {}
+        key = cell_key({**normalized, **module.digest(texts)} if texts else normalized)
         if key in seen:  # e.g. loss = [0, 0.0]: one cell written twice
             raise InputError(f"two grid values name the same cell {key}", source=spec.source, field="[grid]")
         seen.add(key)
-        cells.append(Cell(spec.command, normalized, key))
+        cells.append(Cell(spec.command, normalized, key, texts))
     return cells
 
 
@@ -103,16 +114,17 @@ def _peak_memory_mb() -> float | None:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # lifetime peak: an upper bound
 
 
-def run_cell(command: str, params: Mapping[str, Any]) -> dict[str, Any]:
+def run_cell(command: str, params: Mapping[str, Any], texts: Mapping[str, str] | None = None) -> dict[str, Any]:
     """The metrics of one cell, computed in this process (raises on failure)."""
-    return _module(command).run(params)
+    return _module(command).run(params, texts) if texts else _module(command).run(params)
 
 
 def _now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="milliseconds")
 
 
-def execute(command: str, params: Mapping[str, Any], key: str) -> dict[str, Any]:
+def execute(command: str, params: Mapping[str, Any], key: str, texts: Mapping[str, str] | None = None
+            ) -> dict[str, Any]:
     """Run one cell and return its row (never raises for the cell's own failures).
 
     Returns
@@ -120,15 +132,15 @@ def execute(command: str, params: Mapping[str, Any], key: str) -> dict[str, Any]
     dict
         ``key``, ``status`` ('ok' or 'failed'), ``error`` (one line, or ``None``), ``seconds`` (wall
         time of the cell), ``cpu_seconds`` (its CPU time in the worker), ``peak_mb`` (peak resident
-        memory of the process during the cell), ``host``, ``pid``, ``started``, ``finished`` and
-        ``metrics`` (a dict; empty when failed).
+        memory of the process during the cell), ``host``, ``pid``, ``node`` and ``address`` (see
+        :func:`placement`), ``started``, ``finished`` and ``metrics`` (a dict; empty when failed).
     """
     _module(command)  # imported before the clock starts: a cell's time is its own work
     _reset_peak_memory()
     started = _now()
     t0, c0 = time.perf_counter(), time.process_time()
     try:
-        metrics, status, error = run_cell(command, params), "ok", None
+        metrics, status, error = run_cell(command, params, texts), "ok", None
     except Exception as err:  # a failing cell is a result, not the end of the study
         frame = traceback.extract_tb(err.__traceback__)[-1] if err.__traceback__ else None
         where = f" (at {os.path.basename(frame.filename)}:{frame.lineno})" if frame else ""
@@ -136,5 +148,25 @@ def execute(command: str, params: Mapping[str, Any], key: str) -> dict[str, Any]
     return {
         "key": key, "status": status, "error": error, "seconds": time.perf_counter() - t0,
         "cpu_seconds": time.process_time() - c0, "peak_mb": _peak_memory_mb(), "host": socket.gethostname(),
-        "pid": os.getpid(), "started": started, "finished": _now(), "metrics": metrics,
+        "pid": os.getpid(), **placement(), "started": started, "finished": _now(), "metrics": metrics,
     }
+
+
+def placement() -> dict[str, str | None]:
+    """Where this process runs: ``node`` and ``address``.
+
+    In a Ray worker: the Ray node id (unique per raylet, even when two share a machine and its
+    hostname) and the node's IP address. Elsewhere (the local pool): the hostname and ``None``
+    (the row's ``host`` and ``pid`` then say which process it was).
+    """
+    ray = sys.modules.get("ray")  # never imported here: a Ray worker has it already
+    if ray is not None and ray.is_initialized():
+        try:
+            node = ray.get_runtime_context().get_node_id()
+        except Exception:  # an older or partial Ray: the hostname still says something
+            return {"node": socket.gethostname(), "address": None}
+        worker = getattr(getattr(ray, "_private", None), "worker", None)
+        # the address the node was started with (--node-ip-address), which the cluster knows it by
+        address = getattr(getattr(worker, "global_worker", None), "node_ip_address", None)
+        return {"node": node, "address": address or ray.util.get_node_ip_address()}
+    return {"node": socket.gethostname(), "address": None}

@@ -12,20 +12,20 @@ from __future__ import annotations
 
 import base64
 import html
-import io
-import itertools
 import json
+import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
-import numpy as np
-
 from sims.io.atomic import write_atomic
-from sims.study.fits import Fit, fit_log, fit_power
+from sims.study.fits import Fit
+from sims.study.plots import plot_metric
 from sims.study.store import BOOKKEEPING, DB_NAME, read_runs
+from sims.study.summary import (STEADY_RTOL, Steady, collapse_constant_columns, fmt, is_number, medians_per_setting,
+                                order, steady)
 
-__all__ = ["Figure", "ReportResult", "write_report", "LABELS"]
+__all__ = ["Figure", "Plan", "ReportResult", "plan", "write_report", "LABELS"]
 
 #: column -> axis label with units (a reader's words, not the column's)
 LABELS = {
@@ -63,12 +63,7 @@ LABELS = {
 }
 #: replicate parameters: spread across them, never an axis
 SEEDS = ("seed", "scenario_seed")
-#: size parameters: the x of the fits
-SIZES = ("n", "n_assemblies")
-#: metrics fitted against size with both laws (messages), and with the power law only (time)
-FIT_BOTH = ("messages_per_module", "messages")
-FIT_POWER = ("seconds", "cpu_seconds", "solve_cpu_seconds")
-#: metrics that are not worth a figure of their own
+#: metrics that are not worth a figure of their own (they follow the size parameter)
 NOT_PLOTTED = ("n_modules", "observations")
 
 
@@ -78,11 +73,11 @@ def _label(name: str) -> str:
 
 @dataclass
 class Figure:
-    """One figure of the report: its file, caption and fits."""
+    """One figure of the report: its file, the metric and parameter it draws, and its fits."""
 
     path: Path
-    title: str
-    caption: str
+    metric: str
+    x: str
     png: bytes
     fits: list[tuple[str, Fit]] = field(default_factory=list)
 
@@ -97,8 +92,32 @@ class ReportResult:
     failed: int
 
 
-def _is_number(v: Any) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+@dataclass(frozen=True)
+class Plan:
+    """What the report shows, decided from the rows alone (see :func:`plan`).
+
+    Attributes
+    ----------
+    stated : list of Steady
+        Parameters and metrics the same (or within ``STEADY_RTOL``) in every 'ok' run: said once.
+    replicates : dict
+        Seed column -> its distinct values (the spread of every point).
+    swept : list of str
+        Parameters with several values (seeds excluded): the table's keys.
+    axes : list of str
+        The swept parameters figures are drawn against (the numeric ones if any, else all).
+    plotted : list of str
+        Metrics that vary: one figure per metric and axis.
+    params : tuple of str
+        Every parameter column.
+    """
+
+    stated: list[Steady]
+    replicates: dict[str, list]
+    swept: list[str]
+    axes: list[str]
+    plotted: list[str]
+    params: tuple[str, ...] = ()
 
 
 def _columns(facts: dict, runs: list[dict]) -> tuple[list[str], list[str]]:
@@ -113,170 +132,106 @@ def _columns(facts: dict, runs: list[dict]) -> tuple[list[str], list[str]]:
     return params, metrics
 
 
-def _sort_key(v: Any) -> tuple:
-    """Numbers first, in numeric order, then everything else by its text."""
-    return (0, v, "") if _is_number(v) else (1, 0, str(v))
+def plan(params: Sequence[str], metrics: Sequence[str], ok: Sequence[dict]) -> Plan:
+    """Decide what is said once, what is swept, and what is plotted against what.
+
+    A parameter with one value among the 'ok' rows and a metric that :func:`steady` finds constant
+    (or within ``STEADY_RTOL``) are stated; seeds are replicates; the rest is swept or plotted.
+    """
+    stated, replicates, swept = [], {}, []
+    for p in params:
+        values = [r.get(p) for r in ok]
+        distinct = order(values)
+        if p in SEEDS and len(distinct) > 1:
+            replicates[p] = distinct
+        elif len(distinct) <= 1:
+            stated.append(Steady(p, distinct[0] if distinct else None))
+        else:
+            swept.append(p)
+    plotted = []
+    for m in metrics:
+        s = steady(m, [r.get(m) for r in ok]) if ok else None
+        if s is not None:
+            stated.append(s)
+        elif m not in NOT_PLOTTED and any(is_number(r.get(m)) for r in ok):
+            plotted.append(m)
+    numeric = [p for p in swept if all(is_number(r.get(p)) for r in ok)]
+    return Plan(stated, replicates, swept, numeric or list(swept), plotted, tuple(params))
 
 
-def _order(values) -> list[Any]:
-    """The distinct ``values`` (scalars or tuples of them) in a reader's order."""
-    values = set(values)
-    if all(isinstance(v, tuple) for v in values):
-        return sorted(values, key=lambda t: [_sort_key(v) for v in t])
-    return sorted(values, key=_sort_key)
-
-
-def _group_label(group: tuple, names: Sequence[str]) -> str:
-    return ", ".join(f"{_label(k)} = {v}" for k, v in zip(names, group)) or "all runs"
-
-
-def _plot(metric: str, x: str, others: list[str], rows: list[dict], size_col: str | None):
-    """One figure of ``metric`` against ``x``: median and IQR over the remaining rows per group."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    xs = _order(r[x] for r in rows)
-    numeric = all(_is_number(v) for v in xs)
-    pos = {v: (float(v) if numeric else i) for i, v in enumerate(xs)}
-    groups = _order(tuple(r[o] for o in others) for r in rows) if others else [()]
-    fig, ax = plt.subplots(figsize=(6.4, 4.2))
-    fits: list[tuple[str, Fit]] = []
-    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    for gi, group in enumerate(groups):
-        color = colors[gi % len(colors)]
-        mine = [r for r in rows if tuple(r[o] for o in others) == group and _is_number(r.get(metric))]
-        if not mine:
-            continue
-        at, med, lo, hi = [], [], [], []
-        for v in xs:
-            ys = np.array([r[metric] for r in mine if r[x] == v], float)
-            if ys.size:
-                at.append(pos[v])
-                q1, q2, q3 = np.percentile(ys, [25, 50, 75])
-                med.append(q2), lo.append(q1), hi.append(q3)
-        label = _group_label(group, others) if others else "median over seeds"
-        if numeric:
-            ax.plot(at, med, "o-", color=color, label=label)
-            if any(h > l for h, l in zip(hi, lo)):
-                ax.fill_between(at, lo, hi, color=color, alpha=0.2, linewidth=0)
-        else:  # categories: no line between them; the interquartile range as an error bar, groups side by side
-            shift = 0.1 * (gi - (len(groups) - 1) / 2)
-            ax.errorbar(np.array(at) + shift, med, yerr=[np.subtract(med, lo), np.subtract(hi, med)], fmt="o",
-                        color=color, capsize=3, label=label)
-        if numeric and x in SIZES and (metric in FIT_BOTH or metric in FIT_POWER):
-            n = [r[size_col] if size_col and _is_number(r.get(size_col)) else r[x] for r in mine]
-            y = [r[metric] for r in mine]
-            kinds = (fit_log, fit_power) if metric in FIT_BOTH else (fit_power,)
-            grid = np.geomspace(min(at), max(at), 60) if min(at) > 0 else None
-            for kind, style in zip(kinds, ("--", ":")):
-                f = kind(n, y)
-                if f is None or grid is None:
-                    continue
-                fits.append((label, f))
-                ax.plot(grid, f(grid), style, color=color, linewidth=1,
-                        label=f"{f.formula(_short(metric))} (R² {f.r2:.3f})")
-    ax.set_xlabel(_label(x))
-    ax.set_ylabel(_label(metric))
-    _readable_y(ax, [r[metric] for r in rows if _is_number(r.get(metric))])
-    if numeric:
-        if min(xs) > 0 and max(xs) / min(xs) >= 8:
-            ax.set_xscale("log")
-            _plain_ticks(ax.xaxis, at=[float(v) for v in xs])
-        if metric in FIT_POWER and x in SIZES and all(_is_number(r.get(metric)) and r[metric] > 0 for r in rows):
-            ax.set_yscale("log")
-            _plain_ticks(ax.yaxis)
-    else:
-        ax.set_xticks(range(len(xs)), [str(v) for v in xs])
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8, frameon=False)
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
-    plt.close(fig)
-    return buf.getvalue(), fits
-
-
-def _plain_ticks(axis, at: list[float] | None = None) -> None:
-    """Plain numbers (1,000; 0.5; 20) on a logarithmic ``axis``, at ``at`` or at 1-2-5 steps."""
-    from matplotlib.ticker import FixedLocator, FuncFormatter, LogLocator, NullFormatter
-
-    axis.set_major_locator(FixedLocator(at) if at else LogLocator(subs=(1.0, 2.0, 5.0)))
-    axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:,.0f}" if v >= 100 else f"{v:g}"))
-    axis.set_minor_formatter(NullFormatter())
-
-
-def _readable_y(ax, values: list[float]) -> None:
-    """No offset notation (``1e-6 + 1.647e-2``); a spread below 0.1 % of the values is drawn flat."""
-    if not values:
-        return
-    ax.ticklabel_format(axis="y", useOffset=False, style="plain")
-    lo, hi = min(values), max(values)
-    centre = (lo + hi) / 2
-    if hi - lo <= 1e-3 * abs(centre):
-        pad = 0.05 * abs(centre) or 1.0
-        ax.set_ylim(centre - pad, centre + pad)
-
-
-def _short(metric: str) -> str:
-    short = {"messages_per_module": "messages/module", "seconds": "t", "cpu_seconds": "t", "solve_cpu_seconds": "t"}
-    return short.get(metric, metric)
-
-
-def _figures(params: list[str], metrics: list[str], ok: list[dict], out: Path) -> list[Figure]:
-    swept = [p for p in params if p not in SEEDS and len({json.dumps(r[p]) for r in ok}) > 1]
-    size_col = "n_modules" if any(_is_number(r.get("n_modules")) for r in ok) else None
+def _figures(p: Plan, ok: list[dict], out: Path) -> list[Figure]:
+    size_col = "n_modules" if any(is_number(r.get("n_modules")) for r in ok) else None
     figures = []
-    for metric in metrics:
-        if metric in NOT_PLOTTED or not any(_is_number(r.get(metric)) for r in ok):
-            continue
-        for x in swept:
-            others = [p for p in swept if p != x]
-            png, fits = _plot(metric, x, others, ok, size_col if x == "n" else None)
-            path = out / f"{metric}_vs_{x}.png"
-            spread = "seeds" if any(len({r[s] for r in ok}) > 1 for s in SEEDS if ok and s in ok[0]) else "runs"
-            caption = (f"{_label(metric)} against {_label(x)}: median over {spread} and interquartile "
-                       f"range" + (f", one line per {', '.join(_label(o) for o in others)}" if others else ""))
-            figures.append(Figure(path, f"{_label(metric)} vs {_label(x)}", caption, png, fits))
+    for x in p.axes:
+        others = [s for s in p.swept if s != x]
+        for metric in p.plotted:
+            png, fits = plot_metric(metric, x, others, ok, _label, size_col if x == "n" else None)
+            figures.append(Figure(out / f"{metric}_vs_{x}.png", metric, x, png, fits))
     return figures
 
 
-def _table(head: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
-    th = "".join(f"<th>{html.escape(str(h))}</th>" for h in head)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(_fmt(v))}</td>" for v in r) + "</tr>" for r in rows)
-    return f"<table><thead><tr>{th}</tr></thead><tbody>{body}</tbody></table>"
+def _show(name: str, value: Any) -> str:
+    """A parameter's value as text (a path as written: two logs may share a file name)."""
+    return fmt(value)
 
 
-def _fmt(v: Any) -> str:
-    if v is None:
-        return "—"
-    if isinstance(v, float):
-        return f"{v:.4g}"
-    return str(v)
+def _table(head: Sequence[str], rows: Sequence[Sequence[Any]], text_cols: Sequence[int] = ()) -> str:
+    def cls(i: int) -> str:
+        return ' class="text"' if i in text_cols else ""
+
+    th = "".join(f"<th{cls(i)}>{html.escape(str(h))}</th>" for i, h in enumerate(head))
+    body = "".join("<tr>" + "".join(f"<td{cls(i)}>{html.escape(v if isinstance(v, str) and i in text_cols else fmt(v))}"
+                                    "</td>" for i, v in enumerate(r)) + "</tr>" for r in rows)
+    return f'<div class="scroll"><table><thead><tr>{th}</tr></thead><tbody>{body}</tbody></table></div>'
 
 
-def _summary_rows(params: list[str], metrics: list[str], ok: list[dict]) -> tuple[list[str], list[list]]:
-    """Median of every metric per combination of the non-seed parameters."""
-    keys = [p for p in params if p not in SEEDS]
-    shown = [m for m in metrics if any(_is_number(r.get(m)) for r in ok)]
-    out = []
-    for combo, rs in itertools.groupby(sorted(ok, key=lambda r: [_sort_key(r[k]) for k in keys]),
-                                       key=lambda r: tuple(r[k] for k in keys)):
-        rs = list(rs)
-        meds = []
-        for m in shown:
-            ys = [r[m] for r in rs if _is_number(r.get(m))]
-            meds.append(float(np.median(ys)) if ys else None)
-        out.append([*combo, len(rs), *meds])
-    return [*keys, "runs", *(_label(m) for m in shown)], out
+def _stated_html(p: Plan, n_ok: int) -> str:
+    if not p.stated:
+        return ""
+    rows = []
+    for title, group in (("settings", [s for s in p.stated if s.name in p.params]),
+                         ("results", [s for s in p.stated if s.name not in p.params])):
+        if group:
+            rows.append(f"<tr><td class=\"group text\" colspan=\"2\">{title}</td></tr>")
+        for s in group:
+            value = _show(s.name, s.value) if s.exact and s.value is not None else s.describe()
+            rows.append(f"<tr><th class=\"text\">{html.escape(_label(s.name))}</th><td class=\"text\">"
+                        f"{html.escape(value)}</td></tr>")
+    return (f"<h2>The same in every run</h2><p>These did not change across the {n_ok} successful runs "
+            f"(metrics within ±{100 * STEADY_RTOL / 2:g} % are given with their range), so they are stated "
+            "here once and not plotted.</p>"
+            f'<table class="facts"><tbody>{"".join(rows)}</tbody></table>')
 
 
-_CSS = """body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;color:#222}
-table{border-collapse:collapse;margin:1em 0;font-size:0.9em}
-td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}
-th{background:#f3f3f3}figure{display:inline-block;margin:0.5em;vertical-align:top;max-width:680px}
-figcaption{font-size:0.85em;color:#444}pre{background:#f7f7f7;padding:0.8em;overflow-x:auto}img{max-width:100%}"""
+def _spread_sentence(p: Plan, ok: list[dict]) -> str:
+    if p.replicates:
+        seeds = "; ".join(f"{len(v)} values of {k}" for k, v in p.replicates.items())
+        per = "the replicates"
+    else:
+        seeds, per = "", "the runs"
+    text = (f"Each figure shows the median over {per} at each point (line), their interquartile range (band, "
+            "or bars between categories) and every run (dots)")
+    text += f" ({seeds})." if seeds else "."
+    return text + " Linear y axes start at zero, so a change is drawn at its true size."
+
+
+def _description(facts: dict) -> str:
+    try:
+        return str(tomllib.loads(facts.get("spec", "")).get("description", "")).strip()
+    except (tomllib.TOMLDecodeError, AttributeError):
+        return ""
+
+
+_CSS = """body{font-family:system-ui,sans-serif;max-width:1200px;margin:1.5em auto;padding:0 16px;color:#222;
+line-height:1.45}h1{font-size:1.6em;margin-bottom:.2em}h2{font-size:1.25em;margin-top:1.6em;border-bottom:1px solid #ddd}
+h3{font-size:1.05em;margin:1em 0 .3em}p{max-width:60em}
+.grid{display:grid;grid-template-columns:repeat(auto-fill,minmax(360px,1fr));gap:6px 18px;align-items:start}
+figure{margin:0}figure img{width:100%;height:auto;display:block}figcaption{font-size:.75em;color:#777}
+.scroll{overflow-x:auto;max-width:100%}table{border-collapse:collapse;margin:.6em 0;font-size:.85em;
+font-variant-numeric:tabular-nums}td,th{border-bottom:1px solid #e2e2e2;padding:3px 9px;text-align:right}
+thead th{background:#f4f4f4;vertical-align:bottom;max-width:9em;white-space:normal}
+.text{text-align:left}table.facts th{font-weight:600;padding-right:1.5em}
+.group{font-style:italic;color:#666;padding-top:.6em}.note{color:#555;font-size:.9em}pre{background:#f7f7f7;padding:.8em;overflow-x:auto;font-size:.85em}"""
 
 
 def write_report(directory: str | Path) -> ReportResult:
@@ -286,45 +241,84 @@ def write_report(directory: str | Path) -> ReportResult:
     params, metrics = _columns(facts, runs)
     ok = [r for r in runs if r.get("status") == "ok"]
     failed = [r for r in runs if r.get("status") != "ok"]
-    figures = _figures(params, metrics, ok, directory)
+    p = plan(params, metrics, ok)
+    figures = _figures(p, ok, directory)
     name = facts.get("name") or directory.name
-    parts = [f"<h1>Study: {html.escape(name)}</h1>",
-             f"<p>{len(runs)} cells in the store: {len(ok)} ok, {len(failed)} failed"
-             + (f"; command <code>{html.escape(facts['command'])}</code>" if "command" in facts else "") + ".</p>"]
+    intro = f"{len(runs)} cells in the store: {len(ok)} ok, {len(failed)} failed"
+    if "command" in facts:
+        intro += f"; each cell runs <code>{html.escape(facts['command'])}</code>"
+    parts = [f"<h1>Study: {html.escape(name)}</h1>"]
+    if _description(facts):
+        parts.append(f"<p>{html.escape(_description(facts))}</p>")
+    parts.append(f"<p>{intro}.</p>")
+    parts.append(_stated_html(p, len(ok)))
     if figures:
-        parts.append("<h2>Figures</h2>")
-    for fig in figures:
-        data = base64.b64encode(fig.png).decode()
-        parts.append(f"<figure><img alt=\"{html.escape(fig.title)}\" src=\"data:image/png;base64,{data}\">"
-                     f"<figcaption>{html.escape(fig.caption)} ({html.escape(fig.path.name)})</figcaption></figure>")
+        parts.append(f"<h2>Figures</h2><p class=\"note\">{html.escape(_spread_sentence(p, ok))}</p>")
+    for x in p.axes:
+        mine = [f for f in figures if f.x == x]
+        others = [s for s in p.swept if s != x]
+        title = f"Against {_label(x)}" + (f", one colour per {', '.join(_label(o) for o in others)}" if others else "")
+        parts.append(f"<h3>{html.escape(title)}</h3><div class=\"grid\">")
+        for fig in mine:
+            data = base64.b64encode(fig.png).decode()
+            parts.append(f"<figure><img alt=\"{html.escape(_label(fig.metric))} against {html.escape(_label(x))}\" "
+                         f"src=\"data:image/png;base64,{data}\"><figcaption>{html.escape(fig.path.name)}"
+                         "</figcaption></figure>")
+        parts.append("</div>")
     fits = [(fig, label, f) for fig in figures for label, f in fig.fits]
     if fits:
         parts.append("<h2>Fits</h2>")
         parts.append(_table(["quantity", "series", "fit", "R²", "samples"],
-                            [[_label(fig.path.stem.split("_vs_")[0]), label, f.formula(), f.r2, f.points]
-                             for fig, label, f in fits]))
+                            [[_label(fig.metric), label, f.formula(), f.r2, f.points] for fig, label, f in fits],
+                            text_cols=(0, 1, 2)))
     if ok:
-        head, rows = _summary_rows(params, metrics, ok)
-        parts.append("<h2>Medians per setting</h2>" + _table(head, rows))
+        parts.append(_medians_html(p, metrics, ok))
     if failed:
-        parts.append("<h2>Failed cells</h2>" + _table([*params, "error"],
-                                                       [[r.get(p) for p in params] + [r.get("error")]
-                                                        for r in failed[:200]]))
+        shown = [q for q in params if len({json.dumps(r.get(q)) for r in failed}) > 1] or params[:1]
+        parts.append(f"<h2>Failed cells</h2>" + _table(
+            [*shown, "error"], [[_show(q, r.get(q)) for q in shown] + [r.get("error") or ""] for r in failed[:200]],
+            text_cols=tuple(range(len(shown) + 1))))
     if invocations:
-        parts.append("<h2>Provenance</h2>" + _table(
-            ["invocation", "started", "finished", "engine", "workers", "git revision", "python", "cells run", "failed"],
-            [[s.get("id"), s.get("started"), s.get("finished"), s.get("engine"), s.get("workers"),
-              s.get("git_revision"), s.get("python"), s.get("cells_run"), s.get("cells_failed")] for s in invocations]))
-        packages = invocations[-1].get("packages")
-        if packages:
-            parts.append("<p>Packages (last invocation): " + html.escape(
-                ", ".join(f"{k} {v}" for k, v in json.loads(packages).items())) + "</p>")
+        parts.append(_provenance_html(invocations))
     if facts.get("spec"):
         parts.append("<h2>Specification</h2><pre>" + html.escape(facts["spec"]) + "</pre>")
-    page = (f"<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>{html.escape(name)}</title>"
+    page = (f"<!DOCTYPE html><html><head><meta charset=\"utf-8\"><meta name=\"viewport\" "
+            f"content=\"width=device-width\"><title>{html.escape(name)}</title>"
             f"<style>{_CSS}</style></head><body>{''.join(parts)}</body></html>\n")
     for fig in figures:
         write_atomic(fig.path, lambda fh, png=fig.png: fh.write(png), binary=True)
     target = directory / "report.html"
     write_atomic(target, lambda fh: fh.write(page))
     return ReportResult(target, tuple(f.path for f in figures), len(runs), len(failed))
+
+
+def _medians_html(p: Plan, metrics: Sequence[str], ok: list[dict]) -> str:
+    stated = {s.name for s in p.stated}
+    shown = [m for m in metrics if m not in stated and any(is_number(r.get(m)) for r in ok)]
+    head, rows = medians_per_setting(p.swept, shown, ok)
+    head, rows, constants = collapse_constant_columns(head, rows, keep=len(p.swept))
+    also = [(c, v) for c, v in constants if c not in stated]
+    text = "<h2>Medians per setting</h2>"
+    if p.replicates or len(ok) > len(rows):
+        text += "<p class=\"note\">The median over the runs of each setting; <i>runs</i> counts them.</p>"
+    if also:
+        text += ("<p class=\"note\">The same in every row: " + html.escape(
+            "; ".join(f"{_label(c)} {fmt(v)}" for c, v in also)) + ".</p>")
+    labels = [_label(h) if h not in p.swept else h for h in head]
+    return text + _table(labels, rows, text_cols=tuple(i for i, h in enumerate(head) if h in p.swept
+                                                       and not all(is_number(r[i]) for r in rows)))
+
+
+def _provenance_html(invocations: list[dict]) -> str:
+    rows = [[s.get("id"), (s.get("started") or "").replace("T", " ")[:19], (s.get("finished") or "").replace("T", " ")[:19],
+             s.get("status") or "", s.get("engine"), s.get("workers"), s.get("host") or "",
+             (s.get("git_revision") or "")[:12] + ("+modified" if (s.get("git_revision") or "").endswith("+modified") else ""),
+             s.get("python"), s.get("cells_run"), s.get("cells_failed")] for s in invocations]
+    text = "<h2>Provenance</h2>" + _table(
+        ["run", "started (UTC)", "finished", "status", "engine", "workers", "host", "git revision", "python",
+         "cells run", "failed"], rows, text_cols=(1, 2, 3, 4, 6, 7, 8))
+    packages = invocations[-1].get("packages")
+    if packages:
+        text += "<p class=\"note\">Packages (last run): " + html.escape(
+            ", ".join(f"{k} {v}" for k, v in json.loads(packages).items())) + "</p>"
+    return text

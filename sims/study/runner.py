@@ -90,12 +90,24 @@ def provenance(spec: StudySpec, engine: str, workers: int | None, address: str |
         "engine": engine, "workers": workers, "address": address,
         "spec": spec.text, "spec_sha256": hashlib.sha256(spec.text.encode()).hexdigest(),
         "git_revision": _git_revision(), "python": sys.version.split()[0], "platform": platform.platform(),
-        "host": socket.gethostname(), "packages": json.dumps(_versions()), "status": "running",
+        "host": socket.gethostname(), "packages": json.dumps(_versions()), "status": "running", "pid": os.getpid(),
     }
 
 
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` exists on this machine."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # exists, owned by someone else
+        return True
+    return True
+
+
 def run_study(spec: StudySpec, directory: str | Path, engine, *, retry_failed: bool = False,
-              progress: Callable | None = None) -> StudyResult:
+              progress: Callable | None = None, on_failed: Callable[[Cell, dict], None] | None = None
+              ) -> StudyResult:
     """Run the cells of ``spec`` that have no row in ``directory/study.sqlite``.
 
     Parameters
@@ -110,6 +122,8 @@ def run_study(spec: StudySpec, directory: str | Path, engine, *, retry_failed: b
     progress : callable, optional
         ``progress(done, total, failed=...)`` after every finished cell (e.g. a
         :class:`sims.cli.feedback.Progress`).
+    on_failed : callable, optional
+        ``on_failed(cell, row)`` for every cell whose row says 'failed' (after the row is written).
 
     Raises
     ------
@@ -121,6 +135,7 @@ def run_study(spec: StudySpec, directory: str | Path, engine, *, retry_failed: b
     store = open_store(directory, spec.name, spec.command, spec.keys, metrics, spec.text)
     start = time.perf_counter()
     try:
+        store.close_vanished_invocations(socket.gethostname(), _alive)
         if retry_failed:
             store.delete_failed()
         done = store.done_keys()
@@ -137,6 +152,8 @@ def run_study(spec: StudySpec, directory: str | Path, engine, *, retry_failed: b
             store.add_run(cell.params, row, engine.name, invocation)
             counts["ran"] += 1
             counts["failed"] += row["status"] == "failed"
+            if on_failed and row["status"] == "failed":
+                on_failed(cell, row)
             if progress:
                 progress(counts["ran"], len(pending), failed=counts["failed"])
 

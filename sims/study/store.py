@@ -10,7 +10,8 @@ Tables
     time in the worker), ``peak_mb`` (peak resident
     memory of the worker during the cell), one column per metric of the command (NULL where it
     does not apply), then ``engine``, ``host``, ``pid``, ``started``, ``finished`` (UTC, ISO 8601)
-    and ``invocation`` (the ``invocations.id`` that ran it).
+    and ``invocation`` (the ``invocations.id`` that ran it), ``node`` (the Ray node id, or the
+    hostname on the local pool) and ``address`` (the Ray node's IP address; NULL on the local pool).
 ``study``
     Key/value facts of the study: ``name``, ``command``, ``params`` (JSON list of the parameter
     columns), ``metrics`` (JSON list), ``schema`` (this layout's version), ``spec`` (the text of
@@ -18,7 +19,9 @@ Tables
 ``invocations``
     Provenance, one row per run of ``decentral study`` on this store: start and end, engine,
     workers, address, the spec's text and hash, the git revision of the code when known, Python,
-    platform, host, package versions (JSON), and the cells run and failed.
+    platform, host, package versions (JSON), the cells run and failed, the driver's ``pid`` and the
+    ``status``: ``running``, ``finished``, ``interrupted`` (stopped by a signal or an error) or
+    ``killed`` (its process vanished without closing the row; set by the next run on the store).
 
 The database is in WAL mode with ``synchronous = FULL``: a process killed at any instant leaves
 every committed row and no partial one, so a resumed study runs exactly the cells without a row.
@@ -31,7 +34,7 @@ import json
 import sqlite3
 from contextlib import closing
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 from decentral.errors import InputError
 
@@ -41,7 +44,9 @@ SCHEMA = "decentral.study/1"
 DB_NAME = "study.sqlite"
 #: columns of ``runs`` that are neither parameters nor metrics
 BOOKKEEPING = ("id", "cell_key", "cell_hash", "status", "error", "seconds", "cpu_seconds", "peak_mb",
-               "engine", "host", "pid", "started", "finished", "invocation")
+               "engine", "host", "pid", "started", "finished", "invocation", "node", "address")
+#: columns added after the first stores were written: (table, column, SQL type), added on open where missing
+ADDED_COLUMNS = (("runs", "node", "TEXT"), ("runs", "address", "TEXT"), ("invocations", "pid", "INTEGER"))
 
 
 def _q(name: str) -> str:
@@ -94,6 +99,7 @@ class StudyStore:
             **{m: _sql_value(metrics.get(m)) for m in self.metrics},
             "engine": engine, "host": result.get("host"), "pid": result.get("pid"),
             "started": result.get("started"), "finished": result.get("finished"), "invocation": invocation,
+            "node": result.get("node"), "address": result.get("address"),
         }
         cols = ", ".join(_q(c) for c in values)
         marks = ", ".join("?" for _ in values)
@@ -113,6 +119,24 @@ class StudyStore:
             cur = self.con.execute(f"INSERT INTO invocations ({cols}) VALUES ({', '.join('?' for _ in info)})",
                                    tuple(info.values()))
         return int(cur.lastrowid)
+
+    def close_vanished_invocations(self, host: str, alive: "Callable[[int], bool]") -> list[int]:
+        """Mark ``killed`` every invocation left ``running`` whose driver is gone; returns their ids.
+
+        A driver killed outright (SIGKILL, power loss) never closes its row. One on ``host`` whose
+        ``pid`` is no longer ``alive`` is closed, with the time of its last row and the counts of
+        the rows it wrote; a row of another host, or one without a pid, is left alone (that
+        driver may still be running).
+        """
+        with self._transaction():
+            stale = [i for i, h, pid in self.con.execute(
+                "SELECT id, host, pid FROM invocations WHERE status = 'running'") if h == host and pid and not alive(pid)]
+            for i in stale:
+                last, ran, failed = self.con.execute(
+                    "SELECT MAX(finished), COUNT(*), SUM(status = 'failed') FROM runs WHERE invocation = ?", (i,)).fetchone()
+                self.con.execute("UPDATE invocations SET status = 'killed', finished = ?, cells_run = ?, "
+                                 "cells_failed = ? WHERE id = ?", (last, ran, failed or 0, i))
+        return stale
 
     def end_invocation(self, invocation: int, **info: Any) -> None:
         """Complete a invocation's row (end time, counts)."""
@@ -162,12 +186,12 @@ def _create(con: sqlite3.Connection, name: str, command: str, params: Sequence[s
             "CREATE TABLE runs (id INTEGER PRIMARY KEY, cell_key TEXT NOT NULL UNIQUE, cell_hash TEXT NOT NULL, "
             f"{param_cols}status TEXT NOT NULL CHECK (status IN ('ok', 'failed')), error TEXT, seconds REAL, "
             f"cpu_seconds REAL, peak_mb REAL, {metric_cols}engine TEXT, host TEXT, pid INTEGER, started TEXT, "
-            "finished TEXT, invocation INTEGER)")
+            "finished TEXT, invocation INTEGER, node TEXT, address TEXT)")
         con.execute(
             "CREATE TABLE invocations (id INTEGER PRIMARY KEY, started TEXT, finished TEXT, engine TEXT, "
             "workers INTEGER, address TEXT, spec TEXT, spec_sha256 TEXT, git_revision TEXT, python TEXT, "
             "platform TEXT, host TEXT, packages TEXT, cells_total INTEGER, cells_run INTEGER, "
-            "cells_failed INTEGER, status TEXT)")
+            "cells_failed INTEGER, status TEXT, pid INTEGER)")
 
 
 def _study_facts(con: sqlite3.Connection) -> dict[str, str]:
@@ -201,6 +225,7 @@ def open_store(directory: str | Path, name: str, command: str, params: Sequence[
             _create(con, name, command, params, metrics, spec_text)
         else:
             _check_same_study(_study_facts(con), path, command, params)
+            _add_missing_columns(con)
     except sqlite3.DatabaseError as err:
         con.close()
         raise InputError(f"not a readable study store: {err}", source=str(path)) from None
@@ -208,6 +233,15 @@ def open_store(directory: str | Path, name: str, command: str, params: Sequence[
         con.close()
         raise
     return StudyStore(con, path, params, metrics)
+
+
+def _add_missing_columns(con: sqlite3.Connection) -> None:
+    """Add the :data:`ADDED_COLUMNS` a store written by an earlier version lacks (NULL in its old rows)."""
+    for table, column, kind in ADDED_COLUMNS:
+        have = {r[1] for r in con.execute(f"PRAGMA table_info({_q(table)})")}
+        if have and column not in have:
+            with _Transaction(con):
+                con.execute(f"ALTER TABLE {_q(table)} ADD COLUMN {_q(column)} {kind}")
 
 
 def _check_same_study(facts: Mapping[str, str], path: Path, command: str, params: Sequence[str]) -> None:

@@ -33,7 +33,7 @@ def test_report_renders_from_a_copied_database_alone(specs, tmp_path):
     pngs = _embedded_pngs(html)
     assert len(pngs) == len(result.figures) > 0 and all(p.startswith(b"\x89PNG") for p in pngs)
     assert all(path.exists() and path.parent == alone for path in result.figures)
-    assert (alone / "pos_error_m_vs_loss.png").exists()
+    assert (alone / "messages_vs_loss.png").exists()
     assert "message loss probability" in html and "position error [m]" in html  # a reader's labels
     assert "Failed cells" in html and "nobody" in html and "tiny-loss" in html
     assert "<script" not in html and "http" not in html.replace("http-equiv", "")  # self-contained
