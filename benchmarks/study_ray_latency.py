@@ -15,9 +15,9 @@ changes), the time to the last row, and the ratios of the first-row times (refer
 
 Usage::
 
-    python benchmarks/study_ray_first_row.py [--out out/benchmarks] [--repeats 3] [--cells 4] [--workers 2]
+    python benchmarks/study_ray_latency.py [--out out/benchmarks] [--repeats 3] [--cells 4] [--workers 2]
 
-Writes ``OUT/study_ray_first_row.json``.
+Writes ``OUT/study_ray_latency.json``.
 """
 
 from __future__ import annotations
@@ -100,7 +100,7 @@ def main() -> None:
                for way, rs in runs.items()}
     for k in ("first_row_s", "first_row_after_init_s"):
         summary[f"{k[:-2]}_ratio_reference_over_default"] = summary["per_task_env"][k] / summary["inherited_env"][k]
-    save("study_ray_first_row", {"benchmark": "study_ray_first_row", "machine": info,
+    save("study_ray_latency", {"benchmark": "study_ray_latency", "machine": info,
                                  "parameters": {"repeats": args.repeats, "cells": args.cells,
                                                 "workers": args.workers, "timing": "wall"},
                                  "runs": runs, "median": summary}, args.out)
