@@ -34,6 +34,7 @@ from decentral.observations import Estimate, EstimateStep, ObservationLog, Plana
 from decentral.placement import count_reasons
 from protocols.transport import Transport
 from sims.admm_run import own_step
+from sims.run_status import placed_steps, run_status
 
 __all__ = ["Pace", "AgentRun", "run_agent", "step_period", "rounds_per_step", "process_agent_config", "poses_of"]
 
@@ -228,8 +229,13 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
     names = part.assemblies
     steps = tuple(EstimateStep(r["t"], poses_of(r["poses"]), r["unplaced"]) for r in records)
     final = _counts(transport, name)
+    unplaced = count_reasons(step.unplaced for step in steps)
+    status, status_counts = run_status([r["converged"] for r in records], placed_steps(steps), unplaced,
+                                       not_run=n - len(records))
     stats = {
-        "unplaced": count_reasons(step.unplaced for step in steps),
+        "unplaced": unplaced,
+        "status": status,
+        "status_counts": status_counts,
         "estimator": "consensus-admm",
         "mode": "process",
         "agent": name,

@@ -33,6 +33,7 @@ from decentral.observations import Estimate, EstimateStep, ObservationLog
 from decentral.placement import count_reasons
 from sims.agent_run import poses_of, step_period
 from sims.parts import split_log, write_part
+from sims.run_status import run_status
 
 __all__ = ["CrashPlan", "LaunchConfig", "LaunchResult", "parse_crash", "launch"]
 
@@ -352,12 +353,16 @@ def _compose(log, reference, records, config, incarnations, timed_out, failures)
                     rejected[reason] = rejected.get(reason, 0) + int(n)
     for reason in ("bad_signature", "replay", "unknown_sender", "malformed"):
         rejected.setdefault(reason, 0)
+    unplaced = count_reasons(step.unplaced for step in steps)
+    ran = sorted(by_step)
+    status, status_counts = run_status([bool(by_step[k]["converged"]) for k in ran], [bool(steps[k].poses) for k in ran],
+                                       unplaced, not_run=len(log.steps) - len(ran), timed_out=timed_out)
     heard = set()
     for run in records[reference]:
         if run:
             heard |= set(run[-1].get("heard", []))
     stats = {
-        "unplaced": count_reasons(step.unplaced for step in steps),
+        "unplaced": unplaced,
         "estimator": "consensus-admm",
         "mode": "processes",
         "window": config.window,
@@ -375,7 +380,8 @@ def _compose(log, reference, records, config, incarnations, timed_out, failures)
         "rounds_per_step": [int(by_step[k]["rounds"]) if k in by_step else 0 for k in range(len(log.steps))],
         "missing": sorted(n for n in log.assemblies if n != reference and n not in heard),
         "absent": list(config.absent),
-        "status": "timeout" if timed_out else "ok",
+        "status": status,
+        "status_counts": status_counts,
     }
     if failures:
         stats["agent_errors"] = failures

@@ -10,6 +10,7 @@ import time
 
 from decentral.errors import InputError
 from sims.cli import feedback
+from sims.cli.strict import add_strict, report_status
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -40,6 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--loss", type=float, default=0.0,
                         help="drop each arriving frame with this probability (testing; default 0)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the receive-side losses (default: 0)")
+    add_strict(parser)
     parser.add_argument("--stream", metavar="FILE",
                         help="append each finished step to FILE as one JSON line at once (survives a kill)")
 
@@ -101,8 +103,9 @@ def run(args: argparse.Namespace) -> int:
         feedback.warn(f"{args.name} never heard from {', '.join(result.stats['missing'])}")
     stats = result.stats
     feedback.summary(f"{args.name}: {len(result.steps)} steps, {sum(stats['converged_per_step'])} converged, "
-                     f"{stats['messages']['total']} frames sent, {sum(stats['rejected'].values())} refused")
-    return 0
+                     f"{stats['messages']['total']} frames sent, {sum(stats['rejected'].values())} refused, "
+                     f"status {stats['status']}")
+    return report_status(stats, len(part.steps), args.strict)
 
 
 def _start_time(text: str, where: str) -> float:

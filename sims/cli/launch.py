@@ -6,6 +6,7 @@ import argparse
 
 from decentral.errors import InputError
 from sims.cli import feedback
+from sims.cli.strict import add_strict, report_status
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -31,6 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="wall seconds per consensus round (default: 0.01)")
     parser.add_argument("--absent", action="append", default=[], metavar="NAME",
                         help="never start NAME's agent (a peer that never comes up; repeatable)")
+    add_strict(parser)
     parser.add_argument("--workdir", default=None,
                         help="keep keys, peers file, parts and per-agent streams here (default: a temporary folder)")
 
@@ -65,5 +67,5 @@ def run(args: argparse.Namespace) -> int:
     placed = sum(1 for step in result.estimate.steps if step.poses)
     feedback.summary(f"{len(result.estimate.steps)} steps ({placed} placing someone), {stats['processes']} processes, "
                      f"{stats['messages']['total']} frames, {stats['bytes']['total']} bytes, "
-                     f"{sum(stats['rejected'].values())} refused -> {args.output}")
-    return 0
+                     f"{sum(stats['rejected'].values())} refused, status {stats['status']} -> {args.output}")
+    return report_status(stats, len(result.estimate.steps), args.strict)
