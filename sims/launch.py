@@ -85,6 +85,10 @@ class LaunchConfig:
         Agents that are never started (a peer that never comes up).
     ready_timeout : float
         Wall seconds to wait for every process to listen.
+    transport : {"zmq", "udp"}, optional
+        The agents' transport (default: ``decentral agent``'s).
+    extra_args : tuple of str
+        More ``decentral agent`` options given to every agent.
     """
 
     window: int = 5
@@ -97,6 +101,8 @@ class LaunchConfig:
     round_period: float = 0.01
     absent: tuple[str, ...] = ()
     ready_timeout: float = 120.0
+    transport: str | None = None
+    extra_args: tuple[str, ...] = ()
 
 
 @dataclass
@@ -263,7 +269,8 @@ def _launch(log: ObservationLog, config: LaunchConfig, reference: str, work: Pat
                 "--stream", str(work / f"{name}.{incarnation}.jsonl"), "--start", start,
                 "--reference", reference, "--window", str(config.window), "--loss", repr(config.loss),
                 "--seed", str(config.seed), "--rate", repr(config.rate), "--round-period", repr(config.round_period),
-                "-o", str(work / f"{name}.{incarnation}.est.json")]
+                "-o", str(work / f"{name}.{incarnation}.est.json"),
+                *(("--transport", config.transport) if config.transport else ()), *config.extra_args]
 
     period = step_period(log) / config.rate
     t_first = log.steps[0].t

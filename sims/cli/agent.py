@@ -41,9 +41,29 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--loss", type=float, default=0.0,
                         help="drop each arriving frame with this probability (testing; default 0)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the receive-side losses (default: 0)")
+    parser.add_argument("--transport", choices=("zmq", "udp"), default=DEFAULT_TRANSPORT,
+                        help="udp: signed datagrams, a lost packet is a lost frame; zmq: ZeroMQ over TCP, a lost "
+                             "packet stalls the frames behind it (default: %(default)s); the same for every agent")
     add_strict(parser)
     parser.add_argument("--stream", metavar="FILE",
                         help="append each finished step to FILE as one JSON line at once (survives a kill)")
+
+
+#: the transport every agent uses unless told otherwise (docs/processes.md: measured under packet loss)
+DEFAULT_TRANSPORT = "zmq"
+
+
+def open_transport(kind: str, name: str, key, peers: dict, seed: int, faults):
+    """The real transport ``kind`` (``zmq`` or ``udp``) for agent ``name`` over ``peers``."""
+    import numpy as np
+
+    if kind == "udp":
+        from protocols.udp_transport import UdpTransport
+
+        return UdpTransport({name: key}, peers, rng=np.random.default_rng(seed), faults=faults)
+    from protocols.zmq_transport import ZmqTransport
+
+    return ZmqTransport({name: key}, peers, rng=np.random.default_rng(seed), faults=faults)
 
 
 def _sigterm(signum, frame):
@@ -51,11 +71,8 @@ def _sigterm(signum, frame):
 
 
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
-
     from protocols.network import LinkConfig
     from protocols.peers import load_peers, load_private_key
-    from protocols.zmq_transport import ZmqTransport
     from sims.agent_run import Pace, process_agent_config, run_agent
     from sims.io.log_json import write_estimate
     from sims.parts import read_part
@@ -78,8 +95,8 @@ def run(args: argparse.Namespace) -> int:
     config = process_agent_config(part, args.name, reference, args.window, args.rate, args.round_period)
     signal.signal(signal.SIGTERM, _sigterm)
     faults = LinkConfig(drop=args.loss)
-    transport = ZmqTransport({args.name: key}, {n: peers[n] for n in part.assemblies},
-                             rng=np.random.default_rng(args.seed), faults=faults)
+    transport = open_transport(args.transport, args.name, key, {n: peers[n] for n in part.assemblies}, args.seed,
+                               faults)
     stream = open(args.stream, "a", encoding="utf-8") if args.stream else None
     try:
         if args.start == "-":

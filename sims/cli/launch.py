@@ -32,6 +32,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="wall seconds per consensus round (default: 0.01)")
     parser.add_argument("--absent", action="append", default=[], metavar="NAME",
                         help="never start NAME's agent (a peer that never comes up; repeatable)")
+    parser.add_argument("--transport", choices=("zmq", "udp"), default=None,
+                        help="the agents' transport (default: decentral agent's, see its --help)")
     add_strict(parser)
     parser.add_argument("--workdir", default=None,
                         help="keep keys, peers file, parts and per-agent streams here (default: a temporary folder)")
@@ -53,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
     log = read_log(args.log)
     config = LaunchConfig(window=args.window, reference=args.reference, loss=args.loss, seed=args.seed,
                           crashes=crashes, timeout=args.timeout, rate=args.rate, round_period=args.round_period,
-                          absent=tuple(args.absent))
+                          absent=tuple(args.absent), transport=args.transport)
     result = launch(log, config, workdir=args.workdir)
     write_estimate(args.output, result.estimate)
     stats = result.estimate.stats
