@@ -425,6 +425,13 @@ class AssemblyAgent:
         return self._rounds.converged
 
     @property
+    def complete(self) -> bool:
+        """Whether this window started from the joint solution of every live agent's forms (its own, or the
+        reference's): only then is a converged ADMM the centralized answer, not the consensus of a partial
+        problem (forms or configurations still missing)."""
+        return bool(self._start.complete) or self.config.share_forms != "every"
+
+    @property
     def ready(self) -> bool:
         """Whether its consensus poses are in the pinned gauge."""
         return self._consensus.ready

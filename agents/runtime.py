@@ -155,7 +155,7 @@ class LocalAgent:
                 self.agent.window_done = False
                 self.streak = 0
             return
-        if self.rounds >= self.rule.min_rounds and self.agent.converged:
+        if self.rounds >= self.rule.min_rounds and self.agent.converged and self.agent.complete:
             self.streak += 1
         else:
             self.streak = 0
