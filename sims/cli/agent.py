@@ -116,6 +116,12 @@ def run(args: argparse.Namespace) -> int:
             stream.close()
     if args.output:
         write_estimate(args.output, result.estimate)
+    if result.stats["skipped"]:
+        feedback.warn(f"{args.name} started {result.stats['skipped']} steps late: steps 0-{result.stats['skipped'] - 1} "
+                      "were over (give a START further ahead: docs/processes.md, start margin)")
+    for adopted in result.stats["adopted_start"]:
+        feedback.warn(f"{args.name}: its peers started at {adopted['peers']:.3f}, not at the START given "
+                      f"({adopted['given']:.3f}): it follows their clock")
     if result.stats["missing"]:
         feedback.warn(f"{args.name} never heard from {', '.join(result.stats['missing'])}")
     stats = result.stats

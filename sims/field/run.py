@@ -51,6 +51,9 @@ class FieldConfig:
         Seed of the links' delays and of the loss pattern.
     start_margin : float
         Seconds between the moment every agent listens and the log's first step.
+    fresh_restart : bool
+        Give a restarted agent a START of its own (now + ``start_margin``, as a person restarting it by
+        hand would) instead of the run's.
     """
 
     delay: float = 0.0
@@ -60,6 +63,7 @@ class FieldConfig:
     busy_per_core: int = 0
     seed: int = 0
     start_margin: float = 0.5
+    fresh_restart: bool = False
 
 
 def run_field(log: ObservationLog, launch: LaunchConfig = LaunchConfig(), fieldc: FieldConfig = FieldConfig(),
@@ -133,6 +137,7 @@ def _run(log, config: LaunchConfig, fc: FieldConfig, work: Path, python: str) ->
                 python, "-m", "sims.cli.main", "agent", name, "--log", str(work / f"{name}.part.json"),
                 "--peers", str(work / f"{name}.peers.json"), "--key", str(work / f"{name}.key"),
                 "--stream", str(work / f"{name}.{incarnations[name]}.jsonl"), "--start", start,
+                "-o", str(work / f"{name}.{incarnations[name]}.est.json"),
                 "--reference", reference, "--window", str(config.window), "--loss", repr(config.loss),
                 "--seed", str(config.seed), "--rate", repr(config.rate), "--round-period", repr(config.round_period),
                 *(("--transport", config.transport) if config.transport else ()), *config.extra_args]
@@ -173,7 +178,8 @@ def _run(log, config: LaunchConfig, fc: FieldConfig, work: Path, python: str) ->
                         procs[name].wait()
                     elif what == "start":
                         incarnations[name] += 1
-                        procs[name] = start_one(names.index(name), repr(start))
+                        again = time.time() + fc.start_margin if fc.fresh_restart else start
+                        procs[name] = start_one(names.index(name), repr(again))
                 if not any(p.poll() is None for p in procs.values()) and not events:
                     break
                 if (config.timeout is not None and time.monotonic() - began > config.timeout) or now > end:
