@@ -197,12 +197,14 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
     clocks = PeerClock(pace.round_period)
 
     answered: dict[str, float] = {}
+    latencies: list[float] = []  # sent_at to arrival of the frames of the current window (s)
 
     class _Listening:  # records who was heard and when the peers' rounds started, then hands the frames on
         def poll(self, agent, now):
             arrivals = transport.poll(agent, now)
             heard.update(d.message.sender for d in arrivals)
             clocks.observe(arrivals)
+            latencies.extend(d.latency for d in arrivals)
             for d in arrivals:
                 # a peer that (re)started asks for the run's clock with a round-0 heartbeat: answer with this round
                 m = d.message
@@ -236,7 +238,9 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
                  for a, pose in sorted(local.window_estimate.items())}
         record = {"step": step, "t": part.steps[step].t, "poses": poses, "unplaced": dict(local.window_unplaced),
                   "converged": local.converged,
-                  "rounds": local.rounds, "window_seconds": took, "counts": _counts(transport, name), "heard": sorted(heard)}
+                  "rounds": local.rounds, "window_seconds": took, "counts": _counts(transport, name), "heard": sorted(heard),
+                  "latency_ms": _quantiles(latencies)}
+        latencies.clear()
         records.append(record)
         if stream is not None:
             stream.write(json.dumps(record) + "\n")
@@ -336,6 +340,14 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
     }
     est = Estimate(name, steps, stats)
     return AgentRun(est, records, heard, stats)
+
+
+def _quantiles(latencies: list[float]) -> list[float] | None:
+    """``[median, p90, max]`` of frame latencies in ms (sender's clock to arrival), ``None`` without frames."""
+    if not latencies:
+        return None
+    q = np.quantile(np.asarray(latencies, float), [0.5, 0.9, 1.0]) * 1e3
+    return [round(float(x), 3) for x in q]
 
 
 def poses_of(raw: dict) -> dict[str, PlanarPose]:
