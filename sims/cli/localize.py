@@ -33,7 +33,7 @@ ESTIMATORS = {
 
 #: options that apply only with ``--mode admm`` (attribute -> default); argparse leaves them None when not given
 ADMM_DEFAULTS = {"loss": 0.0, "seed": 0, "share_forms": "every", "aggregation": "tree", "max_rounds": 300,
-                 "strict": False}
+                 "strict": False, "latency": 0.0005, "jitter": 0.001, "round_period": 0.01}
 #: options that apply only to the centralized mode (attribute -> default)
 CENTRAL_DEFAULTS = {"estimator": "windowed", "solver": "low-rank"}
 
@@ -85,6 +85,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              f"(default: {ADMM_DEFAULTS['aggregation']})")
     parser.add_argument("--max-rounds", type=int, default=None,
                         help=f"admm: round budget per step (default: {ADMM_DEFAULTS['max_rounds']})")
+    parser.add_argument("--latency", type=float, default=None,
+                        help="admm: one-way delay of every simulated link, s (default: 0.0005); with --jitter, "
+                             "--round-period and --max-rounds (the rounds between two sensor steps) a simulation "
+                             "predicts processes on links of that latency (docs/processes.md)")
+    parser.add_argument("--jitter", type=float, default=None,
+                        help="admm: uniform extra delay of each copy, 0 to JITTER s (default: 0.001)")
+    parser.add_argument("--round-period", type=float, default=None,
+                        help="admm: simulated seconds per round (default: 0.01)")
     parser.add_argument("--strict", action="store_true", default=None,
                         help="admm: exit with status 4 when stats.status is not 'ok' (a step did not converge); "
                              "the estimate is written either way")
@@ -163,8 +171,14 @@ def _not_placed(estimate) -> str:
 def _run_admm(log, args, noise, reference, progress):
     from sims.admm_run import AdmmRunConfig, run_admm
 
+    for name in ("latency", "jitter"):
+        if not 0.0 <= getattr(args, name) < 60.0:
+            raise InputError(f"must be in [0, 60) s, got {getattr(args, name)}", field=f"--{name}")
+    if not 0.0 < args.round_period < 60.0:
+        raise InputError(f"must be in (0, 60) s, got {args.round_period}", field="--round-period")
     config = AdmmRunConfig(window=args.window, noise=noise, loss=args.loss, share_forms=args.share_forms,
-                           aggregation=args.aggregation, max_rounds=args.max_rounds)
+                           aggregation=args.aggregation, max_rounds=args.max_rounds, latency=args.latency,
+                           jitter=args.jitter, round_period=args.round_period)
     estimate = run_admm(log, reference, config, seed=args.seed, progress=progress).estimate
     # the contract counts stray tags in every estimate's stats, as the centralized estimator does
     stray = sum(step.stray_detections() for step in log.steps)
