@@ -82,7 +82,17 @@ class PeerClock:
 
     Every process of a run counts rounds from the same START, so each frame tells its sender's START
     (clocks synchronized, as START itself assumes). :meth:`start` answers once two different senders
-    agree within a round period (one member alone cannot move it), with the earlier of their values.
+    agree within a round period (one member alone cannot move it), with the later of their values (a
+    process running behind its clock only makes its value later).
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace as N
+    >>> clock = PeerClock(round_period=0.1)
+    >>> clock.observe([N(message=N(sender="A0", round=10), sent_at=11.0),
+    ...                N(message=N(sender="A1", round=20), sent_at=12.05)])
+    >>> clock.start()
+    10.05
     """
 
     def __init__(self, round_period: float, senders: int = 2):
@@ -105,6 +115,7 @@ class PeerClock:
         return None
 
     def reset(self) -> None:
+        """Forget what was observed (after adopting a START)."""
         self._seen.clear()
 
 

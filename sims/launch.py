@@ -115,12 +115,19 @@ class LaunchResult:
 
 
 def _free_ports(n: int) -> list[int]:
+    """``n`` ports free for TCP and for UDP on 127.0.0.1 (the agents use one or the other, ``--transport``)."""
     socks, ports = [], []
     try:
-        for _ in range(n):
+        while len(ports) < n:
             s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
             s.bind(("127.0.0.1", 0))
             socks.append(s)
+            u = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            socks.append(u)
+            try:
+                u.bind(("127.0.0.1", s.getsockname()[1]))
+            except OSError:
+                continue  # that port is taken for UDP: try another
             ports.append(s.getsockname()[1])
     finally:
         for s in socks:
