@@ -170,6 +170,8 @@ class LocalAgent:
             self._finish(converged=False)
 
     def _finish(self, converged: bool) -> None:
+        if not converged:
+            self.agent.settle_provisional()  # an answer from the forms that arrived, if the sharing has not ended
         self.done = True
         self.converged = converged
         self.agent.window_done = True

@@ -43,6 +43,9 @@ class _Stub:
     def unplaced(self, placed):
         return {}
 
+    def settle_provisional(self):
+        pass
+
 
 def _busy(round_index, done=False):
     blocks = {"x": np.zeros((1, 8)), "meta": np.zeros(4)}
