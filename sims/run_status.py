@@ -20,13 +20,17 @@ the same verdict, computed here from what each step's window did:
 - ``not_run``: steps the agent never ran (it was down, started late, or the run was cut short);
 - one entry per reason of an assembly-step left unplaced (:data:`decentral.placement.REASONS`,
   e.g. ``no_consensus``), as in ``stats.unplaced``.
+
+The commands print :func:`status_warning` as one warning line when a run is not ``ok``, and with
+``--strict`` exit with :data:`EXIT_DEGRADED` (4) (:func:`report_status`).
 """
 
 from __future__ import annotations
 
+import argparse
 from typing import Iterable, Mapping, Sequence
 
-__all__ = ["STATUSES", "EXIT_DEGRADED", "run_status", "status_warning", "placed_steps"]
+__all__ = ["STATUSES", "EXIT_DEGRADED", "run_status", "status_warning", "placed_steps", "add_strict", "report_status"]
 
 #: the values ``stats.status`` takes
 STATUSES = ("ok", "degraded", "timeout")
@@ -113,3 +117,24 @@ _OWN = ("unconverged", "provisional", "unanswered", "revised", "not_run")
 def placed_steps(steps: Iterable) -> list[bool]:
     """Per :class:`decentral.observations.EstimateStep`: whether it places at least one assembly."""
     return [bool(step.poses) for step in steps]
+
+
+# ---------------------------------------------------------------------------- the commands' side
+def add_strict(parser: argparse.ArgumentParser) -> None:
+    """Add ``--strict`` to a command's parser (``agent``, ``launch``)."""
+    parser.add_argument("--strict", action="store_true",
+                        help=f"exit with status {EXIT_DEGRADED} when stats.status is not 'ok' (some step did not "
+                             "converge, or never ran); the estimate is written either way")
+
+
+def report_status(stats: Mapping, steps: int, strict: bool) -> int:
+    """Warn on stderr (one line) when ``stats['status']`` is not ``ok``; return the exit status ``--strict`` asks
+    for (:data:`EXIT_DEGRADED`, else 0)."""
+    from sims.cli import feedback
+
+    line = status_warning(stats["status"], stats.get("status_counts", {}), steps)
+    if line is None:
+        return 0
+    feedback.warn(line + (f" (exit status {EXIT_DEGRADED})" if strict else "; --strict makes this exit "
+                          f"{EXIT_DEGRADED}"))
+    return EXIT_DEGRADED if strict else 0

@@ -10,7 +10,7 @@ import time
 
 from decentral.errors import InputError
 from sims.cli import feedback
-from sims.cli.strict import add_strict, report_status
+from sims.run_status import add_strict, report_status
 
 __all__ = ["HELP", "add_arguments", "run"]
 
