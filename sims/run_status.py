@@ -15,8 +15,6 @@ the same verdict, computed here from what each step's window did:
 - ``provisional``: of those, steps that still have an answer: the joint solution of the forms the
   agent held, or its last iterate (placing at least one assembly);
 - ``unanswered``: of those, steps that placed no assembly at all;
-- ``revised``: provisional steps whose answer a later, converged solve replaced (they count as
-  converged for the verdict);
 - ``not_run``: steps the agent never ran (it was down, started late, or the run was cut short);
 - one entry per reason of an assembly-step left unplaced (:data:`decentral.placement.REASONS`,
   e.g. ``no_consensus``), as in ``stats.unplaced``.
@@ -40,21 +38,19 @@ EXIT_DEGRADED = 4
 
 
 def run_status(converged: Sequence[bool], placed: Sequence[bool], unplaced: Mapping[str, int] | None = None, *,
-               not_run: int = 0, revised: int = 0, timed_out: bool = False) -> tuple[str, dict[str, int]]:
+               not_run: int = 0, timed_out: bool = False) -> tuple[str, dict[str, int]]:
     """The verdict and the counts per reason of a run (see the module docstring).
 
     Parameters
     ----------
     converged : sequence of bool, shape (S,)
-        Per step the agent ran: whether its window converged (a revised step counts as converged).
+        Per step the agent ran: whether its window converged.
     placed : sequence of bool, shape (S,)
         Per step the agent ran: whether its answer placed at least one assembly.
     unplaced : mapping, optional
         Assembly-steps left unplaced, per reason (``stats.unplaced``).
     not_run : int
         Steps of the log the agent never ran.
-    revised : int
-        Steps first answered provisionally, then replaced by a converged solve.
     timed_out : bool
         Whether the run was cut short.
 
@@ -63,13 +59,13 @@ def run_status(converged: Sequence[bool], placed: Sequence[bool], unplaced: Mapp
     status : str
         ``ok``, ``degraded`` or ``timeout``.
     counts : dict
-        Counts per reason (``unconverged``, ``provisional``, ``unanswered``, ``revised``, ``not_run`` and
+        Counts per reason (``unconverged``, ``provisional``, ``unanswered``, ``not_run`` and
         the unplaced reasons).
 
     Examples
     --------
     >>> run_status([True, True], [True, True])
-    ('ok', {'unconverged': 0, 'provisional': 0, 'unanswered': 0, 'revised': 0, 'not_run': 0})
+    ('ok', {'unconverged': 0, 'provisional': 0, 'unanswered': 0, 'not_run': 0})
     >>> run_status([True, False], [True, True], {"no_consensus": 2})[0]
     'degraded'
     """
@@ -77,7 +73,7 @@ def run_status(converged: Sequence[bool], placed: Sequence[bool], unplaced: Mapp
         raise ValueError("converged and placed must have one entry per step")
     off = [p for c, p in zip(converged, placed) if not c]
     counts = {"unconverged": len(off), "provisional": sum(1 for p in off if p),
-              "unanswered": sum(1 for p in off if not p), "revised": int(revised), "not_run": int(not_run)}
+              "unanswered": sum(1 for p in off if not p), "not_run": int(not_run)}
     for reason, n in sorted((unplaced or {}).items()):
         counts[str(reason)] = int(n)
     if timed_out:
@@ -90,8 +86,8 @@ def status_warning(status: str, counts: Mapping[str, int], steps: int) -> str | 
 
     Examples
     --------
-    >>> status_warning("degraded", {"unconverged": 3, "provisional": 2, "unanswered": 1, "revised": 0,
-    ...                             "not_run": 0, "no_consensus": 4}, 30)
+    >>> status_warning("degraded", {"unconverged": 3, "provisional": 2, "unanswered": 1, "not_run": 0,
+    ...                             "no_consensus": 4}, 30)
     'status degraded: 3 of 30 steps did not converge (2 provisional: the joint solution of the forms held; 1 placed no one); 4 assembly-steps not placed (no_consensus 4)'
     """
     if status == "ok":
@@ -102,8 +98,6 @@ def status_warning(status: str, counts: Mapping[str, int], steps: int) -> str | 
                      f"provisional: the joint solution of the forms held; {counts.get('unanswered', 0)} placed no one)")
     if counts.get("not_run"):
         parts.append(f"{counts['not_run']} of {steps} steps never ran (agent down, late or cut short)")
-    if counts.get("revised"):
-        parts.append(f"{counts['revised']} provisional steps were revised later")
     reasons = {k: v for k, v in counts.items() if k not in _OWN and v}
     if reasons:
         parts.append(f"{sum(reasons.values())} assembly-steps not placed ("
@@ -111,7 +105,7 @@ def status_warning(status: str, counts: Mapping[str, int], steps: int) -> str | 
     return f"status {status}: " + ("; ".join(parts) if parts else "cut short")
 
 
-_OWN = ("unconverged", "provisional", "unanswered", "revised", "not_run")
+_OWN = ("unconverged", "provisional", "unanswered", "not_run")
 
 
 def placed_steps(steps: Iterable) -> list[bool]:
