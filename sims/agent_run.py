@@ -14,8 +14,13 @@ the simulated runner drives, here for one agent, on wall-clock timers:
 - **after the last step** the agent keeps answering for ``linger`` seconds, then stops.
 
 Each finished step is appended at once as one JSON line to ``stream`` (if given): ``{"step", "t",
-"poses", "converged", "rounds", "counts"}`` with the transport's cumulative counts, so that a
-process killed with SIGKILL has still reported every step it finished.
+"poses", "unplaced", "converged", "rounds", "window_seconds", "counts", "heard", "latency_ms",
+"lagged", "counters"}`` with the transport's cumulative counts, the frame latencies of the window
+(median, p90, max, ms) and the agent's protocol counters, so that a process killed with SIGKILL has
+still reported every step it finished.
+
+- **a late start**: a process that starts after its START first asks its peers for the run's clock
+  (:class:`PeerClock`) and follows the START two of them agree on, from the step under way.
 """
 
 from __future__ import annotations
@@ -250,7 +255,8 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
         record = {"step": step, "t": part.steps[step].t, "poses": poses, "unplaced": dict(local.window_unplaced),
                   "converged": local.converged,
                   "rounds": local.rounds, "window_seconds": took, "counts": _counts(transport, name), "heard": sorted(heard),
-                  "latency_ms": _quantiles(latencies)}
+                  "latency_ms": _quantiles(latencies), "lagged": lagged,
+                  "counters": {k: int(v) for k, v in local.agent.counters.items()}}  # (to trace a wrong window)
         latencies.clear()
         records.append(record)
         if stream is not None:
