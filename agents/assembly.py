@@ -390,6 +390,17 @@ class AssemblyAgent:
             self._fresh_admm()
         self.seed(newest)
 
+    def settle_provisional(self) -> None:
+        """The window ends (the next sensor step came) while its forms are still being shared: its answer is the
+        joint solution of the forms this agent holds now, placed by the centralized placement test (the
+        centralized estimate of the data that arrived), instead of no answer at all. Nothing is sent."""
+        share = self._sharing.share
+        if share is None or self._start.fallback or self._step is None:
+            return
+        joint = self._sharing.joint(share)
+        if joint is not None:
+            self._start.fallback = self._placed(joint.poses, self._sharing.placeable(share, joint))
+
     def _placed(self, poses: dict, placeable) -> dict[str, tuple]:
         """This step's poses of a joint solution ``(assembly, step) -> (R, p)`` that ``placeable`` names, and its own."""
         return {name: pose for (name, step), pose in poses.items()
@@ -427,6 +438,13 @@ class AssemblyAgent:
     def converged(self) -> bool:
         """Whether its pairs' residuals and its consensus change are below tolerance with fresh inputs."""
         return self._rounds.converged
+
+    @property
+    def complete(self) -> bool:
+        """Whether this window started from the joint solution of every live agent's forms (its own, or the
+        reference's): only then is a converged ADMM the centralized answer, not the consensus of a partial
+        problem (forms or configurations still missing)."""
+        return bool(self._start.complete) or self.config.share_forms != "every"
 
     @property
     def ready(self) -> bool:

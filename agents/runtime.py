@@ -155,7 +155,7 @@ class LocalAgent:
                 self.agent.window_done = False
                 self.streak = 0
             return
-        if self.rounds >= self.rule.min_rounds and self.agent.converged:
+        if self.rounds >= self.rule.min_rounds and self.agent.converged and self.agent.complete:
             self.streak += 1
         else:
             self.streak = 0
@@ -170,6 +170,8 @@ class LocalAgent:
             self._finish(converged=False)
 
     def _finish(self, converged: bool) -> None:
+        if not converged:
+            self.agent.settle_provisional()  # an answer from the forms that arrived, if the sharing has not ended
         self.done = True
         self.converged = converged
         self.agent.window_done = True

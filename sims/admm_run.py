@@ -31,6 +31,7 @@ from decentral.factors import NoiseModel
 from decentral.observations import Estimate, EstimateStep, ObservationLog, require_log, resolve_reference
 from decentral.placement import count_reasons
 from protocols.network import Crash, LinkConfig, NetworkConfig, Partition, SimulatedNetwork
+from sims.run_status import placed_steps, run_status
 
 __all__ = ["AdmmRunConfig", "AdmmRun", "own_step", "run_admm"]
 
@@ -282,6 +283,8 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
     transport = net.stats().as_dict()
     seconds = time.perf_counter() - start
     total_rounds = int(sum(rounds))
+    unplaced = count_reasons(step.unplaced for step in est_steps)
+    status, status_counts = run_status(converged, placed_steps(est_steps), unplaced)
     stats = {
         "estimator": "consensus-admm",
         "mode": "admm",
@@ -306,7 +309,9 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
             for n in names
         },
         "messages": transport,
-        "unplaced": count_reasons(step.unplaced for step in est_steps),
+        "unplaced": unplaced,
+        "status": status,
+        "status_counts": status_counts,
         "seconds": seconds,
         "seconds_per_round": tick_seconds / max(total_rounds, 1),
         "admm": {"rho0": config.admm.rho0, "mu": config.admm.mu, "tau": config.admm.tau,

@@ -14,12 +14,18 @@ the simulated runner drives, here for one agent, on wall-clock timers:
 - **after the last step** the agent keeps answering for ``linger`` seconds, then stops.
 
 Each finished step is appended at once as one JSON line to ``stream`` (if given): ``{"step", "t",
-"poses", "converged", "rounds", "counts"}`` with the transport's cumulative counts, so that a
-process killed with SIGKILL has still reported every step it finished.
+"poses", "unplaced", "converged", "rounds", "window_seconds", "counts", "heard", "latency_ms",
+"lagged", "counters"}`` with the transport's cumulative counts, the frame latencies of the window
+(median, p90, max, ms) and the agent's protocol counters, so that a process killed with SIGKILL has
+still reported every step it finished.
+
+- **a late start**: a process that starts after its START first asks its peers for the run's clock
+  (:class:`PeerClock`) and follows the START two of them agree on, from the step under way.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from dataclasses import dataclass, field
@@ -32,10 +38,12 @@ from agents.runtime import AgentHost, LocalAgent, WindowRule
 from decentral.errors import InputError
 from decentral.observations import Estimate, EstimateStep, ObservationLog, PlanarPose
 from decentral.placement import count_reasons
+from protocols.messages import BROADCAST, Heartbeat
 from protocols.transport import Transport
 from sims.admm_run import own_step
+from sims.run_status import placed_steps, run_status
 
-__all__ = ["Pace", "AgentRun", "run_agent", "step_period", "rounds_per_step", "process_agent_config", "poses_of"]
+__all__ = ["Pace", "PeerClock", "AgentRun", "run_agent", "step_period", "rounds_per_step", "process_agent_config", "poses_of"]
 
 
 @dataclass(frozen=True)
@@ -72,6 +80,48 @@ class Pace:
     def half(self, now: float) -> int:
         """Index of the half round under way at wall time ``now`` (negative before the start)."""
         return int(np.floor((now - self.start) / (self.round_period / 2) + 1e-6))  # (a step due on a boundary)
+
+
+class PeerClock:
+    """When the peers' round clock started, from the frames that arrive (``sent_at - round * round_period``).
+
+    Every process of a run counts rounds from the same START, so each frame tells its sender's START
+    (clocks synchronized, as START itself assumes). :meth:`start` answers once two different senders
+    agree within a round period (one member alone cannot move it), with the later of their values (a
+    process running behind its clock only makes its value later).
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace as N
+    >>> clock = PeerClock(round_period=0.1)
+    >>> clock.observe([N(message=N(sender="A0", round=10), sent_at=11.0),
+    ...                N(message=N(sender="A1", round=20), sent_at=12.05)])
+    >>> clock.start()
+    10.05
+    """
+
+    def __init__(self, round_period: float, senders: int = 2):
+        self.round_period, self.senders = float(round_period), int(senders)
+        self._seen: dict[str, float] = {}
+
+    def observe(self, deliveries) -> None:
+        """Take the arrivals of one poll."""
+        for d in deliveries:
+            r = getattr(d.message, "round", 0)
+            if r > 0 and np.isfinite(d.sent_at):
+                self._seen[d.message.sender] = d.sent_at - r * self.round_period
+
+    def start(self) -> float | None:
+        """The peers' START once ``senders`` of them agree within a round period, else ``None``."""
+        values = sorted(self._seen.values())
+        for i in range(len(values) - self.senders + 1):
+            if values[i + self.senders - 1] - values[i] <= self.round_period:
+                return values[i + self.senders - 1]
+        return None
+
+    def reset(self) -> None:
+        """Forget what was observed (after adopting a START)."""
+        self._seen.clear()
 
 
 @dataclass
@@ -160,10 +210,25 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
     local = LocalAgent(AssemblyAgent(config), WindowRule(budget=budget))
     heard: set[str] = set()
 
-    class _Listening:  # records who was heard, then hands the frames on
+    clocks = PeerClock(pace.round_period)
+
+    answered: dict[str, float] = {}
+    latencies: list[float] = []  # sent_at to arrival of the frames of the current window (s)
+
+    class _Listening:  # records who was heard and when the peers' rounds started, then hands the frames on
         def poll(self, agent, now):
             arrivals = transport.poll(agent, now)
             heard.update(d.message.sender for d in arrivals)
+            clocks.observe(arrivals)
+            latencies.extend(d.latency for d in arrivals)
+            for d in arrivals:
+                # a peer that (re)started asks for the run's clock with a round-0 heartbeat: answer with this round
+                m = d.message
+                if (isinstance(m, Heartbeat) and m.round == 0 and current is not None
+                        and now - answered.get(m.sender, -1e9) > pace.round_period):
+                    answered[m.sender] = now
+                    transport.send(Heartbeat(sender=name, receiver=m.sender, round=max(1, pace.half(now) // 2),
+                                             t=now), now)
             return arrivals
 
         def send(self, message, now):
@@ -190,15 +255,49 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
         record = {"step": step, "t": part.steps[step].t, "poses": poses, "unplaced": dict(local.window_unplaced),
                   "converged": local.converged,
                   "rounds": local.rounds, "window_seconds": took, "counts": _counts(transport, name), "heard": sorted(heard),
-                  "excluded": list(getattr(local.agent, "excluded", ()))}
+                  "latency_ms": _quantiles(latencies), "lagged": lagged,
+                  "excluded": list(getattr(local.agent, "excluded", ())),
+                  "counters": {k: int(v) for k, v in local.agent.counters.items()}}  # (to trace a wrong window)
+        latencies.clear()
         records.append(record)
         if stream is not None:
             stream.write(json.dumps(record) + "\n")
             stream.flush()
 
+    adopted = []  # (wall time, the START given, the peers' START adopted)
+    # started after its START (a restart, a late start): first listen until two peers tell their clock (at most
+    # a few steps), so that a START that is not the peers' is noticed before it runs a step of the wrong time
+    listen_until = now + max(4 * per_step, 1.0) if now > pace.start + per_step / 2 else now
+    asked, caught_up = -1e9, False
     while True:
         now = clock()
-        if k < n and now >= pace.due(part, k):
+        listening = current is None and (now < pace.start or (now < listen_until and clocks.start() is None))
+        if listening:
+            # before this agent's first step: listen, so that a START later than the peers' is noticed
+            _Listening().poll(name, now)  # (what arrives now belongs to windows it cannot join yet)
+            if now >= asked + 0.1:
+                transport.send(Heartbeat(sender=name, receiver=BROADCAST, round=0, t=now), now)  # what is the clock?
+                asked = now
+        elif current is None and not caught_up:
+            caught_up = True
+            while k + 1 < n and pace.due(part, k + 1) <= now:
+                k += 1  # listened past some steps: begin with the step under way
+            first = k
+            done_half = max(pace.half(now), 0) - 1
+        peers_start = clocks.start()
+        if peers_start is not None and peers_start < pace.start - per_step / 2:
+            # the peers started earlier (a restart given a fresh START): run on their clock from the step under way
+            adopted.append((now, pace.start, peers_start))
+            pace = dataclasses.replace(pace, start=peers_start)
+            clocks.reset()
+            listen_until = now
+            while k + 1 < n and pace.due(part, k + 1) <= now:
+                k += 1
+            if current is None:
+                first = k
+            done_half = max(pace.half(now), 0) - 1
+            end = pace.due(part, n - 1) + max(pace.linger, per_step)
+        if k < n and now >= pace.due(part, k) and not listening:
             if current is not None:
                 close(current)
             host.on_step(own_step(part, name, k), now, max(0, pace.half(now)) // 2)
@@ -223,18 +322,28 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
             break
         next_half = pace.start + (done_half + 1) * pace.round_period / 2
         next_step = pace.due(part, k) if k < n else end
+        if listening:  # before the first step: poll again soon (or at the START)
+            wait(max(0.0, min(clock() + 0.02, pace.start) - clock()) if clock() < pace.start else 0.02)
+            continue
         wait(max(0.0, min(next_half, next_step) - clock()))
     if current is not None:
         close(current)
     names = part.assemblies
     steps = tuple(EstimateStep(r["t"], poses_of(r["poses"]), r["unplaced"]) for r in records)
     final = _counts(transport, name)
+    unplaced = count_reasons(step.unplaced for step in steps)
+    status, status_counts = run_status([r["converged"] for r in records], placed_steps(steps), unplaced,
+                                       not_run=n - len(records))
     stats = {
-        "unplaced": count_reasons(step.unplaced for step in steps),
+        "unplaced": unplaced,
+        "status": status,
+        "status_counts": status_counts,
         "estimator": "consensus-admm",
         "mode": "process",
         "agent": name,
         "first_step": first,
+        "skipped": first,  # steps that were over when it started (a late start or a restart)
+        "adopted_start": [{"at": a, "given": g, "peers": p} for a, g, p in adopted],
         "processes": 1,
         "messages": {"total": final["messages"], "per_agent": {name: final["messages"]}},
         "bytes": {"total": final["bytes"], "per_agent": {name: final["bytes"]}},
@@ -249,6 +358,14 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
     }
     est = Estimate(name, steps, stats)
     return AgentRun(est, records, heard, stats)
+
+
+def _quantiles(latencies: list[float]) -> list[float] | None:
+    """``[median, p90, max]`` of frame latencies in ms (sender's clock to arrival), ``None`` without frames."""
+    if not latencies:
+        return None
+    q = np.quantile(np.asarray(latencies, float), [0.5, 0.9, 1.0]) * 1e3
+    return [round(float(x), 3) for x in q]
 
 
 def poses_of(raw: dict) -> dict[str, PlanarPose]:

@@ -41,6 +41,7 @@ from decentral.observations import Estimate, EstimateStep, ObservationLog
 from decentral.placement import count_reasons
 from sims.agent_run import poses_of, step_period
 from sims.parts import split_log, write_part
+from sims.run_status import run_status
 
 __all__ = ["CrashPlan", "LaunchConfig", "LaunchResult", "parse_crash", "launch"]
 
@@ -92,6 +93,10 @@ class LaunchConfig:
         Agents that are never started (a peer that never comes up).
     ready_timeout : float
         Wall seconds to wait for every process to listen.
+    transport : {"zmq", "udp"}, optional
+        The agents' transport (default: ``decentral agent``'s).
+    extra_args : tuple of str
+        More ``decentral agent`` options given to every agent.
     """
 
     window: int = 5
@@ -104,6 +109,8 @@ class LaunchConfig:
     round_period: float = 0.01
     absent: tuple[str, ...] = ()
     ready_timeout: float = 120.0
+    transport: str | None = None
+    extra_args: tuple[str, ...] = ()
 
 
 @dataclass
@@ -116,12 +123,19 @@ class LaunchResult:
 
 
 def _free_ports(n: int) -> list[int]:
+    """``n`` ports free for TCP and for UDP on 127.0.0.1 (the agents use one or the other, ``--transport``)."""
     socks, ports = [], []
     try:
-        for _ in range(n):
+        while len(ports) < n:
             s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
             s.bind(("127.0.0.1", 0))
             socks.append(s)
+            u = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            socks.append(u)
+            try:
+                u.bind(("127.0.0.1", s.getsockname()[1]))
+            except OSError:
+                continue  # that port is taken for UDP: try another
             ports.append(s.getsockname()[1])
     finally:
         for s in socks:
@@ -320,7 +334,8 @@ def _launch(log: ObservationLog, config: LaunchConfig, reference: str, work: Pat
                 "--stream", str(work / f"{name}.{incarnation}.jsonl"), "--start", start,
                 "--reference", reference, "--window", str(config.window), "--loss", repr(config.loss),
                 "--seed", str(config.seed), "--rate", repr(config.rate), "--round-period", repr(config.round_period),
-                "-o", str(work / f"{name}.{incarnation}.est.json")]
+                "-o", str(work / f"{name}.{incarnation}.est.json"),
+                *(("--transport", config.transport) if config.transport else ()), *config.extra_args]
 
     period = step_period(log) / config.rate
     t_first = log.steps[0].t
@@ -417,12 +432,16 @@ def _compose(log, reference, records, config, incarnations, timed_out, failures)
                     rejected[reason] = rejected.get(reason, 0) + int(n)
     for reason in ("bad_signature", "replay", "unknown_sender", "malformed"):
         rejected.setdefault(reason, 0)
+    unplaced = count_reasons(step.unplaced for step in steps)
+    ran = sorted(by_step)
+    status, status_counts = run_status([bool(by_step[k]["converged"]) for k in ran], [bool(steps[k].poses) for k in ran],
+                                       unplaced, not_run=len(log.steps) - len(ran), timed_out=timed_out)
     heard = set()
     for run in records[reference]:
         if run:
             heard |= set(next((rec.get("heard", []) for rec in reversed(run) if "step" in rec), []))
     stats = {
-        "unplaced": count_reasons(step.unplaced for step in steps),
+        "unplaced": unplaced,
         "estimator": "consensus-admm",
         "mode": "processes",
         "window": config.window,
@@ -442,7 +461,8 @@ def _compose(log, reference, records, config, incarnations, timed_out, failures)
         # members whose data the others contradicted, left out of the reference's joint solution
         "excluded": sorted({a for run in records[reference] for rec in run for a in rec.get("excluded", ())}),
         "absent": list(config.absent),
-        "status": "timeout" if timed_out else "ok",
+        "status": status,
+        "status_counts": status_counts,
     }
     if failures:
         stats["agent_errors"] = failures

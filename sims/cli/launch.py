@@ -6,6 +6,7 @@ import argparse
 
 from decentral.errors import InputError
 from sims.cli import feedback
+from sims.run_status import add_strict, report_status
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -31,6 +32,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="wall seconds per consensus round (default: 0.01)")
     parser.add_argument("--absent", action="append", default=[], metavar="NAME",
                         help="never start NAME's agent (a peer that never comes up; repeatable)")
+    parser.add_argument("--transport", choices=("zmq", "udp"), default=None,
+                        help="the agents' transport (default: decentral agent's, see its --help)")
+    add_strict(parser)
     parser.add_argument("--workdir", default=None,
                         help="keep keys, peers file, parts and per-agent streams here (default: a temporary folder)")
 
@@ -51,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
     log = read_log(args.log)
     config = LaunchConfig(window=args.window, reference=args.reference, loss=args.loss, seed=args.seed,
                           crashes=crashes, timeout=args.timeout, rate=args.rate, round_period=args.round_period,
-                          absent=tuple(args.absent))
+                          absent=tuple(args.absent), transport=args.transport)
     result = launch(log, config, workdir=args.workdir)
     write_estimate(args.output, result.estimate)
     stats = result.estimate.stats
@@ -65,5 +69,5 @@ def run(args: argparse.Namespace) -> int:
     placed = sum(1 for step in result.estimate.steps if step.poses)
     feedback.summary(f"{len(result.estimate.steps)} steps ({placed} placing someone), {stats['processes']} processes, "
                      f"{stats['messages']['total']} frames, {stats['bytes']['total']} bytes, "
-                     f"{sum(stats['rejected'].values())} refused -> {args.output}")
-    return 0
+                     f"{sum(stats['rejected'].values())} refused, status {stats['status']} -> {args.output}")
+    return report_status(stats, len(result.estimate.steps), args.strict)

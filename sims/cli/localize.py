@@ -1,9 +1,11 @@
 """``decentral localize``: a ``decentral.log/1`` in, a ``decentral.estimate/1`` out (docs/formats.md).
 
 A progress bar counts log steps (with ADMM rounds and messages in ``--mode admm``); one summary
-line closes the run. ``--mode admm`` warns on stderr when steps hit ``--max-rounds`` without
-converging, and exits with :data:`~sims.cli.main.EXIT_NO_RESULT` (3) when it placed no assembly at
-all (the estimate is still written: its ``stats`` say what the network did).
+line closes the run. ``--mode admm`` warns on stderr (one line, :mod:`sims.run_status`) when its
+``stats.status`` is not ``ok`` (steps whose window did not converge within ``--max-rounds``), exits
+with :data:`~sims.cli.main.EXIT_NO_RESULT` (3) when it placed no assembly at all, and with 4 under
+``--strict`` when some step did not converge (the estimate is still written: its ``stats`` say what
+the network did).
 """
 
 from __future__ import annotations
@@ -25,7 +27,8 @@ ESTIMATORS = {
 
 
 #: options that apply only with ``--mode admm`` (attribute -> default); argparse leaves them None when not given
-ADMM_DEFAULTS = {"loss": 0.0, "seed": 0, "share_forms": "every", "aggregation": "tree", "max_rounds": 300}
+ADMM_DEFAULTS = {"loss": 0.0, "seed": 0, "share_forms": "every", "aggregation": "tree", "max_rounds": 300,
+                 "strict": False, "latency": 0.0005, "jitter": 0.001, "round_period": 0.01}
 #: options that apply only to the centralized mode (attribute -> default)
 CENTRAL_DEFAULTS = {"estimator": "windowed", "solver": "low-rank"}
 
@@ -79,6 +82,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              f"(default: {ADMM_DEFAULTS['aggregation']})")
     parser.add_argument("--max-rounds", type=int, default=None,
                         help=f"admm: round budget per step (default: {ADMM_DEFAULTS['max_rounds']})")
+    parser.add_argument("--latency", type=float, default=None,
+                        help="admm: one-way delay of every simulated link, s (default: 0.0005); with --jitter, "
+                             "--round-period and --max-rounds (the rounds between two sensor steps) a simulation "
+                             "predicts processes on links of that latency (docs/processes.md)")
+    parser.add_argument("--jitter", type=float, default=None,
+                        help="admm: uniform extra delay of each copy, 0 to JITTER s (default: 0.001)")
+    parser.add_argument("--round-period", type=float, default=None,
+                        help="admm: simulated seconds per round (default: 0.01)")
+    parser.add_argument("--strict", action="store_true", default=None,
+                        help="admm: exit with status 4 when stats.status is not 'ok' (a step did not converge); "
+                             "the estimate is written either way")
     parser.add_argument("--estimator", choices=tuple(ESTIMATORS), default=None,
                         help="centralized: " + "; ".join(f"{k}: {v}" for k, v in ESTIMATORS.items())
                              + f" (default: {CENTRAL_DEFAULTS['estimator']})")
@@ -160,8 +174,14 @@ def _not_placed(estimate) -> str:
 def _run_admm(log, args, noise, reference, progress):
     from sims.admm_run import AdmmRunConfig, run_admm
 
+    for name in ("latency", "jitter"):
+        if not 0.0 <= getattr(args, name) < 60.0:
+            raise InputError(f"must be in [0, 60) s, got {getattr(args, name)}", field=f"--{name}")
+    if not 0.0 < args.round_period < 60.0:
+        raise InputError(f"must be in (0, 60) s, got {args.round_period}", field="--round-period")
     config = AdmmRunConfig(window=args.window, noise=noise, loss=args.loss, share_forms=args.share_forms,
-                           aggregation=args.aggregation, max_rounds=args.max_rounds)
+                           aggregation=args.aggregation, max_rounds=args.max_rounds, latency=args.latency,
+                           jitter=args.jitter, round_period=args.round_period)
     return run_admm(log, reference, config, seed=args.seed, progress=progress).estimate
 
 
@@ -187,12 +207,12 @@ def _report(estimate, args: argparse.Namespace, n_assemblies: int) -> int:
     feedback.summary(f"{steps} steps, {stats['rounds_total']} rounds, {total['sent']} messages "
                      f"({total['bytes_sent'] / 1e6:.2f} MB), converged {n_converged}/{steps} steps, "
                      f"{coverage} -> {args.output}")
-    if n_converged < steps:
-        feedback.warn(f"consensus did not converge at {steps - n_converged} of {steps} steps within "
-                      f"--max-rounds {args.max_rounds}; their estimates are the last iterates")
+    from sims.run_status import report_status
+
+    strict = report_status(stats, steps, args.strict)  # one line: how many steps did not converge, and why
     if possible and not placed:
         feedback.warn(f"placed no assembly: {total['dropped']} of {total['sent']} messages were dropped "
                       f"(--loss {args.loss:g}) and no estimate reached the reference "
                       f"(exit status {EXIT_NO_RESULT})")
         return EXIT_NO_RESULT
-    return 0
+    return strict

@@ -22,7 +22,10 @@ from typing import Any, Mapping
 from decentral.errors import InputError
 from sims.study.spec import StudySpec, cell_key
 
-__all__ = ["CELL_COMMANDS", "Cell", "metrics_of", "check_cells", "execute", "run_cell", "placement"]
+__all__ = ["CELL_COMMANDS", "Cell", "ROW_STATUS", "metrics_of", "check_cells", "execute", "run_cell", "placement"]
+
+#: key a cell's metrics may carry to set its row's status ('degraded': finished, some step did not converge)
+ROW_STATUS = "_status"
 
 #: study command -> module with ``OPTIONS``, ``METRICS``, ``normalize(params)`` and ``run(params)``
 CELL_COMMANDS: dict[str, str] = {
@@ -130,7 +133,8 @@ def execute(command: str, params: Mapping[str, Any], key: str, texts: Mapping[st
     Returns
     -------
     dict
-        ``key``, ``status`` ('ok' or 'failed'), ``error`` (one line, or ``None``), ``seconds`` (wall
+        ``key``, ``status`` ('ok', 'degraded' when a decentralized run's ``stats.status`` is not ``ok``
+        (its metrics are still recorded; :mod:`sims.run_status`), or 'failed'), ``error`` (one line, or ``None``), ``seconds`` (wall
         time of the cell), ``cpu_seconds`` (its CPU time in the worker), ``peak_mb`` (peak resident
         memory of the process during the cell), ``host``, ``pid``, ``node`` and ``address`` (see
         :func:`placement`), ``started``, ``finished`` and ``metrics`` (a dict; empty when failed).
@@ -140,7 +144,8 @@ def execute(command: str, params: Mapping[str, Any], key: str, texts: Mapping[st
     started = _now()
     t0, c0 = time.perf_counter(), time.process_time()
     try:
-        metrics, status, error = run_cell(command, params, texts), "ok", None
+        metrics, error = run_cell(command, params, texts), None
+        status = metrics.pop(ROW_STATUS, "ok")  # a decentralized run that finished but did not converge: 'degraded'
     except Exception as err:  # a failing cell is a result, not the end of the study
         frame = traceback.extract_tb(err.__traceback__)[-1] if err.__traceback__ else None
         where = f" (at {os.path.basename(frame.filename)}:{frame.lineno})" if frame else ""

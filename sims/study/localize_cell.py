@@ -30,6 +30,7 @@ from decentral.metrics import score_estimate
 from sims.admm_run import AdmmRunConfig, run_admm
 from sims.io.validate import unknown_name
 from sims.scenarios import SCENARIOS, get_scenario, simulate
+from sims.study.cells import ROW_STATUS
 from sims.study.options import Option, check_value, require
 from sims.world.sensors import SensorNoise
 
@@ -255,6 +256,8 @@ def run(params: Mapping[str, Any], texts: Mapping[str, str] | None = None) -> di
         total = stats["messages"]["total"]
         metrics.update(messages=total["sent"], bytes=total["bytes_sent"], rounds=stats["rounds_total"],
                        converged=int(stats["all_converged"]))
+        if stats.get("status", "ok") != "ok":
+            metrics[ROW_STATUS] = "degraded"  # the row says so (sims.run_status); its metrics stand
     elif "certified_windows" in stats and stats.get("windows_solved"):
         metrics["certified"] = stats["certified_windows"] / stats["windows_solved"]
     return metrics

@@ -17,6 +17,7 @@ class _Stub:
     def __init__(self, name="A0"):
         self.name = name
         self.converged = False
+        self.complete = True  # its window holds every live agent's forms
         self.window_done = False
         self.ticks = []
         self.handled = []
@@ -41,6 +42,9 @@ class _Stub:
 
     def unplaced(self, placed):
         return {}
+
+    def settle_provisional(self):
+        pass
 
 
 def _busy(round_index, done=False):

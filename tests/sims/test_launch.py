@@ -227,7 +227,7 @@ def _launch_under_attack(tmp_path, n_frames, steps, pace=PACE):
     attacker = multiprocessing.get_context("spawn").Process(target=_attack, args=(str(work), n_frames, 7, str(report)))
     attacker.start()
     try:
-        est = launch(sim.log, LaunchConfig(**pace), workdir=work).estimate
+        est = launch(sim.log, LaunchConfig(**pace, transport="zmq"), workdir=work).estimate  # the attacker speaks ZeroMQ
     finally:
         attacker.join(timeout=120)
         if attacker.is_alive():
