@@ -121,3 +121,60 @@ def test_ipc_address_has_no_datagram_form():
     """An ipc:// peer address is an input error for the datagram transport."""
     with pytest.raises(InputError):
         udp_endpoint("ipc:///tmp/x")
+
+
+def _send_raw(transport, name, frames):
+    host, port = udp_endpoint(transport.addresses[name])
+    raw = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        for i, frame in enumerate(frames):
+            for piece in split_frame(frame, 1200, 1000 + i):
+                raw.sendto(piece, (host, port))
+    finally:
+        raw.close()
+
+
+def _drain(transport, name, refused, timeout=5.0):
+    deadline = time.monotonic() + timeout
+    while sum(transport.stats().rejected.values()) < refused and time.monotonic() < deadline:
+        transport.wait(0.01)
+        assert transport.poll(name, time.time()) == []
+    return transport.stats().rejected
+
+
+def test_a_genuine_frame_of_an_earlier_run_is_refused_as_stale_with_a_clock_tolerance():
+    """With a clock tolerance, a frame signed with the right key 60 s before the receiver started is refused
+    as ``stale`` (a recorded earlier run); the receiver reports the sender's clock offset."""
+    from protocols.auth import Signer
+
+    ts, keys, _ = _mesh(["A0", "A1"], max_age=5.0)
+    try:
+        now = time.time()
+        old = Signer("A0", keys["A0"], epoch=int((now - 70) * 1e9)).seal(
+            Heartbeat(sender="A0", receiver="A1", round=1, t=0.0), now - 60)
+        _send_raw(ts["A1"], "A1", [old])
+        assert _drain(ts["A1"], "A1", 1).get("stale") == 1
+        lo, _ = ts["A1"].clock_offsets("A1")["A0"]
+        assert 59 < lo < 70
+    finally:
+        for t in ts.values():
+            t.close()
+
+
+def test_a_source_of_forged_frames_gets_a_bounded_number_of_signature_checks():
+    """Forged frames (a member's name, a wrong key) from one source address: after the first refusal the source
+    is suspect, and past the budget its frames are refused as ``rate`` without a signature check."""
+    from protocols.auth import Signer
+
+    ts, _, _ = _mesh(["A0", "A1"], suspect_rate=1.0)
+    try:
+        forger = Signer("A0", new_private_key())
+        frames = [forger.seal(Heartbeat(sender="A0", receiver="A1", round=k, t=0.0), time.time()) for k in range(200)]
+        _send_raw(ts["A1"], "A1", frames)
+        rejected = _drain(ts["A1"], "A1", 200)
+        assert sum(rejected.values()) == 200
+        assert rejected.get("rate", 0) > 100  # the budget (burst 50, 1 check/s) checked at most ~55 of them
+        assert rejected.get("bad_signature", 0) < 100
+    finally:
+        for t in ts.values():
+            t.close()

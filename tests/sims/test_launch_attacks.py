@@ -20,7 +20,7 @@ from sims.launch import LaunchConfig, launch
 from sims.scenarios import get_scenario, simulate
 from tests.synthetic import without
 
-PACE = dict(rate=0.2, round_period=0.05)
+PACE = dict(rate=0.2, round_period=0.05, transport="zmq")  # the attacker (protocols.testing.attacker) speaks ZeroMQ
 GIB = 2**30
 
 
