@@ -24,7 +24,8 @@ from sims.study.spec import StudySpec, cell_key
 
 __all__ = ["CELL_COMMANDS", "Cell", "ROW_STATUS", "metrics_of", "check_cells", "execute", "run_cell", "placement"]
 
-#: key a cell's metrics may carry to set its row's status ('degraded': finished, some step did not converge)
+#: key a cell's metrics may carry to set its row's ``run_status``: the decentralized run's ``stats.status``
+#: ('ok', or 'degraded' when it finished but some step did not converge; :mod:`sims.run_status`)
 ROW_STATUS = "_status"
 
 #: study command -> module with ``OPTIONS``, ``METRICS``, ``normalize(params)`` and ``run(params)``
@@ -133,8 +134,9 @@ def execute(command: str, params: Mapping[str, Any], key: str, texts: Mapping[st
     Returns
     -------
     dict
-        ``key``, ``status`` ('ok', 'degraded' when a decentralized run's ``stats.status`` is not ``ok``
-        (its metrics are still recorded; :mod:`sims.run_status`), or 'failed'), ``error`` (one line, or ``None``), ``seconds`` (wall
+        ``key``, ``status`` ('ok' or 'failed'), ``run_status`` (a decentralized run's ``stats.status``:
+        'ok', or 'degraded' when some step did not converge, its metrics still recorded; ``None`` where
+        the command has none; :mod:`sims.run_status`), ``error`` (one line, or ``None``), ``seconds`` (wall
         time of the cell), ``cpu_seconds`` (its CPU time in the worker), ``peak_mb`` (peak resident
         memory of the process during the cell), ``host``, ``pid``, ``node`` and ``address`` (see
         :func:`placement`), ``started``, ``finished`` and ``metrics`` (a dict; empty when failed).
@@ -144,14 +146,14 @@ def execute(command: str, params: Mapping[str, Any], key: str, texts: Mapping[st
     started = _now()
     t0, c0 = time.perf_counter(), time.process_time()
     try:
-        metrics, error = run_cell(command, params, texts), None
-        status = metrics.pop(ROW_STATUS, "ok")  # a decentralized run that finished but did not converge: 'degraded'
+        metrics, status, error = run_cell(command, params, texts), "ok", None
+        run_status = metrics.pop(ROW_STATUS, None)
     except Exception as err:  # a failing cell is a result, not the end of the study
         frame = traceback.extract_tb(err.__traceback__)[-1] if err.__traceback__ else None
         where = f" (at {os.path.basename(frame.filename)}:{frame.lineno})" if frame else ""
-        metrics, status, error = {}, "failed", f"{type(err).__name__}: {err}{where}"
+        metrics, status, error, run_status = {}, "failed", f"{type(err).__name__}: {err}{where}", None
     return {
-        "key": key, "status": status, "error": error, "seconds": time.perf_counter() - t0,
+        "key": key, "status": status, "run_status": run_status, "error": error, "seconds": time.perf_counter() - t0,
         "cpu_seconds": time.process_time() - c0, "peak_mb": _peak_memory_mb(), "host": socket.gethostname(),
         "pid": os.getpid(), **placement(), "started": started, "finished": _now(), "metrics": metrics,
     }

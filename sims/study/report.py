@@ -245,6 +245,9 @@ def write_report(directory: str | Path) -> ReportResult:
     figures = _figures(p, ok, directory)
     name = facts.get("name") or directory.name
     intro = f"{len(runs)} cells in the store: {len(ok)} ok, {len(failed)} failed"
+    degraded = sum(r.get("run_status") == "degraded" for r in ok)
+    if degraded:  # finished with metrics, but some step's window did not converge (sims.run_status)
+        intro += f" ({degraded} of the ok cells ran degraded: some step did not converge)"
     if "command" in facts:
         intro += f"; each cell runs <code>{html.escape(facts['command'])}</code>"
     parts = [f"<h1>Study: {html.escape(name)}</h1>"]

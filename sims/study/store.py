@@ -11,7 +11,9 @@ Tables
     memory of the worker during the cell), one column per metric of the command (NULL where it
     does not apply), then ``engine``, ``host``, ``pid``, ``started``, ``finished`` (UTC, ISO 8601)
     and ``invocation`` (the ``invocations.id`` that ran it), ``node`` (the Ray node id, or the
-    hostname on the local pool) and ``address`` (the Ray node's IP address; NULL on the local pool).
+    hostname on the local pool) and ``address`` (the Ray node's IP address; NULL on the local pool),
+    ``run_status`` (a decentralized run's ``stats.status``: 'ok' or 'degraded'; NULL where the cell's
+    command has none).
 ``study``
     Key/value facts of the study: ``name``, ``command``, ``params`` (JSON list of the parameter
     columns), ``metrics`` (JSON list), ``schema`` (this layout's version), ``spec`` (the text of
@@ -44,9 +46,10 @@ SCHEMA = "decentral.study/1"
 DB_NAME = "study.sqlite"
 #: columns of ``runs`` that are neither parameters nor metrics
 BOOKKEEPING = ("id", "cell_key", "cell_hash", "status", "error", "seconds", "cpu_seconds", "peak_mb",
-               "engine", "host", "pid", "started", "finished", "invocation", "node", "address")
+               "engine", "host", "pid", "started", "finished", "invocation", "node", "address", "run_status")
 #: columns added after the first stores were written: (table, column, SQL type), added on open where missing
-ADDED_COLUMNS = (("runs", "node", "TEXT"), ("runs", "address", "TEXT"), ("invocations", "pid", "INTEGER"))
+ADDED_COLUMNS = (("runs", "node", "TEXT"), ("runs", "address", "TEXT"), ("invocations", "pid", "INTEGER"),
+                 ("runs", "run_status", "TEXT"))
 
 
 def _q(name: str) -> str:
@@ -99,7 +102,7 @@ class StudyStore:
             **{m: _sql_value(metrics.get(m)) for m in self.metrics},
             "engine": engine, "host": result.get("host"), "pid": result.get("pid"),
             "started": result.get("started"), "finished": result.get("finished"), "invocation": invocation,
-            "node": result.get("node"), "address": result.get("address"),
+            "node": result.get("node"), "address": result.get("address"), "run_status": result.get("run_status"),
         }
         cols = ", ".join(_q(c) for c in values)
         marks = ", ".join("?" for _ in values)
@@ -186,7 +189,7 @@ def _create(con: sqlite3.Connection, name: str, command: str, params: Sequence[s
             "CREATE TABLE runs (id INTEGER PRIMARY KEY, cell_key TEXT NOT NULL UNIQUE, cell_hash TEXT NOT NULL, "
             f"{param_cols}status TEXT NOT NULL CHECK (status IN ('ok', 'failed')), error TEXT, seconds REAL, "
             f"cpu_seconds REAL, peak_mb REAL, {metric_cols}engine TEXT, host TEXT, pid INTEGER, started TEXT, "
-            "finished TEXT, invocation INTEGER, node TEXT, address TEXT)")
+            "finished TEXT, invocation INTEGER, node TEXT, address TEXT, run_status TEXT)")
         con.execute(
             "CREATE TABLE invocations (id INTEGER PRIMARY KEY, started TEXT, finished TEXT, engine TEXT, "
             "workers INTEGER, address TEXT, spec TEXT, spec_sha256 TEXT, git_revision TEXT, python TEXT, "

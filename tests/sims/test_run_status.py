@@ -69,14 +69,23 @@ def test_strict_only_applies_to_admm(sim6, tmp_path, capsys):
     assert "--strict" in capsys.readouterr().err
 
 
-def test_study_row_records_a_degraded_run():
-    """A study cell whose consensus does not converge gets the row status 'degraded' with its metrics."""
+def test_study_row_records_a_degraded_run(tmp_path):
+    """A study cell whose consensus does not converge finishes ('ok', with its metrics) and its row's
+    run_status says 'degraded'; the store keeps both (its status column stays 'ok' or 'failed')."""
     from sims.study.cells import execute
+    from sims.study.store import DB_NAME, open_store, read_runs
 
     row = execute("localize", {"scenario": "multi", "n_assemblies": 4, "steps": 3, "mode": "admm",
                                "max_rounds": 3}, "k")
-    assert row["status"] == "degraded" and row["error"] is None and row["metrics"]["converged"] == 0
-    assert "_status" not in row["metrics"]
+    assert row["status"] == "ok" and row["run_status"] == "degraded" and row["error"] is None
+    assert row["metrics"]["converged"] == 0 and "_status" not in row["metrics"]
+    store = open_store(tmp_path, "s", "localize", ["mode"], ["converged"])
+    try:
+        assert store.add_run({"mode": "admm"}, row, "local", store.begin_invocation({"engine": "local"}))
+    finally:
+        store.close()
+    (stored,) = read_runs(tmp_path / DB_NAME)[1]
+    assert stored["status"] == "ok" and stored["run_status"] == "degraded" and stored["converged"] == 0
 
 
 def test_simulated_latency_beyond_the_round_budget_degrades_the_run(sim6, tmp_path):
