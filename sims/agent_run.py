@@ -8,7 +8,9 @@ the simulated runner drives, here for one agent, on wall-clock timers:
   step under way and never sees the ones it missed;
 - **rounds**: half round ``h`` runs at ``start + h * round_period / 2`` (phase ``h % 2`` of round
   ``h // 2``); every process of a run counts rounds from the same ``start``, so their round numbers
-  agree (the aggregation tree names start rounds); a half round missed under load is skipped;
+  agree (the aggregation tree names start rounds); a half round missed under load is skipped; a
+  process told a later start than a peer finds it from the peer's round numbers and follows the
+  earliest start (:mod:`sims.start_clock`; reported in ``stats["clock"]``);
 - **the window** ends by the agent's own rule (:class:`agents.runtime.WindowRule`, budget = the
   rounds between two steps) or when the next step comes; its estimate is what the agent holds then;
 - **after the last step** the agent keeps answering for ``linger`` seconds, then stops.
@@ -20,6 +22,7 @@ process killed with SIGKILL has still reported every step it finished.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from dataclasses import dataclass, field
@@ -34,6 +37,7 @@ from decentral.observations import Estimate, EstimateStep, ObservationLog, Plana
 from decentral.placement import count_reasons
 from protocols.transport import Transport
 from sims.admm_run import own_step
+from sims.start_clock import StartClock
 
 __all__ = ["Pace", "AgentRun", "run_agent", "step_period", "rounds_per_step", "process_agent_config", "poses_of"]
 
@@ -159,11 +163,15 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
     budget = rounds_per_step(part, pace.rate, pace.round_period)
     local = LocalAgent(AssemblyAgent(config), WindowRule(budget=budget))
     heard: set[str] = set()
+    told = pace.start
+    start_clock = StartClock(pace.round_period)  # peers' starts from their round numbers (sims.start_clock)
 
-    class _Listening:  # records who was heard, then hands the frames on
+    class _Listening:  # records who was heard and when their rounds say they started, then hands the frames on
         def poll(self, agent, now):
             arrivals = transport.poll(agent, now)
-            heard.update(d.message.sender for d in arrivals)
+            for d in arrivals:
+                heard.add(d.message.sender)
+                start_clock.heard(d.message.sender, d.message.round, now, told - start_clock.moved)
             return arrivals
 
         def send(self, message, now):
@@ -190,7 +198,7 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
         record = {"step": step, "t": part.steps[step].t, "poses": poses, "unplaced": dict(local.window_unplaced),
                   "converged": local.converged,
                   "rounds": local.rounds, "window_seconds": took, "counts": _counts(transport, name), "heard": sorted(heard),
-                  "excluded": list(getattr(local.agent, "excluded", ()))}
+                  "excluded": list(getattr(local.agent, "excluded", ())), "clock": start_clock.report()}
         records.append(record)
         if stream is not None:
             stream.write(json.dumps(record) + "\n")
@@ -198,6 +206,9 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
 
     while True:
         now = clock()
+        if told - start_clock.follow() != pace.start:  # a peer started earlier: count rounds and steps from its start
+            pace = dataclasses.replace(pace, start=told - start_clock.moved)
+            end = pace.due(part, n - 1) + max(pace.linger, per_step)
         if k < n and now >= pace.due(part, k):
             if current is not None:
                 close(current)
@@ -246,6 +257,7 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
         "round_period": pace.round_period,
         "lagged": lagged,  # times the process fell more than 20 half rounds behind and jumped
         "rate": pace.rate,
+        "clock": start_clock.report(),  # peers' start offsets, and how far this agent's start was moved
     }
     est = Estimate(name, steps, stats)
     return AgentRun(est, records, heard, stats)

@@ -92,6 +92,8 @@ class LaunchConfig:
         Agents that are never started (a peer that never comes up).
     ready_timeout : float
         Wall seconds to wait for every process to listen.
+    start_offsets : tuple of (str, float)
+        Seconds added to the start time an agent is told (skewed clocks, for testing; default none).
     """
 
     window: int = 5
@@ -104,6 +106,7 @@ class LaunchConfig:
     round_period: float = 0.01
     absent: tuple[str, ...] = ()
     ready_timeout: float = 120.0
+    start_offsets: tuple[tuple[str, float], ...] = ()
 
 
 @dataclass
@@ -355,8 +358,9 @@ def _launch(log: ObservationLog, config: LaunchConfig, reference: str, work: Pat
         began = time.monotonic()
         _wait_ready(procs, config.ready_timeout, work)
         start = time.time() + 0.3
-        for proc in procs.values():
-            proc.stdin.write(f"{start!r}\n")
+        skew = dict(config.start_offsets)
+        for name, proc in procs.items():
+            proc.stdin.write(f"{start + skew.get(name, 0.0)!r}\n")
             proc.stdin.flush()
         due = lambda k: start + (log.steps[k].t - t_first) / config.rate  # noqa: E731
         events = []  # (wall time, "kill"/"start", name)
@@ -377,7 +381,7 @@ def _launch(log: ObservationLog, config: LaunchConfig, reference: str, work: Pat
                     procs[name].wait()
                 elif what == "start":
                     incarnations[name] += 1
-                    procs[name] = start_one(name, repr(start))  # fresh: no state carried over
+                    procs[name] = start_one(name, repr(start + skew.get(name, 0.0)))  # fresh: no state carried over
             alive = [p for p in procs.values() if p.poll() is None]
             if not alive and not events:
                 break
@@ -442,6 +446,9 @@ def _compose(log, reference, records, config, incarnations, timed_out, failures)
         # members whose data the others contradicted, left out of the reference's joint solution
         "excluded": sorted({a for run in records[reference] for rec in run for a in rec.get("excluded", ())}),
         "absent": list(config.absent),
+        # per agent: peers' start offsets from their round numbers, and how far it followed the earliest start
+        "clock": {name: next((rec["clock"] for rec in reversed(runs[-1]) if "clock" in rec), {})
+                  for name, runs in records.items() if runs and runs[-1]},
         "status": "timeout" if timed_out else "ok",
     }
     if failures:

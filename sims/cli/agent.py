@@ -128,6 +128,12 @@ def run(args: argparse.Namespace) -> int:
         if peer != args.name and (lo > args.clock_tolerance or hi < -args.clock_tolerance):
             feedback.warn(f"{peer}'s frames arrived {lo:+.2f} to {hi:+.2f} s from this clock: beyond the "
                           f"{args.clock_tolerance:g} s tolerance, refused as stale (clocks or start times disagree)")
+    clock = result.stats["clock"]
+    if clock["skewed"]:
+        offsets = ", ".join(f"{p} {clock['start_offsets'][p]:+.2f} s" for p in clock["skewed"])
+        feedback.warn(f"start times disagree (peer's start before this agent's --start: {offsets}); "
+                      + (f"followed the earliest, {clock['moved']:.2f} s earlier" if clock["moved"] else
+                         "this agent's start was the earliest"))
     if result.stats["missing"]:
         feedback.warn(f"{args.name} never heard from {', '.join(result.stats['missing'])}")
     stats = result.stats
