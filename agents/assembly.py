@@ -298,7 +298,7 @@ class AssemblyAgent:
             # one form per pair and step, and per odometry link: a window adds only its newest step's forms
             problems = [part for _, parts in sorted(self._shared.items()) for part in parts] \
                 + self._consensus.odometry_links()
-            forms = [(tuple((self._index[a], k) for a, k in prob.keys), prob.M, prob.b_z, prob.c_z)
+            forms = [(tuple((self._index[a], k) for a, k in prob.keys), prob.M, prob.b_z, prob.c_z, prob.count)
                      for prob in problems]
             pin = np.zeros(0)
             cons = self._consensus

@@ -154,7 +154,7 @@ class WindowShare:
         """The records ``indices`` as an ``admm.bundle`` (with the gauge ``pin`` when the ``reference``'s
         record is among them); ``down``: the final set from the parent, ADMM from round ``start``."""
         agg = self.agg
-        records = {i: [(keys, prob.M, prob.b_z, prob.c_z) for keys, prob in agg.records[i]] for i in indices}
+        records = {i: [(keys, prob.M, prob.b_z, prob.c_z, prob.count) for keys, prob in agg.records[i]] for i in indices}
         members, owners, keys, flat = pack_bundle(records)
         pin = self.pin if self.pin is not None and reference in records else np.zeros(0)
         return FormBundle(sender=sender, receiver=receiver, round=round_index, step=self.step, down=down,
