@@ -198,7 +198,8 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
         record = {"step": step, "t": part.steps[step].t, "poses": poses, "unplaced": dict(local.window_unplaced),
                   "converged": local.converged,
                   "rounds": local.rounds, "window_seconds": took, "counts": _counts(transport, name), "heard": sorted(heard),
-                  "excluded": list(getattr(local.agent, "excluded", ())), "clock": start_clock.report()}
+                  "excluded": list(getattr(local.agent, "excluded", ())),
+                  "suspects": list(getattr(local.agent, "suspects", ())), "clock": start_clock.report()}
         records.append(record)
         if stream is not None:
             stream.write(json.dumps(record) + "\n")

@@ -445,6 +445,7 @@ def _compose(log, reference, records, config, incarnations, timed_out, failures)
         "missing": sorted(n for n in log.assemblies if n != reference and n not in heard),
         # members whose data the others contradicted, left out of the reference's joint solution
         "excluded": sorted({a for run in records[reference] for rec in run for a in rec.get("excluded", ())}),
+        "suspects": sorted({a for run in records[reference] for rec in run for a in rec.get("suspects", ())}),
         "absent": list(config.absent),
         # per agent: peers' start offsets from their round numbers, and how far it followed the earliest start
         "clock": {name: next((rec["clock"] for rec in reversed(runs[-1]) if "clock" in rec), {})
