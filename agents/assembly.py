@@ -109,6 +109,7 @@ class AssemblyAgent:
         self._shared: dict[str, list[LocalProblem]] = {}  # target -> its pair's forms, one per step
         #: members whose data the others' contradicted in the last window this agent solved (left out of it)
         self.excluded: tuple = ()
+        self.suspects: tuple = ()  # inconsistent data, liar not identifiable: one of these (decentral.consistency)
         # the sharing of every window's cost forms (tree or broadcast), its records and the neighbours' tree places
         limit = config.max_yaw_std if config.noise.weighting == "information" else np.inf
         self._sharing = WindowAggregation(config.name, config.assemblies, config.reference,
@@ -298,7 +299,7 @@ class AssemblyAgent:
             # one form per pair and step, and per odometry link: a window adds only its newest step's forms
             problems = [part for _, parts in sorted(self._shared.items()) for part in parts] \
                 + self._consensus.odometry_links()
-            forms = [(tuple((self._index[a], k) for a, k in prob.keys), prob.M, prob.b_z, prob.c_z)
+            forms = [(tuple((self._index[a], k) for a, k in prob.keys), prob.M, prob.b_z, prob.c_z, prob.count)
                      for prob in problems]
             pin = np.zeros(0)
             cons = self._consensus
@@ -344,7 +345,7 @@ class AssemblyAgent:
             # fixed point (100-250 rounds per window at 50 % loss): stay silent while the rest may still come
             self._hold = self._round + self.config.share_timeout
         joint = sharing.joint(share)
-        self.excluded = tuple(share.excluded)
+        self.excluded, self.suspects = tuple(share.excluded), tuple(share.suspects)
         if joint is None:
             return  # no forms, or the gauge's value at this window is unknown here: the ADMM goes on
         seeds = joint.poses

@@ -95,8 +95,9 @@ class ConfigRequest(Message):
 
 
 def form_length(m: int) -> int:
-    """Floats of one packed form over ``m`` poses: upper triangle of ``M`` (3m x 3m), ``b_z`` (m), ``c_z``."""
-    return 3 * m * (3 * m + 1) // 2 + m + 1
+    """Floats of one packed form over ``m`` poses: upper triangle of ``M`` (3m x 3m), ``b_z`` (m), ``c_z``, and
+    its measurement count (:attr:`decentral.admm.LocalProblem.count`)."""
+    return 3 * m * (3 * m + 1) // 2 + m + 2
 
 
 @register
@@ -108,7 +109,8 @@ class FactorShare(Message):
     (7)): one per directed pair the sender observes (its visual factors) and one for its own odometry
     chain. Form ``f`` is over the poses listed in the rows of ``keys`` with first column ``f`` (in
     order); its packed floats are the upper triangle (row-major) of its ``3m x 3m`` xy form ``M``, then
-    ``b_z`` (m) and ``c_z``, and the forms follow each other in ``forms``.
+    ``b_z`` (m), ``c_z`` and the form's measurement count (:attr:`decentral.admm.LocalProblem.count`, the
+    degrees of freedom of the consistency test), and the forms follow each other in ``forms``.
 
     Attributes
     ----------
@@ -141,17 +143,18 @@ class FactorShare(Message):
         set_field(self, "have", have)
         _check_forms(self)
 
-    def unpack(self) -> list[tuple[tuple[tuple[int, int], ...], np.ndarray, np.ndarray, float]]:
-        """The forms as ``(keys ((assembly index, step), ...), M (3m, 3m), b_z (m,), c_z)``."""
+    def unpack(self) -> list[tuple[tuple[tuple[int, int], ...], np.ndarray, np.ndarray, float, int]]:
+        """The forms as ``(keys ((assembly index, step), ...), M (3m, 3m), b_z (m,), c_z, count)``."""
         return _unpack(self.keys, self.forms)
 
 
 def pack_forms(forms) -> tuple[np.ndarray, np.ndarray]:
-    """``keys`` and ``forms`` fields of :class:`FactorShare` from ``(keys ((assembly index, step), ...), M, b_z, c_z)``."""
+    """``keys`` and ``forms`` fields of :class:`FactorShare` from ``(keys ((assembly index, step), ...), M, b_z, c_z,
+    count)``."""
     keys, flat = [], []
-    for f, (ks, M, b_z, c_z) in enumerate(forms):
+    for f, (ks, M, b_z, c_z, count) in enumerate(forms):
         keys += [(f, a, s) for a, s in ks]
-        flat += [np.asarray(M, float)[np.triu_indices(3 * len(ks))], np.asarray(b_z, float), [float(c_z)]]
+        flat += [np.asarray(M, float)[np.triu_indices(3 * len(ks))], np.asarray(b_z, float), [float(c_z), float(count)]]
     return (np.array(keys, dtype=np.int64).reshape(-1, 3),
             np.concatenate(flat) if flat else np.zeros(0))
 
@@ -188,8 +191,10 @@ def _unpack(keys: np.ndarray, forms: np.ndarray) -> list:
         M = M + np.triu(M, 1).T
         b_z = np.array(forms[at + tri:at + tri + m])
         c_z = float(forms[at + tri + m])
+        count = forms[at + tri + m + 1]  # (one that is not a non-negative integer reads as 0: unknown)
         at += form_length(m)
-        out.append((tuple((int(a), int(s)) for _, a, s in rows), M, b_z, c_z))
+        out.append((tuple((int(a), int(s)) for _, a, s in rows), M, b_z, c_z,
+                    int(count) if 0 <= count < 2**31 and count == int(count) else 0))
     return out
 
 
@@ -271,7 +276,7 @@ class FormBundle(Message):
         set_field(self, "owners", owners)
 
     def records(self) -> dict[int, list]:
-        """Member index -> its forms ``[(keys, M, b_z, c_z), ...]`` (empty list: a member with no form)."""
+        """Member index -> its forms ``[(keys, M, b_z, c_z, count), ...]`` (empty list: a member with no form)."""
         out: dict[int, list] = {int(m): [] for m in self.members}
         for owner, form in zip(self.owners.tolist(), _unpack(self.keys, self.forms)):
             out[owner].append(form)
@@ -306,7 +311,8 @@ class FormAck(Message):
 
 
 def pack_bundle(records: dict[int, list]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``members``, ``owners``, ``keys`` and ``forms`` of :class:`FormBundle` from index -> ``[(keys, M, b_z, c_z)]``."""
+    """``members``, ``owners``, ``keys`` and ``forms`` of :class:`FormBundle` from index -> ``[(keys, M, b_z, c_z,
+    count)]``."""
     members = np.array(sorted(records), dtype=np.int64)
     owners = [int(m) for m in members for _ in records[int(m)]]
     keys, flat = pack_forms([f for m in members for f in records[int(m)]])

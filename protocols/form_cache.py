@@ -72,7 +72,7 @@ class DeltaSender:
 
     def delta(self, parent: int, records: dict, step: int) -> tuple[dict, list] | None:
         """``(carried, digests)`` for sending ``records`` (member -> ``[(keys, problem)]``) to ``parent``:
-        ``carried`` member -> ``[(keys, M, b_z, c_z)]`` of the forms it has not had from here, ``digests``
+        ``carried`` member -> ``[(keys, M, b_z, c_z, count)]`` of the forms it has not had from here, ``digests``
         one ``(count, crc)`` per member in sorted order. ``None`` when a form is not over two poses within
         255 steps of ``step`` (the records then go whole). The forms are marked as sent."""
         sent = self._sent.setdefault(parent, set())
@@ -85,7 +85,7 @@ class DeltaSender:
                 crc = _crc(problem)
                 crcs.append(crc)
                 if (member, tuple(keys), crc) not in sent:
-                    carried.setdefault(member, []).append((keys, problem.M, problem.b_z, problem.c_z))
+                    carried.setdefault(member, []).append((keys, problem.M, problem.b_z, problem.c_z, problem.count))
                     new.add((member, tuple(keys), crc))
             digests.append(record_digest(crcs))
         sent |= new

@@ -141,7 +141,7 @@ class WindowAggregation:
         self._delta_sender.slide(first)
 
     def share_own(self, forms: list, pin: np.ndarray) -> None:
-        """Share this agent's forms ``[(keys, M, b_z, c_z)]`` (keys as agent index and step) of the window,
+        """Share this agent's forms ``[(keys, M, b_z, c_z, count)]`` (keys as agent index and step) of the window,
         by the tree when it has a route to the reference (or, at the reference, children), else by broadcast."""
         share = self.share
         agg = share.agg
@@ -375,9 +375,9 @@ class WindowAggregation:
             self._send(self._factor_share(message.sender))
 
     def _problems(self, forms: Iterable) -> list:
-        """Unpacked forms ``(keys, M, b_z, c_z)`` as ``[(keys, LocalProblem)]``."""
-        return [(keys, LocalProblem(tuple((self.names[a], s) for a, s in keys), M, b_z, c_z))
-                for keys, M, b_z, c_z in forms]
+        """Unpacked forms ``(keys, M, b_z, c_z, count)`` as ``[(keys, LocalProblem)]``."""
+        return [(keys, LocalProblem(tuple((self.names[a], s) for a, s in keys), M, b_z, c_z, count))
+                for keys, M, b_z, c_z, count in forms]
 
     def on_delta(self, message: DeltaBundle) -> bool:
         """A delta bundle from a child: rebuild each member's record of the window from the forms carried and
@@ -388,8 +388,8 @@ class WindowAggregation:
                 or (len(message.members) and message.members.max() >= n)):
             self.counters["ignored"] += 1
             return False
-        for owner, keys, M, b_z, c_z in message.carried():
-            self.forms.remember(owner, self._problems([(keys, M, b_z, c_z)]))
+        for owner, keys, M, b_z, c_z, count in message.carried():
+            self.forms.remember(owner, self._problems([(keys, M, b_z, c_z, count)]))
         first = message.step - self.window + 1
         rebuilt = {}
         for member, digest in zip(message.members.tolist(), message.digest.tolist()):

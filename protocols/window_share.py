@@ -81,7 +81,8 @@ class WindowShare:
         ``(assembly, step)`` keys the joint placement test places, and ``yaw_std`` its yaw deviations.
     excluded : tuple
         Members whose data the others contradict, left out of the joint solution
-        (:func:`decentral.consistency.screen_members`); ``kept`` the forms it was solved from.
+        (:func:`decentral.consistency.screen_members`); ``kept`` the forms it was solved from; ``suspects``
+        the members one of which contradicts the others when the test cannot say which (none excluded).
     """
 
     step: int
@@ -101,6 +102,7 @@ class WindowShare:
     placeable: frozenset | None = None
     yaw_std: Any = None
     excluded: tuple = ()
+    suspects: tuple = ()
     kept: list | None = None
 
     @property
@@ -125,6 +127,7 @@ class WindowShare:
                 if len(members) <= SCREEN_MAX_MEMBERS:
                     screening = screen_members(problems, (reference, first), value)
                     self.excluded, self.kept = screening.excluded, screening.kept
+                    self.suspects = tuple(screening.suspects)
                 else:
                     self.excluded, self.kept = (), problems
                 self.joint = solve_joint(screening.kept, (reference, first), value)
@@ -154,7 +157,7 @@ class WindowShare:
         """The records ``indices`` as an ``admm.bundle`` (with the gauge ``pin`` when the ``reference``'s
         record is among them); ``down``: the final set from the parent, ADMM from round ``start``."""
         agg = self.agg
-        records = {i: [(keys, prob.M, prob.b_z, prob.c_z) for keys, prob in agg.records[i]] for i in indices}
+        records = {i: [(keys, prob.M, prob.b_z, prob.c_z, prob.count) for keys, prob in agg.records[i]] for i in indices}
         members, owners, keys, flat = pack_bundle(records)
         pin = self.pin if self.pin is not None and reference in records else np.zeros(0)
         return FormBundle(sender=sender, receiver=receiver, round=round_index, step=self.step, down=down,

@@ -236,6 +236,8 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
     rounds, converged, per_agent, est_steps = [], [], [], []
     restarts = {n: 0 for n in names}
     tick_seconds = 0.0
+    excluded: set[str] = set()
+    suspects: set[str] = set()
     for k in range(len(log.steps)):
         t = now()
         per_step.append({})
@@ -273,6 +275,9 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
         converged.append(bool(live) and all(hosts[n].agent.converged for n in live))
         per_agent.append({n: hosts[n].agent.window_estimate for n in live})
         ref_poses = hosts[reference].agent.window_estimate if reference in live else {}
+        if reference in live:  # members whose data the others contradicted (decentral.consistency)
+            excluded |= set(getattr(hosts[reference].agent.agent, "excluded", ()))
+            suspects |= set(getattr(hosts[reference].agent.agent, "suspects", ()))
         why = (hosts[reference].agent.window_unplaced if reference in live
                else {n: "no_consensus" for n in names if n != reference})
         est_steps.append(EstimateStep(log.steps[k].t, ref_poses, why))
@@ -319,6 +324,10 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
                  "eps_rot": config.admm.eps_rot, "eps_pos": config.admm.eps_pos, "share_forms": config.share_forms,
                  "aggregation": config.aggregation},
         "stray_detections": sum(step.stray_detections() for step in log.steps),
+        # members the reference left out of its joint solutions, their data contradicted by the others'
+        "excluded": sorted(excluded),
+        # windows whose data were inconsistent with no one member to blame: the members that could explain it
+        "suspects": sorted(suspects),
     }
     estimate = Estimate(reference, tuple(est_steps), stats)
     return AdmmRun(estimate, tuple(rounds), tuple(converged), tuple(per_agent), stats,

@@ -8,7 +8,9 @@ the simulated runner drives, here for one agent, on wall-clock timers:
   step under way and never sees the ones it missed;
 - **rounds**: half round ``h`` runs at ``start + h * round_period / 2`` (phase ``h % 2`` of round
   ``h // 2``); every process of a run counts rounds from the same ``start``, so their round numbers
-  agree (the aggregation tree names start rounds); a half round missed under load is skipped;
+  agree (the aggregation tree names start rounds); a half round missed under load is skipped; a
+  process told a later start than a peer finds it from the peer's round numbers and follows the
+  earliest start (:mod:`sims.start_clock`; reported in ``stats["clock"]``);
 - **the window** ends by the agent's own rule (:class:`agents.runtime.WindowRule`, budget = the
   rounds between two steps) or when the next step comes; its estimate is what the agent holds then;
 - **after the last step** the agent keeps answering for ``linger`` seconds, then stops.
@@ -42,6 +44,7 @@ from protocols.messages import BROADCAST, Heartbeat
 from protocols.transport import Transport
 from sims.admm_run import own_step
 from sims.run_status import placed_steps, run_status
+from sims.start_clock import StartClock
 
 __all__ = ["Pace", "PeerClock", "AgentRun", "run_agent", "step_period", "rounds_per_step", "process_agent_config", "poses_of"]
 
@@ -209,6 +212,8 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
     budget = rounds_per_step(part, pace.rate, pace.round_period)
     local = LocalAgent(AssemblyAgent(config), WindowRule(budget=budget))
     heard: set[str] = set()
+    told = pace.start
+    start_clock = StartClock(pace.round_period)  # peers' starts from their round numbers (sims.start_clock)
 
     clocks = PeerClock(pace.round_period)
 
@@ -222,6 +227,8 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
             clocks.observe(arrivals)
             latencies.extend(d.latency for d in arrivals)
             for d in arrivals:
+                if d.message.round > 0:  # (a round-0 heartbeat asks for the clock: it tells no start)
+                    start_clock.heard(d.message.sender, d.message.round, now, told - start_clock.moved)
                 # a peer that (re)started asks for the run's clock with a round-0 heartbeat: answer with this round
                 m = d.message
                 if (isinstance(m, Heartbeat) and m.round == 0 and current is not None
@@ -257,6 +264,7 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
                   "rounds": local.rounds, "window_seconds": took, "counts": _counts(transport, name), "heard": sorted(heard),
                   "latency_ms": _quantiles(latencies), "lagged": lagged,
                   "excluded": list(getattr(local.agent, "excluded", ())),
+                  "suspects": list(getattr(local.agent, "suspects", ())), "clock": start_clock.report(),
                   "counters": {k: int(v) for k, v in local.agent.counters.items()}}  # (to trace a wrong window)
         latencies.clear()
         records.append(record)
@@ -289,6 +297,7 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
             # the peers started earlier (a restart given a fresh START): run on their clock from the step under way
             adopted.append((now, pace.start, peers_start))
             pace = dataclasses.replace(pace, start=peers_start)
+            told, start_clock = peers_start, StartClock(pace.round_period)  # small skews are measured from here on
             clocks.reset()
             listen_until = now
             while k + 1 < n and pace.due(part, k + 1) <= now:
@@ -296,6 +305,9 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
             if current is None:
                 first = k
             done_half = max(pace.half(now), 0) - 1
+            end = pace.due(part, n - 1) + max(pace.linger, per_step)
+        if told - start_clock.follow() != pace.start:  # a peer started a little earlier: follow its start
+            pace = dataclasses.replace(pace, start=told - start_clock.moved)
             end = pace.due(part, n - 1) + max(pace.linger, per_step)
         if k < n and now >= pace.due(part, k) and not listening:
             if current is not None:
@@ -355,6 +367,7 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
         "round_period": pace.round_period,
         "lagged": lagged,  # times the process fell more than 20 half rounds behind and jumped
         "rate": pace.rate,
+        "clock": start_clock.report(),  # peers' start offsets, and how far this agent's start was moved
     }
     est = Estimate(name, steps, stats)
     return AgentRun(est, records, heard, stats)

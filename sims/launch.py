@@ -97,6 +97,8 @@ class LaunchConfig:
         The agents' transport (default: ``decentral agent``'s).
     extra_args : tuple of str
         More ``decentral agent`` options given to every agent.
+    start_offsets : tuple of (str, float)
+        Seconds added to the start time an agent is told (skewed clocks, for testing; default none).
     """
 
     window: int = 5
@@ -111,6 +113,7 @@ class LaunchConfig:
     ready_timeout: float = 120.0
     transport: str | None = None
     extra_args: tuple[str, ...] = ()
+    start_offsets: tuple[tuple[str, float], ...] = ()
 
 
 @dataclass
@@ -370,8 +373,9 @@ def _launch(log: ObservationLog, config: LaunchConfig, reference: str, work: Pat
         began = time.monotonic()
         _wait_ready(procs, config.ready_timeout, work)
         start = time.time() + 0.3
-        for proc in procs.values():
-            proc.stdin.write(f"{start!r}\n")
+        skew = dict(config.start_offsets)
+        for name, proc in procs.items():
+            proc.stdin.write(f"{start + skew.get(name, 0.0)!r}\n")
             proc.stdin.flush()
         due = lambda k: start + (log.steps[k].t - t_first) / config.rate  # noqa: E731
         events = []  # (wall time, "kill"/"start", name)
@@ -392,7 +396,7 @@ def _launch(log: ObservationLog, config: LaunchConfig, reference: str, work: Pat
                     procs[name].wait()
                 elif what == "start":
                     incarnations[name] += 1
-                    procs[name] = start_one(name, repr(start))  # fresh: no state carried over
+                    procs[name] = start_one(name, repr(start + skew.get(name, 0.0)))  # fresh: no state carried over
             alive = [p for p in procs.values() if p.poll() is None]
             if not alive and not events:
                 break
@@ -460,7 +464,11 @@ def _compose(log, reference, records, config, incarnations, timed_out, failures)
         "missing": sorted(n for n in log.assemblies if n != reference and n not in heard),
         # members whose data the others contradicted, left out of the reference's joint solution
         "excluded": sorted({a for run in records[reference] for rec in run for a in rec.get("excluded", ())}),
+        "suspects": sorted({a for run in records[reference] for rec in run for a in rec.get("suspects", ())}),
         "absent": list(config.absent),
+        # per agent: peers' start offsets from their round numbers, and how far it followed the earliest start
+        "clock": {name: next((rec["clock"] for rec in reversed(runs[-1]) if "clock" in rec), {})
+                  for name, runs in records.items() if runs and runs[-1]},
         "status": status,
         "status_counts": status_counts,
     }

@@ -25,3 +25,41 @@ def without(log: ObservationLog, name: str, *, config: bool = False) -> Observat
                        mounts={k: m for k, m in s.mounts.items() if not k.startswith(prefix)}) for s in log.steps)
     cams = {k: c for k, c in log.cameras.items() if c.assembly != name}
     return ObservationLog(log.node_radius, log.assemblies, cams, steps)
+
+
+#: the lies a member can tell with its own data (:func:`lying`)
+LIES = ("detections", "odometry", "layout", "node_ids")
+
+
+def lying(log: ObservationLog, liar: str, lie: str, victim: str | None = None) -> ObservationLog:
+    """``log`` with ``liar``'s own data falsified: ``detections`` every detection of its cameras shifted 40 px
+    in u; ``odometry`` its motions (translation and yaw) scaled 5x; ``layout`` its configuration stretched
+    1.5x about its root; ``node_ids`` its configuration also listing every node id of ``victim`` (the
+    next assembly by default) at made-up centres."""
+    import dataclasses
+
+    import numpy as np
+
+    from decentral.observations import Odometry
+
+    names = list(log.assemblies)
+    victim = victim or names[(names.index(liar) + 1) % len(names)]
+    prefix = liar + "/"
+    claimed = sorted({int(i) for s in log.steps for i in s.config.get(victim, {})})
+    steps = []
+    for s in log.steps:
+        config, odometry, detections = dict(s.config), dict(s.odometry), dict(s.detections)
+        if lie == "detections":
+            detections = {k: tuple(dataclasses.replace(d, u=d.u + 40.0) for d in ds) if k.startswith(prefix) else ds
+                          for k, ds in detections.items()}
+        elif lie == "odometry" and liar in odometry:
+            o = odometry[liar]
+            odometry[liar] = Odometry(np.asarray(o.dp, float) * 5.0, float(o.dtheta) * 5.0)
+        elif lie == "layout":
+            config[liar] = {i: 1.5 * np.asarray(c, float) for i, c in config[liar].items()}
+        elif lie == "node_ids":
+            config[liar] = {**config[liar], **{i: np.array([0.5, 0.1 * j, 0.0]) for j, i in enumerate(claimed)}}
+        elif lie not in LIES:
+            raise ValueError(f"unknown lie {lie!r}")
+        steps.append(dataclasses.replace(s, config=config, odometry=odometry, detections=detections))
+    return dataclasses.replace(log, steps=tuple(steps))

@@ -29,12 +29,17 @@ class LocalProblem:
         z normal equations right-hand side (``cost_z = p_z^T M_pp p_z - 2 b_z^T p_z + c_z``).
     c_z : float
         Constant of the z cost.
+    count : int
+        Scalar measurements the form sums (3 per detection, 4 per odometry link: translation and yaw; 0
+        when unknown): the degrees of freedom of its information-weighted cost
+        (:func:`decentral.consistency.screen_members`).
     """
 
     keys: tuple
     M: np.ndarray
     b_z: np.ndarray
     c_z: float
+    count: int = 0
 
     @property
     def n(self) -> int:
@@ -107,4 +112,5 @@ def quadratic_form(keys, visual=None, odometry=None) -> LocalProblem:
         c_z = float(np.sum(w * s * s))
     else:
         b_z, c_z = np.zeros(n), 0.0
-    return LocalProblem(keys, M, b_z, c_z)
+    count = 3 * (len(visual[0]) if visual is not None else 0) + 4 * (len(odometry[0]) if odometry is not None else 0)
+    return LocalProblem(keys, M, b_z, c_z, count)

@@ -155,6 +155,12 @@ def run(args: argparse.Namespace) -> int:
     for adopted in result.stats["adopted_start"]:
         feedback.warn(f"{args.name}: its peers started at {adopted['peers']:.3f}, not at the START given "
                       f"({adopted['given']:.3f}): it follows their clock")
+    clock = result.stats["clock"]
+    if clock["skewed"]:
+        offsets = ", ".join(f"{p} {clock['start_offsets'][p]:+.2f} s" for p in clock["skewed"])
+        feedback.warn(f"start times disagree (peer's start before this agent's --start: {offsets}); "
+                      + (f"followed the earliest, {clock['moved']:.2f} s earlier" if clock["moved"] else
+                         "this agent's start was the earliest"))
     if result.stats["missing"]:
         feedback.warn(f"{args.name} never heard from {', '.join(result.stats['missing'])}")
     stats = result.stats

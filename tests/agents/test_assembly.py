@@ -165,12 +165,12 @@ def test_factor_share_round_trips_and_rejects_inconsistent_lengths():
     """admm.factors decodes to an equal message with the same forms; forms that do not fit `keys` are refused."""
     M = np.arange(36.0).reshape(6, 6)
     M = M + M.T
-    keys, flat = pack_forms([(((0, 3), (2, 3)), M, np.array([1.0, 2.0]), 0.5)])
+    keys, flat = pack_forms([(((0, 3), (2, 3)), M, np.array([1.0, 2.0]), 0.5, 6)])
     msg = FactorShare(sender="A0", receiver=BROADCAST, round=2, step=3, have=[0, 2], keys=keys, forms=flat,
                       pin=[3, 0.0, 0.0, 0.0, 0.1])
     back = decode(msg.to_bytes())
     assert back == msg
-    (k, M2, b, c), = back.unpack()
+    (k, M2, b, c, count), = back.unpack()
     assert k == ((0, 3), (2, 3)) and np.array_equal(M2, M) and b.tolist() == [1.0, 2.0] and c == 0.5
     with pytest.raises(ProtocolError):
         FactorShare(sender="A0", receiver=BROADCAST, round=2, step=3, have=[0], keys=keys, forms=flat[:-1], pin=[])

@@ -51,3 +51,65 @@ def test_the_reference_is_never_excluded():
     rng = np.random.default_rng(3)
     screening = screen_members(_ring(rng, lie=("A", 0.5)), ("A", 0))
     assert "A" not in screening.excluded
+
+
+def _views(rng, at, pairs, lie=None, noise=0.01, dispersion=None):
+    """Observer o sees target a's three nodes for each (o, a) in ``pairs``; ``lie = (member, offset)`` shifts
+    every detection that member makes."""
+    q = np.array([[0.0, 0.0, 0.0], [0.6, 0.0, 0.0], [0.0, 0.4, 0.0]])
+    forms = []
+    for o, a in pairs:
+        t = q + [*np.subtract(at[a], at[o]), 0.0] + noise * rng.standard_normal((3, 3))
+        if lie is not None and o == lie[0]:
+            t = t + np.array([lie[1], 0.0, 0.0])
+        forms.append(quadratic_form([(o, 0), (a, 0)], visual=(np.zeros(3, int), np.ones(3, int), q, t,
+                                                              np.full(3, 1.0 / noise**2))))
+    return forms
+
+
+AT = {"A": (0.0, 0.0), "B": (3.0, 0.5), "C": (0.5, 3.0), "D": (-2.5, 1.0), "E": (1.0, -2.5)}
+
+
+def test_with_calibrated_noise_a_members_statistic_has_the_chi_square_mean():
+    """Gaussian detections with their true weights: over 200 draws each member's T averages its d (within 5 %)."""
+    from decentral.consistency import member_tests
+
+    rng = np.random.default_rng(4)
+    pairs = [(o, a) for o in AT for a in AT if o != a]
+    ratios = []
+    for _ in range(200):
+        forms = _views(rng, AT, pairs)
+        tests = member_tests(forms, solve_joint(forms, ("A", 0)).poses)
+        ratios.append([t / d for t, d, _ in tests.values()])
+    assert abs(np.mean(ratios) - 1.0) < 0.05
+
+
+def test_a_lie_every_other_member_checks_names_the_liar_by_the_chi_square_test():
+    """E's detections 5 cm off (5 sigma), seen by everyone: the margin test names no one, the chi-square test (calibrated
+    noise) names E."""
+    from decentral.consistency import screen_by_margin
+
+    rng = np.random.default_rng(5)
+    pairs = [(o, a) for o in AT for a in AT if o != a]
+    forms = _views(rng, AT, pairs, lie=("E", 0.05))
+    assert screen_by_margin(forms, ("A", 0)).excluded == ()
+    screening = screen_members(forms, ("A", 0), dispersion=1.0)
+    assert screening.excluded == ("E",) and all(k[0] != "E" for prob in screening.kept for k in prob.keys)
+
+
+def test_a_lie_only_one_member_checks_names_suspects_and_excludes_no_one():
+    """D is seen by C alone and D sees only C, and D's views are 20 cm off: C and D are suspects, no one is excluded."""
+    rng = np.random.default_rng(6)
+    ring = [(o, a) for o in "ABC" for a in "ABC" if o != a] + [("C", "D"), ("D", "C")]
+    screening = screen_members(_views(rng, AT, ring, lie=("D", 0.2)), ("A", 0), dispersion=1.0)
+    assert screening.excluded == () and set(screening.suspects) == {"C", "D"}
+
+
+def test_forms_without_measurement_counts_fall_back_to_the_margin_test():
+    """Forms whose counts are unknown (0, an older peer) are screened by the residual margin, as before."""
+    import dataclasses
+
+    rng = np.random.default_rng(2)
+    forms = [dataclasses.replace(f, count=0) for f in _ring(rng, lie=("C", 0.5))]
+    screening = screen_members(forms, ("A", 0))
+    assert screening.excluded == ("C",) and screening.tests == {}

@@ -48,7 +48,7 @@ ISSUE_FRAME = bytes.fromhex(
 def sample_messages() -> list:
     """One or two valid messages of every kind registered by the protocol packages."""
     common = dict(sender="A0", receiver="A1", round=3)
-    forms = np.arange(1 + 1 + 45 + 3, dtype=float)[: 3 * 3 * 10 // 2 + 3 + 1]
+    forms = np.arange(1 + 1 + 45 + 3, dtype=float)[: 3 * 3 * 10 // 2 + 3 + 2]
     return [
         Tracks(**common, t=0.5, camera="A0/cam0", ids=[5, 7], uvr=[[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]),
         PoseEstimates(**common, t=1.0, subjects=("A1",), poses=[[0.1, 0.2, 0.3]], covariances=[np.eye(3)]),
@@ -72,7 +72,7 @@ def sample_messages() -> list:
         Ack(**common, seq=4, phase="refine"),
         DeltaBundle(**common, step=3, hop=2, parent=1, depth=4, members=np.array([0, 2]), pin=np.zeros(0),
                     digest=np.array([[4, 12345], [0, 0]]),
-                    **DeltaBundle.pack(3, {0: [(((0, 3), (2, 3)), np.eye(6), np.array([1.0, 2.0]), 0.5)]})),
+                    **DeltaBundle.pack(3, {0: [(((0, 3), (2, 3)), np.eye(6), np.array([1.0, 2.0]), 0.5, 6)]})),
         JointPoses(**common, step=2, hop=0, parent=-1, depth=2, start=5, n=5, members=JointPoses.mask(range(5), 5),
                    index=JointPoses.mask([0, 1, 3], 5),
                    poses=np.array([[0, 0, 0, 0], [1.5, -0.25, 0.01, 0.3], [2.0, 1.0, 0.0, -3.1]]),

@@ -10,10 +10,10 @@ from protocols.messages import decode
 
 def _records():
     M = np.arange(36.0).reshape(6, 6)
-    return {0: [(((0, 3), (2, 3)), M + M.T, np.array([1.0, 2.0]), 0.5)],
+    return {0: [(((0, 3), (2, 3)), M + M.T, np.array([1.0, 2.0]), 0.5, 6)],
             2: [],
-            3: [(((3, 2), (3, 3)), np.eye(6), np.array([0.1, 0.2]), 0.0), (((3, 3), (1, 3)), 2 * np.eye(6),
-                                                                           np.array([0.3, 0.4]), 1.5)]}
+            3: [(((3, 2), (3, 3)), np.eye(6), np.array([0.1, 0.2]), 0.0, 4), (((3, 3), (1, 3)), 2 * np.eye(6),
+                                                                           np.array([0.3, 0.4]), 1.5, 9)]}
 
 
 def _bundle(**kw):
@@ -32,8 +32,8 @@ def test_a_bundle_round_trips_with_every_members_forms():
     recs = back.records()
     assert sorted(recs) == [0, 2, 3] and recs[2] == [] and len(recs[3]) == 2
     for member, forms in _records().items():
-        for (k, M, b, c), (k2, M2, b2, c2) in zip(forms, recs[member]):
-            assert k == k2 and np.array_equal(M, M2) and np.array_equal(b, b2) and c == c2
+        for (k, M, b, c, n), (k2, M2, b2, c2, n2) in zip(forms, recs[member]):
+            assert k == k2 and np.array_equal(M, M2) and np.array_equal(b, b2) and c == c2 and n == n2
 
 
 def test_a_corrupted_bundle_frame_is_refused():

@@ -10,7 +10,7 @@ from protocols.messages import decode
 
 def _delta(**kw):
     M = np.arange(36.0).reshape(6, 6)
-    carried = {0: [(((0, 3), (2, 3)), M + M.T, np.array([1.0, 2.0]), 0.5)]}
+    carried = {0: [(((0, 3), (2, 3)), M + M.T, np.array([1.0, 2.0]), 0.5, 6)]}
     fields = dict(sender="A3", receiver="A1", round=7, step=3, hop=2, parent=1, depth=4,
                   members=np.array([0, 2]), pin=np.zeros(0), digest=np.array([[4, 12345], [0, 0]]),
                   **DeltaBundle.pack(3, carried))
@@ -32,11 +32,11 @@ def test_a_delta_round_trips_with_float32_forms_and_its_digest():
     """admm.delta decodes to an equal message; a form comes back with its keys, in float32 (24 numbers)."""
     msg = _delta()
     back = decode(msg.to_bytes())
-    assert back == msg and back.forms.dtype == np.float32 and len(back.forms) == 24
-    (owner, keys, M, b_z, c_z), = back.carried()
+    assert back == msg and back.forms.dtype == np.float32 and len(back.forms) == 25
+    (owner, keys, M, b_z, c_z, count), = back.carried()
     M0 = np.arange(36.0).reshape(6, 6)
     assert owner == 0 and keys == ((0, 3), (2, 3)) and np.array_equal(M, M0 + M0.T)
-    assert b_z.tolist() == [1.0, 2.0] and c_z == 0.5 and back.digest.tolist() == [[4, 12345], [0, 0]]
+    assert b_z.tolist() == [1.0, 2.0] and c_z == 0.5 and count == 6 and back.digest.tolist() == [[4, 12345], [0, 0]]
 
 
 def test_a_forms_crc_survives_the_float32_trip():
@@ -45,8 +45,8 @@ def test_a_forms_crc_survives_the_float32_trip():
     A = rng.normal(size=(6, 6)) * 1e4
     M, b_z = A @ A.T, rng.normal(size=2)
     msg = decode(_delta(members=np.array([0]), digest=np.array([[1, 0]]),
-                        **DeltaBundle.pack(3, {0: [(((0, 1), (1, 1)), M, b_z, 3.25)]})).to_bytes())
-    (_, keys, M2, b2, c2), = msg.carried()
+                        **DeltaBundle.pack(3, {0: [(((0, 1), (1, 1)), M, b_z, 3.25, 6)]})).to_bytes())
+    (_, keys, M2, b2, c2, _), = msg.carried()
     assert keys == ((0, 1), (1, 1)) and form_crc(M, b_z, 3.25) == form_crc(M2, b2, c2)
     assert record_digest([5, 3]) == (2, 6) and record_digest([]) == (0, 0)
 

@@ -30,8 +30,8 @@ def _send(sender, cache, records, step, parent=1):
     msg = decode(DeltaBundle(sender="A3", receiver="A1", round=0, step=step, hop=1, parent=parent, depth=1,
                              members=np.array(sorted(records)), pin=np.zeros(0), digest=np.array(digests),
                              **DeltaBundle.pack(step, carried)).to_bytes())
-    for owner, keys, M, b_z, c_z in msg.carried():
-        cache.remember(owner, [(keys, LocalProblem(keys, M, b_z, c_z))])
+    for owner, keys, M, b_z, c_z, count in msg.carried():
+        cache.remember(owner, [(keys, LocalProblem(keys, M, b_z, c_z, count))])
     first = step - 4
     return {m: cache.rebuild(m, tuple(d), first, step) for m, d in zip(msg.members.tolist(), msg.digest.tolist())}, msg
 
@@ -69,7 +69,7 @@ def test_a_changed_older_form_is_sent_again_and_rebuilt_exactly(changed, scale):
     _send(sender, cache, _records(4), 4)
     records = _records(4)
     keys, old = records[0][changed]
-    records[0][changed] = (keys, LocalProblem(old.keys, old.M * (1 + scale), old.b_z, old.c_z))
+    records[0][changed] = (keys, LocalProblem(old.keys, old.M * (1 + scale), old.b_z, old.c_z, old.count))
     rebuilt, msg = _send(sender, cache, records, 4)
     assert len(msg.owners) == 1
     new = dict(rebuilt[0])[keys]

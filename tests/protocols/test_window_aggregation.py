@@ -18,11 +18,11 @@ Q = np.array([[0.1, 0.0, 0.0], [0.0, 0.1, 0.05], [-0.1, 0.05, 0.0]])  # target's
 
 
 def _form(observer: int, target: int, step: int = 0) -> tuple:
-    """The packed pair form ``(keys, M, b_z, c_z)`` of ``observer`` seeing ``target`` 1 m ahead (no rotation)."""
+    """The packed pair form ``(keys, M, b_z, c_z, count)`` of ``observer`` seeing ``target`` 1 m ahead (no rotation)."""
     offset = np.array([observer - target, 0.0, 0.0])
     keys = [(NAMES[observer], step), (NAMES[target], step)]
     prob = quadratic_form(keys, visual=(np.zeros(3, int), np.ones(3, int), Q, Q - offset, np.ones(3)))
-    return ((observer, step), (target, step)), prob.M, prob.b_z, prob.c_z
+    return ((observer, step), (target, step)), prob.M, prob.b_z, prob.c_z, prob.count
 
 
 def _records(*members) -> dict:
