@@ -13,7 +13,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["CROP_SPAN", "CROP_SIZE", "REFINE_SPAN", "REFINE_SIZE", "crop_circle", "refine_input"]
+__all__ = ["CROP_SIZE", "CROP_SPAN", "REFINE_SIZE", "REFINE_SPAN", "crop_circle", "refine_input"]
 
 #: width of a stored crop in radii, and its side in pixels
 CROP_SPAN = 4.0

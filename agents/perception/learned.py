@@ -32,7 +32,7 @@ from agents.perception.crops import CROP_SIZE, crop_circle, refine_input
 from agents.perception.types import Circle
 from decentral.errors import InputError
 
-__all__ = ["MODEL_DIR", "LearnedConfig", "LearnedCircleDetector"]
+__all__ = ["MODEL_DIR", "LearnedCircleDetector", "LearnedConfig", "decode"]
 
 #: folder of the shipped networks (package data)
 MODEL_DIR = Path(__file__).resolve().parent / "models"
@@ -112,6 +112,25 @@ def _to_input(images: np.ndarray) -> np.ndarray:
     return np.asarray(images, np.float32).transpose(0, 3, 1, 2) * np.float32(1 / 255.0) - np.float32(0.5)
 
 
+def decode(out: np.ndarray, scale: float, threshold: float, stride: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """Circles (n, 3) in image pixels and their peaks (n,) from the proposal network's output.
+
+    ``out`` (4, h, w): heatmap, log radius (input pixels), offset x, y (cells); ``scale``: image
+    pixels per input pixel. A circle is each 3 x 3 local maximum of the heatmap of at least
+    ``threshold``. The mapping is the inverse of the training targets'
+    (:func:`agents.perception.training.data.detector_targets`, input pixel = image pixel / scale).
+    """
+    heat = np.ascontiguousarray(out[0], np.float32)
+    peaks = (heat >= threshold) & (heat >= cv2.dilate(heat, np.ones((3, 3), np.uint8)))
+    ys, xs = np.nonzero(peaks)
+    u = ((xs + out[2, ys, xs] + 0.5) * stride - 0.5) * scale
+    v = ((ys + out[3, ys, xs] + 0.5) * stride - 0.5) * scale
+    r = np.exp(out[1, ys, xs]) * scale
+    circles = np.column_stack([u, v, r]).astype(np.float64)
+    keep = np.isfinite(circles).all(axis=1)
+    return circles[keep], heat[ys, xs][keep].astype(np.float64)
+
+
 class LearnedCircleDetector:
     """A :class:`~agents.perception.types.CircleDetector` running the shipped (or a user's) networks."""
 
@@ -139,18 +158,7 @@ class LearnedCircleDetector:
             img = cv2.copyMakeBorder(img, 0, ph - h, 0, pw - w, cv2.BORDER_REPLICATE)
         small = cv2.resize(img, (iw, ih), interpolation=cv2.INTER_AREA)
         out = self.net.run(_to_input(small[None]))[0]
-        heat = np.ascontiguousarray(out[0], np.float32)
-        peaks = (heat >= self.config.threshold) & (heat >= cv2.dilate(heat, np.ones((3, 3), np.uint8)))
-        ys, xs = np.nonzero(peaks)
-        scale = pw / iw
-        # cell (x, y) + offset -> input pixel -> image pixel, the inverse of the training targets'
-        # mapping (agents.perception.training.data: input pixel = image pixel / scale)
-        u = ((xs + out[2, ys, xs] + 0.5) * self.stride - 0.5) * scale
-        v = ((ys + out[3, ys, xs] + 0.5) * self.stride - 0.5) * scale
-        r = np.exp(out[1, ys, xs]) * scale
-        circles = np.column_stack([u, v, r]).astype(np.float64)
-        keep = np.isfinite(circles).all(axis=1)
-        return circles[keep], heat[ys, xs][keep].astype(np.float64)
+        return decode(out, pw / iw, self.config.threshold, self.stride)
 
     def refine(self, image: np.ndarray, circles: np.ndarray) -> np.ndarray:
         """The second network's circles (n, 3) for proposals ``circles`` (n, 3), ``refine_passes`` times."""

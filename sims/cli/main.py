@@ -29,6 +29,7 @@ COMMANDS: dict[str, str] = {
     "score": "sims.cli.score",
     "simulate": "sims.cli.simulate",
     "perceive": "sims.cli.perceive",
+    "train-detector": "sims.cli.train_detector",
     "experiment": "sims.cli.experiment",
     "make-ensemble": "sims.cli.make_ensemble",
     "ensemble": "sims.cli.ensemble",

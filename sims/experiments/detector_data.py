@@ -16,79 +16,31 @@ A shard (``<source>-<seed>.npz``) holds, for ``n`` frames and ``m`` circles in a
 - ``scale`` (n,) float: full-resolution pixels per input pixel;
 - ``circles`` (m, 5) float32: frame index, u, v, r (silhouette circle, full-resolution pixels) and the
   visible fraction of the disc;
-- ``crops`` (m, C, C, 3) uint8: a square crop of the full-resolution frame centred on each circle,
-  ``CROP_SPAN`` radii wide, resized to C x C (default 64): the second stage's training data.
+- ``crops`` (m, 64, 64, 3) uint8: a square crop of the full-resolution frame centred on each circle,
+  4 radii wide (:func:`agents.perception.crops.crop_circle`): the second stage's training data.
 
-Written by :func:`write_shard`; ``python -m sims.experiments.detector_data OUTDIR --varied 2000:2100``
+(:mod:`agents.perception.training.data`.) ``python -m sims.experiments.detector_data OUTDIR --varied 2000:2100``
 renders a range of seeds (see ``--help``).
 """
 
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-from agents.perception.crops import CROP_SIZE, CROP_SPAN, crop_circle
+from agents.perception.training.data import shard_from_frames, write_shard
 from decentral.errors import InputError
 from sims.experiments.varied_scenes import HELD_OUT_SEEDS, sequence
-from sims.io.atomic import write_atomic
 
-__all__ = ["TRAIN_VARIED_SEEDS", "TRAIN_TABLE1_SEEDS", "CROP_SPAN", "frame_record", "varied_shard",
-           "table1_shard", "write_shard", "shard_from_frames"]  # CROP_SPAN: re-exported
+__all__ = ["TRAIN_TABLE1_SEEDS", "TRAIN_VARIED_SEEDS", "table1_shard", "varied_shard"]
 
 #: first scene seed of the varied training scenes (0-31 tuned the hand-made detectors, 1000-1007 held out)
 TRAIN_VARIED_SEEDS = 2000
 #: first seed of the table1 training runs (the experiments and benchmarks use 0-9)
 TRAIN_TABLE1_SEEDS = 100
-
-
-def frame_record(image: np.ndarray, circles: np.ndarray, *, input_size: tuple[int, int] = (256, 192),
-                 crop: int = CROP_SIZE) -> tuple[np.ndarray, float, np.ndarray]:
-    """One frame's training record: the input-sized image, its scale and the circles' crops.
-
-    Parameters
-    ----------
-    image : ndarray, shape (H, W, 3) uint8 BGR
-    circles : ndarray, shape (m, 3)
-        Silhouette circles (u, v, r) in full-resolution pixels.
-    input_size : (width, height)
-        The network's input; the frame must have the same aspect ratio.
-
-    Returns
-    -------
-    small : ndarray, shape (height, width, 3) uint8
-    scale : float
-        Full-resolution pixels per input pixel.
-    crops : ndarray, shape (m, crop, crop, 3) uint8
-    """
-    h, w = image.shape[:2]
-    iw, ih = input_size
-    if abs(w / iw - h / ih) > 1e-6 * w:
-        raise InputError(f"frame {w}x{h} does not have the input's aspect ratio {iw}x{ih}", field="image")
-    small = cv2.resize(image, (iw, ih), interpolation=cv2.INTER_AREA)
-    crops = np.stack([crop_circle(image, u, v, r, crop) for u, v, r in circles]) if len(circles) else \
-        np.zeros((0, crop, crop, 3), np.uint8)
-    return small, w / iw, crops
-
-
-def shard_from_frames(frames, *, input_size=(256, 192), crop: int = CROP_SIZE) -> dict[str, np.ndarray]:
-    """A shard's arrays from ``frames``: an iterable of (image, circles (m, 4): u, v, r, visible)."""
-    images, scales, circles, crops = [], [], [], []
-    for k, (image, truth) in enumerate(frames):
-        truth = np.asarray(truth, float).reshape(-1, 4)
-        small, scale, cr = frame_record(image, truth[:, :3], input_size=input_size, crop=crop)
-        images.append(small)
-        scales.append(scale)
-        circles.append(np.column_stack([np.full(len(truth), k), truth]))
-        crops.append(cr)
-    return {"images": np.stack(images), "scale": np.asarray(scales, np.float32),
-            "circles": np.concatenate(circles).astype(np.float32) if circles else np.zeros((0, 5), np.float32),
-            "crops": np.concatenate(crops) if crops else np.zeros((0, crop, crop, 3), np.uint8)}
 
 
 def varied_shard(seed: int, frames: int, **kw) -> dict[str, np.ndarray]:
@@ -109,11 +61,6 @@ def table1_shard(seed: int, steps: int, *, scenario: str = "table1", **kw) -> di
     sim = simulate(get_scenario(scenario, steps=steps), seed=seed)
     return shard_from_frames(((fr.image, [(n["su"], n["sv"], n["sr"], n["visible"]) for n in fr.nodes])
                               for _, _, fr in render_frames(sim, seed, RenderConfig())), **kw)
-
-
-def write_shard(path: str | os.PathLike, arrays: dict[str, np.ndarray]) -> None:
-    """Write a shard whole or not at all (compressed npz)."""
-    write_atomic(Path(path), lambda fh: np.savez_compressed(fh, **arrays), binary=True)
 
 
 def _range(text: str) -> range:

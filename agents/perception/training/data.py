@@ -26,8 +26,21 @@ import numpy as np
 from agents.perception.crops import CROP_SIZE, crop_circle, refine_input
 from decentral.errors import InputError
 
-__all__ = ["INPUT_SIZE", "STRIDE", "MIN_VISIBLE", "Shards", "frame_record", "shard_from_frames", "shard_from_labels",
-           "write_shard", "load_shards", "detector_targets", "to_input", "detector_batch", "refine_batch"]
+__all__ = [
+    "INPUT_SIZE",
+    "MIN_VISIBLE",
+    "STRIDE",
+    "Shards",
+    "detector_batch",
+    "detector_targets",
+    "frame_record",
+    "load_shards",
+    "refine_batch",
+    "shard_from_frames",
+    "shard_from_labels",
+    "to_input",
+    "write_shard",
+]
 
 #: the network's input (width, height) and output stride (input pixels per heatmap cell)
 INPUT_SIZE = (256, 192)

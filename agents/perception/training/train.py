@@ -24,7 +24,7 @@ from torch.nn import functional as F
 from agents.perception.training.data import Shards, detector_batch, refine_batch
 from agents.perception.training.model import CircleNet, RefineNet
 
-__all__ = ["TrainConfig", "train", "export_onnx", "focal_loss"]
+__all__ = ["TrainConfig", "export_onnx", "focal_loss", "train"]
 
 
 @dataclass(frozen=True)
