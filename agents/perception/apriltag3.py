@@ -24,13 +24,15 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from agents.perception.apriltag import FAMILIES, AprilTagConfig, AprilTagIdentifier
+from agents.perception.apriltag import AprilTagConfig, AprilTagIdentifier
 from agents.perception.hough import to_grey
 from agents.perception.types import Circle, Identifier, TagRead
 
-__all__ = ["AprilTag3Config", "AprilTag3Identifier", "apriltag3_available", "make_identifier"]
+__all__ = ["AprilTag3Config", "AprilTag3Identifier", "apriltag3_available", "make_identifier", "AT3_FAMILIES"]
 
 _ORDER = np.array([1, 0, 3, 2])  # the library's corners -> TL, TR, BR, BL
+#: the families of :data:`~agents.perception.apriltag.FAMILIES` the library decodes (not tag36h10)
+AT3_FAMILIES = ("tag36h11", "tag25h9", "tag16h5")
 
 
 def apriltag3_available() -> bool:
@@ -49,7 +51,7 @@ class AprilTag3Config:
     Attributes
     ----------
     family : str
-        Tag family (a key of :data:`~agents.perception.apriltag.FAMILIES`).
+        Tag family, one of :data:`AT3_FAMILIES`.
     tag_table : mapping of int to int, optional
         Tag id -> node id (default: node id = tag id).
     max_hamming : int
@@ -84,20 +86,32 @@ class AprilTag3Identifier:
         from pupil_apriltags import Detector
 
         self.config = cfg = config or AprilTag3Config()
-        if cfg.family not in FAMILIES:
-            raise ValueError(f"unknown tag family {cfg.family!r}; known: {', '.join(FAMILIES)}")
+        if cfg.family not in AT3_FAMILIES:
+            raise ValueError(f"unknown tag family {cfg.family!r} for AprilTag 3; known: {', '.join(AT3_FAMILIES)}")
         self._detector = Detector(families=cfg.family, nthreads=1, quad_decimate=1.0, refine_edges=1,
                                   decode_sharpening=cfg.decode_sharpening)
         self.fallback = (fallback or AprilTagIdentifier(AprilTagConfig(family=cfg.family, tag_table=cfg.tag_table))) \
             if cfg.fallback else None
 
     def close(self) -> None:
-        """Unregister the families before the detector goes (pupil-apriltags 1.0.4 frees them twice otherwise)."""
+        """Free the C detector and its families, in an order that is safe.
+
+        pupil-apriltags 1.0.4's own destructor frees the families first and then the detector, whose
+        destructor reads them again (a use after free that crashed a benchmark): here the families
+        are unregistered from the detector first.
+        """
         d = getattr(self, "_detector", None)
-        if d is not None and getattr(d, "tag_detector_ptr", None) is not None:
-            d.libc.apriltag_detector_clear_families.restype = None
-            d.libc.apriltag_detector_clear_families(d.tag_detector_ptr)
-            d.tag_detector_ptr = None
+        if d is None or getattr(d, "tag_detector_ptr", None) is None:
+            return
+        for fn in ("apriltag_detector_clear_families", "apriltag_detector_destroy"):
+            getattr(d.libc, fn).restype = None
+        d.libc.apriltag_detector_clear_families(d.tag_detector_ptr)
+        for family, tf in d.tag_families.items():
+            destroy = getattr(d.libc, f"{family}_destroy")
+            destroy.restype = None
+            destroy(tf)
+        d.libc.apriltag_detector_destroy(d.tag_detector_ptr)
+        d.tag_detector_ptr = None
 
     def __del__(self):
         self.close()
@@ -149,7 +163,8 @@ class AprilTag3Identifier:
 def make_identifier(family: str = "tag36h11", tag_table: Mapping[int, int] | None = None) -> Identifier:
     """The default tag reader: :class:`AprilTag3Identifier` (OpenCV's reader as its fallback), or
     OpenCV's :class:`~agents.perception.apriltag.AprilTagIdentifier` alone where ``pupil-apriltags``
-    is not installed. Raises ValueError for an unknown family."""
-    if apriltag3_available():
+    is not installed or the family is not one of :data:`AT3_FAMILIES` (tag36h10). Raises ValueError
+    for an unknown family."""
+    if apriltag3_available() and family in AT3_FAMILIES:
         return AprilTag3Identifier(AprilTag3Config(family=family, tag_table=tag_table))
     return AprilTagIdentifier(AprilTagConfig(family=family, tag_table=tag_table))

@@ -71,3 +71,19 @@ def test_unknown_family_is_refused():
     """An unknown family raises ValueError."""
     with pytest.raises(ValueError, match="unknown tag family"):
         make_identifier("tag99h1")
+
+
+def test_family_the_library_lacks_falls_back_to_opencvs_reader():
+    """tag36h10 (not in the AprilTag 3 binding) gets OpenCV's reader."""
+    assert isinstance(make_identifier("tag36h10"), AprilTagIdentifier)
+
+
+def test_many_readers_created_and_freed_do_not_crash():
+    """Readers are freed safely (the binding's own destructor order reads freed memory)."""
+    nodes = layout(0, count=2)
+    img = frame(nodes)
+    for _ in range(5):
+        ident = AprilTag3Identifier()
+        ident.identify(img, _circles(nodes))
+        ident.close()
+        del ident

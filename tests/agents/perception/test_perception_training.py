@@ -119,3 +119,26 @@ def test_cli_refuses_missing_shards_with_one_line(tmp_path, capsys):
     assert main(["train", str(tmp_path), "-o", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and str(tmp_path) in err[0]
+
+
+def test_only_the_training_modules_import_torch():
+    """torch is imported by agents/perception/training/{model,train}.py only, and the package loads without it."""
+    import ast
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[3]
+    allowed = {"agents/perception/training/model.py", "agents/perception/training/train.py"}
+    offenders = []
+    for layer in ("decentral", "protocols", "agents", "sims"):
+        for path in (root / layer).rglob("*.py"):
+            tree = ast.parse(path.read_text(), filename=str(path))
+            names = [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
+            names += [n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module]
+            rel = str(path.relative_to(root))
+            offenders += [rel for n in names if n.split(".")[0] == "torch" and rel not in allowed]
+    assert not offenders, offenders
+    code = ("import sys\nimport agents.perception, agents.perception.learned, agents.perception.training.data\n"
+            "from sims.cli.main import build_parser\nbuild_parser()\nassert 'torch' not in sys.modules\n")
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=root)
