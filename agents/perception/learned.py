@@ -12,7 +12,10 @@ data, training and scores):
    each circle, at full resolution, resampled to 32 x 32 (:mod:`agents.perception.crops`), gives the
    true circle relative to it. It was trained on partly hidden spheres too, so such a sphere's radius
    comes from its visible rim.
-3. Circles whose centres lie within half the smaller radius of a better one are dropped.
+3. A circle whose last pass still moved it by more than ``converge`` (5 %) of its radius has not
+   settled on a rim and is dropped: on the validation scenes this removed most false and double
+   circles (0.19-0.35 false circles per sphere to 0-0.04) for 0-0.1 of the recall.
+4. Circles whose centres lie within half the larger radius of a better one are dropped.
 
 The networks run with OpenCV's ``dnn`` module (no other dependency) or, with ``backend="onnxruntime"``,
 with onnxruntime if it is installed; one thread by default. Both files ship with the package: nothing
@@ -56,6 +59,11 @@ class LearnedConfig:
         ``"opencv"`` (``cv2.dnn``) or ``"onnxruntime"``.
     threads : int
         Threads of the onnxruntime backend (OpenCV's are set process-wide by ``cv2.setNumThreads``).
+    converge : float
+        A circle whose last second-stage pass still moved its centre or changed its radius by more
+        than this fraction of its radius is dropped (it has not settled on a rim); 1: keep all.
+    overlap : float
+        A circle whose centre lies within ``overlap`` times the larger radius of a better circle is dropped.
     """
 
     model: str | os.PathLike = MODEL_DIR / "circles.onnx"
@@ -66,6 +74,8 @@ class LearnedConfig:
     max_radius: float = 160.0
     backend: str = "opencv"
     threads: int = 1
+    converge: float = 0.05
+    overlap: float = 0.5
 
 
 class _Net:
@@ -160,10 +170,11 @@ class LearnedCircleDetector:
         out = self.net.run(_to_input(small[None]))[0]
         return decode(out, pw / iw, self.config.threshold, self.stride)
 
-    def refine(self, image: np.ndarray, circles: np.ndarray) -> np.ndarray:
-        """The second network's circles (n, 3) for proposals ``circles`` (n, 3), ``refine_passes`` times."""
+    def refine(self, image: np.ndarray, circles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The second network's circles (n, 3) for proposals ``circles`` (n, 3), ``refine_passes`` times,
+        and the size of each circle's last correction (n,) in radii (0 without a second stage)."""
         if self.refiner is None or not len(circles):
-            return circles
+            return circles, np.zeros(len(circles))
         img = np.asarray(image)
         if img.ndim == 2:
             img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
@@ -174,7 +185,7 @@ class LearnedCircleDetector:
             d = self.refiner.run(_to_input(x)).astype(np.float64)
             d = np.clip(d, [-0.5, -0.5, np.log(0.6)], [0.5, 0.5, np.log(1.6)])
             c = np.column_stack([c[:, 0] + d[:, 0] * c[:, 2], c[:, 1] + d[:, 1] * c[:, 2], c[:, 2] * np.exp(d[:, 2])])
-        return c
+        return c, np.maximum(np.hypot(d[:, 0], d[:, 1]), np.abs(np.expm1(d[:, 2])))
 
     def detect(self, image: np.ndarray) -> list[Circle]:
         """Circles, best heatmap peak first."""
@@ -183,13 +194,13 @@ class LearnedCircleDetector:
             return []
         cfg = self.config
         circles, scores = self.proposals(img)
-        circles = self.refine(img, circles)
-        ok = (circles[:, 2] >= cfg.min_radius) & (circles[:, 2] <= cfg.max_radius) if len(circles) else np.zeros(0, bool)
+        circles, moved = self.refine(img, circles)
+        ok = (circles[:, 2] >= cfg.min_radius) & (circles[:, 2] <= cfg.max_radius) & (moved <= cfg.converge)
         circles, scores = circles[ok], scores[ok]
         kept: list[Circle] = []
         for i in np.argsort(-scores, kind="stable"):
             u, v, r = circles[i]
-            if any(np.hypot(u - k.u, v - k.v) < 0.5 * min(r, k.r) for k in kept):
+            if any(np.hypot(u - k.u, v - k.v) < cfg.overlap * max(r, k.r) for k in kept):
                 continue
             kept.append(Circle(float(u), float(v), float(r), float(min(max(scores[i], 0.0), 1.0))))
         return kept
