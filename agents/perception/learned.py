@@ -17,8 +17,8 @@ data, training and scores):
    circles (0.19-0.35 false circles per sphere to 0-0.04) for 0-0.1 of the recall.
 4. Circles whose centres lie within half the larger radius of a better one are dropped.
 
-The networks run with OpenCV's ``dnn`` module (no other dependency) or, with ``backend="onnxruntime"``,
-with onnxruntime if it is installed; one thread by default. Both files ship with the package: nothing
+The networks run with onnxruntime (a dependency; the faster here) or OpenCV's ``dnn`` module
+(``backend="opencv"``, also the fallback where onnxruntime is missing); one thread by default. Both files ship with the package: nothing
 is downloaded.
 """
 
@@ -56,7 +56,9 @@ class LearnedConfig:
     min_radius, max_radius : float
         Circles outside this range (px) are dropped.
     backend : str
-        ``"opencv"`` (``cv2.dnn``) or ``"onnxruntime"``.
+        ``"onnxruntime"``, ``"opencv"`` (``cv2.dnn``) or ``"auto"`` (onnxruntime where it is
+        installed, else OpenCV): both give the same circles (within 0.01 px); onnxruntime ran the
+        second stage 1.7 times as fast (3.2 against 5.5 ms for 7 crops) and the proposals 1.8 times.
     threads : int
         Threads of the onnxruntime backend (OpenCV's are set process-wide by ``cv2.setNumThreads``).
     converge : float
@@ -68,11 +70,11 @@ class LearnedConfig:
 
     model: str | os.PathLike = MODEL_DIR / "circles.onnx"
     refine_model: str | os.PathLike | None = MODEL_DIR / "circle_refine.onnx"
-    threshold: float = 0.35
-    refine_passes: int = 2
+    threshold: float = 0.3
+    refine_passes: int = 4
     min_radius: float = 8.0
     max_radius: float = 160.0
-    backend: str = "opencv"
+    backend: str = "auto"
     threads: int = 1
     converge: float = 0.05
     overlap: float = 0.5
@@ -83,6 +85,12 @@ class _Net:
 
     def __init__(self, path, backend: str, threads: int):
         path = Path(path)
+        if backend == "auto":
+            try:
+                import onnxruntime  # noqa: F401
+                backend = "onnxruntime"
+            except ImportError:
+                backend = "opencv"
         if not path.is_file():
             raise InputError("model file not found", source=str(path))
         self.backend = backend
@@ -146,6 +154,8 @@ class LearnedCircleDetector:
 
     input_size = (256, 192)
     stride = 4
+    #: a circle whose correction falls below this (radii) is not passed again
+    settled = 0.01
 
     def __init__(self, config: LearnedConfig | None = None):
         self.config = cfg = config or LearnedConfig()
@@ -180,12 +190,20 @@ class LearnedCircleDetector:
             img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
         img = img[..., :3]
         c = circles.copy()
+        moved = np.full(len(c), np.inf)
+        active = np.ones(len(c), bool)  # circles still moving (a settled one keeps its last correction)
         for _ in range(self.config.refine_passes):
-            x = np.stack([refine_input(crop_circle(img, u, v, r, CROP_SIZE)) for u, v, r in c])
+            idx = np.nonzero(active)[0]
+            if not len(idx):
+                break
+            x = np.stack([refine_input(crop_circle(img, u, v, r, CROP_SIZE)) for u, v, r in c[idx]])
             d = self.refiner.run(_to_input(x)).astype(np.float64)
             d = np.clip(d, [-0.5, -0.5, np.log(0.6)], [0.5, 0.5, np.log(1.6)])
-            c = np.column_stack([c[:, 0] + d[:, 0] * c[:, 2], c[:, 1] + d[:, 1] * c[:, 2], c[:, 2] * np.exp(d[:, 2])])
-        return c, np.maximum(np.hypot(d[:, 0], d[:, 1]), np.abs(np.expm1(d[:, 2])))
+            r = c[idx, 2]
+            c[idx] = np.column_stack([c[idx, 0] + d[:, 0] * r, c[idx, 1] + d[:, 1] * r, r * np.exp(d[:, 2])])
+            moved[idx] = np.maximum(np.hypot(d[:, 0], d[:, 1]), np.abs(np.expm1(d[:, 2])))
+            active[idx] = moved[idx] > self.settled
+        return c, moved
 
     def detect(self, image: np.ndarray) -> list[Circle]:
         """Circles, best heatmap peak first."""

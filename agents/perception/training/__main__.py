@@ -47,6 +47,9 @@ def main(argv=None) -> int:
     tr.add_argument("--lr", type=float, default=2e-3)
     tr.add_argument("--seed", type=int, default=0)
     tr.add_argument("--eval-every", type=int, default=100)
+    tr.add_argument("--warmup", type=int, default=100, help="learning-rate warm-up steps (default 100)")
+    tr.add_argument("--init", type=Path, default=None,
+                    help="start from OUT-like folder of an earlier run (its circles.pt / circle_refine.pt): fine-tuning")
     tr.add_argument("--validation", nargs="+", default=["varied-*9.npz", "table1-*9.npz"],
                     help="name patterns of the validation shards (default: seeds ending in 9)")
     tr.add_argument("--oversample", nargs="+", default=[], metavar="PATTERN=N",
@@ -85,8 +88,13 @@ def main(argv=None) -> int:
         for network, steps in (("detector", args.steps), ("refine", args.refine_steps)):
             if args.network in (network, "both"):
                 cfg = TrainConfig(steps=steps, batch=args.batch if network == "detector" else 4 * args.batch,
-                                  lr=args.lr, seed=args.seed, eval_every=args.eval_every)
-                train(network, data, val, args.out, cfg, extra=extra, progress=lambda s: print(s, flush=True))
+                                  lr=args.lr, seed=args.seed, eval_every=args.eval_every, warmup=args.warmup)
+                init = None
+                if args.init is not None:
+                    init = args.init / ("circles.pt" if network == "detector" else "circle_refine.pt")
+                    if not init.is_file():
+                        raise InputError("no earlier weights to start from", source=str(init))
+                train(network, data, val, args.out, cfg, extra=extra, progress=lambda s: print(s, flush=True), init=init)
     except InputError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

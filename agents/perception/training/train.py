@@ -106,11 +106,12 @@ def _plot(log: dict, path: Path) -> None:
 
 
 def train(network: str, data: Shards, val: Shards, out: str | os.PathLike, config: TrainConfig = TrainConfig(),
-          *, name: str | None = None, progress=print, extra: dict | None = None) -> dict:
+          *, name: str | None = None, progress=print, extra: dict | None = None, init: str | os.PathLike | None = None) -> dict:
     """Train ``network`` ("detector" or "refine") and write ``out/<name>.onnx`` and ``out/<name>_training.{json,png}``.
 
-    Returns the training log (also the JSON file): configuration, per-step training loss, validation
-    losses, best step, wall and CPU seconds.
+    ``init`` (a ``.pt`` state dict written by an earlier run) starts from those weights (fine-tuning,
+    e.g. on a user's own labelled frames). Returns the training log (also the JSON file):
+    configuration, per-step training loss, validation losses, best step, wall and CPU seconds.
     """
     if network not in ("detector", "refine"):
         raise ValueError(f"unknown network {network!r} (detector or refine)")
@@ -140,8 +141,10 @@ def train(network: str, data: Shards, val: Shards, out: str | os.PathLike, confi
 
         def batch(idx):
             return refine_batch(data, usable[idx], rng)
+    if init is not None:
+        net.load_state_dict(torch.load(init, weights_only=True))
     opt = torch.optim.AdamW(net.parameters(), lr=config.lr, weight_decay=config.weight_decay)
-    log = {"network": network, "config": asdict(config), "train_items": int(n_train),
+    log = {"network": network, "config": asdict(config), "init": None if init is None else str(init), "train_items": int(n_train),
            "validation_items": int(sum(len(b[0]) for b in val_batches)), "train": [], "validation": [],
            "parts": [], **(extra or {})}
     best = math.inf
