@@ -32,16 +32,16 @@ def _range(text: str) -> range:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("out", metavar="OUT", type=Path, help="output folder (shards in OUT/shards, models in OUT)")
     parser.add_argument("--varied", type=_range, default=range(2000, 2180), metavar="FIRST:STOP",
-                        help="varied scene seeds to render (default 2000:2180)")
-    parser.add_argument("--varied-frames", type=int, default=10, help="frames per varied scene (default 10)")
+                        help="varied scene seeds to render (default: 2000:2180)")
+    parser.add_argument("--varied-frames", type=int, default=10, help="frames per varied scene (default: 10)")
     parser.add_argument("--table1", type=_range, default=range(100, 109), metavar="FIRST:STOP",
-                        help="table1 run seeds to render (default 100:109)")
-    parser.add_argument("--table1-steps", type=int, default=30, help="steps per table1 run (default 30)")
+                        help="table1 run seeds to render (default: 100:109)")
+    parser.add_argument("--table1-steps", type=int, default=30, help="steps per table1 run (default: 30)")
     parser.add_argument("--labels", type=Path, nargs="*", default=[], metavar="LABELS.json",
                         help="your labelled frames: {\"frames\": [{\"image\": ..., \"circles\": [[u, v, r], ...]}]}")
-    parser.add_argument("--steps", type=int, default=900, help="proposal network steps (default 900)")
-    parser.add_argument("--refine-steps", type=int, default=2500, help="second-stage steps (default 2500)")
-    parser.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
+    parser.add_argument("--steps", type=int, default=900, help="proposal network steps (default: 900)")
+    parser.add_argument("--refine-steps", type=int, default=2500, help="second-stage steps (default: 2500)")
+    parser.add_argument("--seed", type=int, default=0, help="training seed (default: 0)")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -41,13 +41,13 @@ def main(argv=None) -> int:
     tr.add_argument("shards", type=Path)
     tr.add_argument("-o", "--out", type=Path, required=True)
     tr.add_argument("--network", choices=("detector", "refine", "both"), default="both")
-    tr.add_argument("--steps", type=int, default=3000, help="detector steps (default 3000)")
-    tr.add_argument("--refine-steps", type=int, default=4000, help="second-stage steps (default 4000)")
+    tr.add_argument("--steps", type=int, default=3000, help="detector steps (default: 3000)")
+    tr.add_argument("--refine-steps", type=int, default=4000, help="second-stage steps (default: 4000)")
     tr.add_argument("--batch", type=int, default=24)
     tr.add_argument("--lr", type=float, default=2e-3)
     tr.add_argument("--seed", type=int, default=0)
     tr.add_argument("--eval-every", type=int, default=100)
-    tr.add_argument("--warmup", type=int, default=100, help="learning-rate warm-up steps (default 100)")
+    tr.add_argument("--warmup", type=int, default=100, help="learning-rate warm-up steps (default: 100)")
     tr.add_argument("--init", type=Path, default=None,
                     help="start from OUT-like folder of an earlier run (its circles.pt / circle_refine.pt): fine-tuning")
     tr.add_argument("--validation", nargs="+", default=["varied-*9.npz", "table1-*9.npz"],
