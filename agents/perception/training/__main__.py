@@ -68,6 +68,7 @@ def main(argv=None) -> int:
             return 0
         if min(args.steps, args.refine_steps, args.batch, args.eval_every) < 1 or args.lr <= 0:
             raise InputError("--steps, --refine-steps, --batch, --eval-every and --lr must be positive", field="options")
+        train_files, val_files = _split(args.shards, args.validation)
         os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
         try:
             from agents.perception.training.train import TrainConfig, train
@@ -75,7 +76,6 @@ def main(argv=None) -> int:
             raise InputError(f"training needs PyTorch (pip install 'decentral[train]'): {exc}", field="torch") from None
         from agents.perception.training.data import load_shards
 
-        train_files, val_files = _split(args.shards, args.validation)
         for item in args.oversample:
             pattern, _, times = item.rpartition("=")
             if not pattern or not times.isdigit() or int(times) < 1:
