@@ -142,3 +142,16 @@ def test_only_the_training_modules_import_torch():
     code = ("import sys\nimport agents.perception, agents.perception.learned, agents.perception.training.data\n"
             "from sims.cli.main import build_parser\nbuild_parser()\nassert 'torch' not in sys.modules\n")
     subprocess.run([sys.executable, "-c", code], check=True, cwd=root)
+
+
+@pytest.mark.slow
+def test_train_detector_command_renders_and_trains(tmp_path):
+    """`decentral train-detector` renders shards, trains both networks for a few steps and writes both ONNX files."""
+    pytest.importorskip("torch", reason="training needs PyTorch (the `train` extra)")
+    from sims.cli.main import main
+
+    out = tmp_path / "det"
+    assert main(["train-detector", str(out), "--varied", "2008:2010", "--varied-frames", "1", "--table1", "100:100",
+                 "--steps", "2", "--refine-steps", "2"]) == 0
+    assert (out / "circles.onnx").is_file() and (out / "circle_refine.onnx").is_file()
+    assert sorted(p.name for p in (out / "shards").glob("*.npz")) == ["varied-2008.npz", "varied-2009.npz"]
