@@ -7,11 +7,11 @@ Two sets of frames:
   highlights, lighting gradients, tags on the cap, occlusion by spheres and struts, smear), on the
   held-out scene seeds (no parameter was tuned on them; ``--tuning`` adds the tuning seeds), each
   circle detector of ``--detectors`` side by side (default all: ``hough``, the default, and the
-  opt-in ``rim`` and ``symmetry``). Per scene and detector: recall (a detection within max(2 px, 0.1 r) of a
+  opt-in ``rim``, ``symmetry`` and ``learned``). Per scene and detector: recall (a detection within max(2 px, 0.1 r) of a
   sphere's centre and 10 % of its radius; spheres at least half visible), radius error, false and double circles per sphere, wrong ids, ids carried
   through frames without a tag read (:mod:`sims.experiments.perception_scores`). Tag reads, ours
-  (OpenCV's quads inside our circles, no tracking) against the AprilTag 3 C library on the whole
-  grey frame (``pupil-apriltags``, the ``bench`` extra; skipped with a note when not installed):
+  (the default reader inside our circles: the AprilTag 3 library, OpenCV's quads where it reads
+  nothing; no tracking) against the AprilTag 3 C library on the whole grey frame (``pupil-apriltags``, the ``bench`` extra; skipped with a note when not installed):
   share of facing tags read, wrong ids, CPU time per frame.
 - ``rendered``: the 3-D renderer's ``table1`` and ``multi`` scenarios (seed 0), images only and with
   the log's camera model (see docs/perception.md).
@@ -77,7 +77,8 @@ def _match(dets, nodes, w, h):
 
 
 def _run(sim, frames, mode: str, repeats: int = 1, detector: str = "hough") -> dict:
-    from agents.perception import AprilTagIdentifier, Perception, make_detector
+    from agents.perception import Perception, make_detector
+    from agents.perception.apriltag3 import make_identifier
     from agents.perception.motion import odometry_homography
     from agents.perception.sphere_tags import SphereTagIdentifier
 
@@ -91,7 +92,7 @@ def _run(sim, frames, mode: str, repeats: int = 1, detector: str = "hough") -> d
             ident = SphereTagIdentifier(cam.K, log.node_radius)
             p = Perception(make_detector(detector), ident, motion=None)
         else:  # images only: image registration for the tracker
-            ident = AprilTagIdentifier()
+            ident = make_identifier()
             p = Perception(make_detector(detector), ident)
         cpu_t = np.full((repeats, len(seq)), np.inf)
         wall_t = np.full((repeats, len(seq)), np.inf)

@@ -7,6 +7,8 @@ fits the tag (large spheres coloured like the floor, a tag near the limb, partly
 about five times the cost. ``"symmetry"`` is :class:`~agents.perception.symmetry_detector.SymmetryCircleDetector`:
 colour-edge radial-symmetry candidates verified on the rim; the best recall on the varied frames at
 about three times the default's cost, but worse than the default on the rendered ``table1`` frames.
+``"learned"`` is :class:`~agents.perception.learned.LearnedCircleDetector`: two small networks
+shipped with the package (proposals, then a second stage per circle), run by OpenCV's ``dnn``.
 docs/perception.md gives the measured figures.
 """
 
@@ -21,7 +23,7 @@ from agents.perception.types import CircleDetector
 
 __all__ = ["DETECTORS", "make_detector"]
 
-DETECTORS = ("hough", "rim", "symmetry")
+DETECTORS = ("hough", "rim", "symmetry", "learned")
 
 
 def make_detector(name: str = "hough", min_radius: float = 8.0, max_radius: float = 160.0) -> CircleDetector:
@@ -39,4 +41,8 @@ def make_detector(name: str = "hough", min_radius: float = 8.0, max_radius: floa
         return RimCircleDetector(RimConfig(min_radius=lo, max_radius=hi))
     if name == "symmetry":
         return SymmetryCircleDetector(SymmetryConfig(min_radius=lo, max_radius=hi))
+    if name == "learned":
+        from agents.perception.learned import LearnedCircleDetector, LearnedConfig
+
+        return LearnedCircleDetector(LearnedConfig(min_radius=min_radius, max_radius=max_radius))
     raise ValueError(f"unknown detector {name!r} (expected one of {', '.join(DETECTORS)})")

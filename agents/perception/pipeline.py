@@ -13,7 +13,7 @@ from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
-from agents.perception.apriltag import AprilTagConfig, AprilTagIdentifier
+from agents.perception.apriltag3 import make_identifier
 from agents.perception.detectors import make_detector
 from agents.perception.motion import FlowRegistration
 from agents.perception.tracking import CircleTracker
@@ -43,7 +43,8 @@ class Perception:
         (the default, :class:`~agents.perception.hough.HoughCircleDetector`) or ``"rim"``
         (:class:`~agents.perception.rim.RimCircleDetector`).
     identifier : Identifier, optional
-        Default :class:`~agents.perception.apriltag.AprilTagIdentifier` (tag36h11).
+        Default :func:`~agents.perception.apriltag3.make_identifier` (tag36h11): the AprilTag 3
+        library inside each circle, OpenCV's reader where it reads nothing.
     tracker : Tracker or None
         Default :class:`~agents.perception.tracking.CircleTracker`; ``track=False`` disables it
         (then a detection's node id is its tag read's, and its track is None).
@@ -62,7 +63,7 @@ class Perception:
         motion: MotionSource | None | str = "flow",
     ):
         self.detector = make_detector(detector) if isinstance(detector, str) else detector or make_detector()
-        self.identifier = identifier or AprilTagIdentifier(AprilTagConfig())
+        self.identifier = identifier or make_identifier()
         self.tracker = (tracker or CircleTracker()) if track else None
         if motion == "flow":
             motion = FlowRegistration() if track else None

@@ -42,6 +42,7 @@ COMMANDS: dict[str, str] = {
     "score": "sims.cli.score",
     "simulate": "sims.cli.simulate",
     "perceive": "sims.cli.perceive",
+    "train-detector": "sims.cli.train_detector",
     "experiment": "sims.cli.experiment",
     "make-ensemble": "sims.cli.make_ensemble",
     "ensemble": "sims.cli.ensemble",
@@ -61,7 +62,7 @@ COMMANDS: dict[str, str] = {
 GROUPS: dict[str, tuple[tuple[str, ...], str]] = {
     "Simulate and localize": (("demo", "simulate", "localize", "score", "experiment"),
                               "decentral simulate table1 -o run && decentral localize run/log.json -o run/est.json"),
-    "Your robots' data": (("perceive", "build-log", "export"),
+    "Your robots' data": (("perceive", "train-detector", "build-log", "export"),
                           "decentral build-log rig.toml -o log.json && decentral export est.json -o tum --format tum"),
     "Ensembles": (("make-ensemble", "ensemble"),
                   "decentral make-ensemble triple -n 1000 -o obs.npz --truth truth.npz && "

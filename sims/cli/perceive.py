@@ -40,10 +40,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--tag-table", metavar="TABLE.json", help='JSON object tag id -> node id (default: node id = tag id)')
     parser.add_argument("--min-radius", type=float, default=8.0, help="smallest node radius in pixels (default: 8)")
     parser.add_argument("--max-radius", type=float, default=160.0, help="largest node radius in pixels (default: 160)")
-    parser.add_argument("--detector", choices=("hough", "rim", "symmetry"), default="hough",
+    parser.add_argument("--detector", choices=("hough", "rim", "symmetry", "learned"), default="hough",
                         help="circle detector: hough (fast; default: hough), rim (finds the rim where hough fits "
                              "the tag on large low-contrast or partly hidden spheres; about 3x slower) or symmetry "
-                             "(colour-edge symmetry votes: the best recall on varied frames; about 3x slower)")
+                             "(colour-edge symmetry votes; about 3x slower) or learned (the shipped networks: proposals, then a "
+                             "second stage per circle)")
     parser.add_argument("--motion", choices=("auto", "flow", "odometry", "none"), default="auto",
                         help="camera-motion compensation for tracking: auto (default: the observer's "
                              "odometry when --log-template has it, else image registration), flow (image "
@@ -154,7 +155,8 @@ def perceive_paths(
     has odometry for the camera's assembly), the observer's rotation per step; without a log,
     ``"auto"`` is image registration. Frames over ``max_pixels`` pixels are refused before decoding.
     """
-    from agents.perception import AprilTagConfig, AprilTagIdentifier, Perception, make_detector
+    from agents.perception import Perception, make_detector
+    from agents.perception.apriltag3 import make_identifier
     from agents.perception.pipeline import perceive_frames
     from sims.io.validate import require_range
 
@@ -164,7 +166,7 @@ def perceive_paths(
         raise InputError("need --min-radius < --max-radius", field="--min-radius")
     circles = make_detector(detector, min_radius, max_radius)
     try:
-        identifier = AprilTagIdentifier(AprilTagConfig(family=family, tag_table=tag_table))
+        identifier = make_identifier(family, tag_table)
     except ValueError as err:
         raise InputError(str(err), field="--family") from None
     if log is None:

@@ -1,0 +1,105 @@
+"""Command line: train the learned circle detector on shards, or make a shard of labelled frames.
+
+``python -m agents.perception.training train SHARD_DIR -o OUT [--network detector|refine|both]
+[--steps N] [--seed S] [--validation PATTERN ...]`` trains on every ``*.npz`` in SHARD_DIR (sorted by
+name) except those matching a ``--validation`` pattern, which form the validation set; writes
+``OUT/circles.onnx`` and/or ``OUT/circle_refine.onnx`` with their loss curves.
+
+``python -m agents.perception.training label LABELS.json SHARD.npz`` turns a user's labelled frames
+(see :func:`agents.perception.training.data.shard_from_labels`) into a shard.
+
+Rendered training shards: ``python -m sims.experiments.detector_data``. Bad input ends with one
+line naming the file or option and exit status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import fnmatch
+import os
+import sys
+from pathlib import Path
+
+from decentral.errors import InputError
+
+
+def _split(folder: Path, patterns: list[str]) -> tuple[list[Path], list[Path]]:
+    files = sorted(folder.glob("*.npz"))
+    if not files:
+        raise InputError("no *.npz shards in the folder", source=str(folder))
+    val = [f for f in files if any(fnmatch.fnmatch(f.name, p) for p in patterns)]
+    train = [f for f in files if f not in val]
+    if not train or not val:
+        raise InputError("need training and validation shards (see --validation)", source=str(folder))
+    return train, val
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m agents.perception.training", description=__doc__.split("\n\n")[0])
+    sub = ap.add_subparsers(dest="command", required=True)
+    tr = sub.add_parser("train", help="train on a folder of shards")
+    tr.add_argument("shards", type=Path)
+    tr.add_argument("-o", "--out", type=Path, required=True)
+    tr.add_argument("--network", choices=("detector", "refine", "both"), default="both")
+    tr.add_argument("--steps", type=int, default=3000, help="detector steps (default: 3000)")
+    tr.add_argument("--refine-steps", type=int, default=4000, help="second-stage steps (default: 4000)")
+    tr.add_argument("--batch", type=int, default=24)
+    tr.add_argument("--lr", type=float, default=2e-3)
+    tr.add_argument("--seed", type=int, default=0)
+    tr.add_argument("--eval-every", type=int, default=100)
+    tr.add_argument("--warmup", type=int, default=100, help="learning-rate warm-up steps (default: 100)")
+    tr.add_argument("--init", type=Path, default=None,
+                    help="start from OUT-like folder of an earlier run (its circles.pt / circle_refine.pt): fine-tuning")
+    tr.add_argument("--validation", nargs="+", default=["varied-*9.npz", "table1-*9.npz"],
+                    help="name patterns of the validation shards (default: seeds ending in 9)")
+    tr.add_argument("--oversample", nargs="+", default=[], metavar="PATTERN=N",
+                    help="use the training shards matching PATTERN N times (e.g. 'table1-*=2')")
+    lb = sub.add_parser("label", help="a shard from labelled frames (JSON)")
+    lb.add_argument("labels", type=Path)
+    lb.add_argument("shard", type=Path)
+    args = ap.parse_args(argv)
+    try:
+        if args.command == "label":
+            from agents.perception.training.data import shard_from_labels, write_shard
+
+            arrays = shard_from_labels(args.labels)
+            write_shard(args.shard, arrays)
+            print(f"{args.shard}: {len(arrays['images'])} frames, {len(arrays['circles'])} circles")
+            return 0
+        if min(args.steps, args.refine_steps, args.batch, args.eval_every) < 1 or args.lr <= 0:
+            raise InputError("--steps, --refine-steps, --batch, --eval-every and --lr must be positive", field="options")
+        train_files, val_files = _split(args.shards, args.validation)
+        os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+        try:
+            from agents.perception.training.train import TrainConfig, train
+        except ImportError as exc:
+            raise InputError(f"training needs PyTorch (pip install 'decentral[train]'): {exc}", field="torch") from None
+        from agents.perception.training.data import load_shards
+
+        for item in args.oversample:
+            pattern, _, times = item.rpartition("=")
+            if not pattern or not times.isdigit() or int(times) < 1:
+                raise InputError(f"expected PATTERN=N, got {item!r}", field="--oversample")
+            train_files += [f for f in train_files if fnmatch.fnmatch(f.name, pattern)] * (int(times) - 1)
+        data, val = load_shards(train_files), load_shards(val_files)
+        extra = {"train_shards": [f.name for f in train_files], "validation_shards": [f.name for f in val_files]}
+        print(f"{len(data.images)} training frames ({len(train_files)} shards), {len(val.images)} validation frames",
+              flush=True)
+        for network, steps in (("detector", args.steps), ("refine", args.refine_steps)):
+            if args.network in (network, "both"):
+                cfg = TrainConfig(steps=steps, batch=args.batch if network == "detector" else 4 * args.batch,
+                                  lr=args.lr, seed=args.seed, eval_every=args.eval_every, warmup=args.warmup)
+                init = None
+                if args.init is not None:
+                    init = args.init / ("circles.pt" if network == "detector" else "circle_refine.pt")
+                    if not init.is_file():
+                        raise InputError("no earlier weights to start from", source=str(init))
+                train(network, data, val, args.out, cfg, extra=extra, progress=lambda s: print(s, flush=True), init=init)
+    except InputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

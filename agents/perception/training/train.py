@@ -1,0 +1,191 @@
+"""Training the learned detector's networks on the CPU, and their export to ONNX (PyTorch).
+
+:func:`train` runs one network (``"detector"``: :class:`~agents.perception.training.model.CircleNet`,
+``"refine"``: :class:`~agents.perception.training.model.RefineNet`) for a fixed number of steps from
+one seed: the same seed, shards and settings give the same weights up to floating-point noise
+(one thread; the batches and augmentations come from the seed). Every ``eval_every`` steps the
+validation loss is computed and the best weights so far are exported to ONNX, so a run stopped early
+still leaves its best model. The loss curves go to ``<name>_training.json`` and ``.png`` beside it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.nn import functional as F
+
+from agents.perception.training.data import Shards, detector_batch, refine_batch
+from agents.perception.training.model import CircleNet, RefineNet
+
+__all__ = ["TrainConfig", "export_onnx", "focal_loss", "train"]
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Steps, batch, learning rate (AdamW, linear warm-up then cosine decay), seed, evaluation period."""
+
+    steps: int = 3000
+    batch: int = 24
+    lr: float = 2e-3
+    weight_decay: float = 1e-4
+    warmup: int = 100
+    seed: int = 0
+    eval_every: int = 100
+    threads: int = 1
+
+
+def focal_loss(logit: torch.Tensor, heat: torch.Tensor, weight: torch.Tensor, pos: torch.Tensor) -> torch.Tensor:
+    """CenterNet's penalty-reduced focal loss (Zhou et al. 2019 eq. 1), per positive."""
+    logp, log1mp = F.logsigmoid(logit), F.logsigmoid(-logit)
+    p = torch.sigmoid(logit)
+    pos_loss = -(log1mp.exp() ** 2) * logp * pos
+    neg_loss = -((1 - heat) ** 4) * p ** 2 * log1mp * (1 - pos) * weight
+    return (pos_loss.sum() + neg_loss.sum()) / pos.sum().clamp(min=1.0)
+
+
+def _detector_loss(net: CircleNet, batch) -> tuple[torch.Tensor, dict]:
+    x, heat, weight, reg = (torch.from_numpy(a) for a in batch)
+    out = net.logits(x)
+    pos = reg[:, 3:4]
+    n = pos.sum().clamp(min=1.0)
+    hm = focal_loss(out[:, :1], heat, weight, pos)
+    rad = (torch.abs(out[:, 1:2] - reg[:, 0:1]) * pos).sum() / n
+    off = (torch.abs(out[:, 2:4] - reg[:, 1:3]) * pos).sum() / n
+    return hm + rad + off, {"heatmap": hm.item(), "log_radius": rad.item(), "offset": off.item()}
+
+
+def _refine_loss(net: RefineNet, batch) -> tuple[torch.Tensor, dict]:
+    x, y = (torch.from_numpy(a) for a in batch)
+    err = torch.abs(net(x) - y)
+    centre, radius = err[:, :2].mean(), err[:, 2].mean()
+    return centre + radius, {"centre": centre.item(), "log_radius": radius.item()}
+
+
+def export_onnx(net: torch.nn.Module, path: str | os.PathLike, shape: tuple[int, ...], output: str) -> None:
+    """Export ``net`` (eval mode) with one input ``image`` of ``shape`` and one output named ``output``."""
+    net.eval()
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.part")
+    with torch.no_grad():
+        torch.onnx.export(net, torch.zeros(shape), str(tmp), input_names=["image"], output_names=[output],
+                          opset_version=17, do_constant_folding=True, dynamo=False,
+                          dynamic_axes={"image": {0: "batch"}, output: {0: "batch"}} if output == "circle" else None)
+    os.replace(tmp, path)
+
+
+def _plot(log: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    tr = np.asarray(log["train"])
+    if len(tr):
+        k = max(1, len(tr) // 100)
+        smooth = np.convolve(tr[:, 1], np.ones(k) / k, mode="valid")
+        ax.plot(tr[k - 1:, 0], smooth, label=f"training (mean of {k} steps)")
+    va = np.asarray([(e["step"], e["loss"]) for e in log["validation"]])
+    if len(va):
+        ax.plot(va[:, 0], va[:, 1], "o-", ms=3, label="validation")
+    ax.set_xlabel("step")
+    ax.set_ylabel("loss")
+    ax.set_yscale("log")
+    ax.set_title(f"{log['network']}: loss", fontsize=9)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def train(network: str, data: Shards, val: Shards, out: str | os.PathLike, config: TrainConfig = TrainConfig(),
+          *, name: str | None = None, progress=print, extra: dict | None = None, init: str | os.PathLike | None = None) -> dict:
+    """Train ``network`` ("detector" or "refine") and write ``out/<name>.onnx`` and ``out/<name>_training.{json,png}``.
+
+    ``init`` (a ``.pt`` state dict written by an earlier run) starts from those weights (fine-tuning,
+    e.g. on a user's own labelled frames). Returns the training log (also the JSON file):
+    configuration, per-step training loss, validation losses, best step, wall and CPU seconds.
+    """
+    if network not in ("detector", "refine"):
+        raise ValueError(f"unknown network {network!r} (detector or refine)")
+    name = name or ("circles" if network == "detector" else "circle_refine")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    torch.set_num_threads(config.threads)
+    torch.manual_seed(config.seed)
+    rng = np.random.default_rng(config.seed)
+    val_rng = np.random.default_rng(12345)
+    if network == "detector":
+        net, loss_fn = CircleNet(), _detector_loss
+        n_train = len(data.images)
+        val_idx = np.arange(min(len(val.images), 240))
+        val_batches = [detector_batch(val, val_idx[i:i + config.batch], None) for i in range(0, len(val_idx), config.batch)]
+        shape, output = (1, 3, data.images.shape[1], data.images.shape[2]), "heads"
+
+        def batch(idx):
+            return detector_batch(data, idx, rng)
+    else:
+        net, loss_fn = RefineNet(), _refine_loss
+        usable = np.nonzero(data.circles[:, 4] >= 0.3)[0]
+        n_train = len(usable)
+        v_usable = np.nonzero(val.circles[:, 4] >= 0.3)[0][:1024]
+        val_batches = [refine_batch(val, v_usable[i:i + 128], val_rng) for i in range(0, len(v_usable), 128)]
+        shape, output = (1, 3, 32, 32), "circle"
+
+        def batch(idx):
+            return refine_batch(data, usable[idx], rng)
+    if init is not None:
+        net.load_state_dict(torch.load(init, weights_only=True))
+    opt = torch.optim.AdamW(net.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+    log = {"network": network, "config": asdict(config), "init": None if init is None else str(init), "train_items": int(n_train),
+           "validation_items": int(sum(len(b[0]) for b in val_batches)), "train": [], "validation": [],
+           "parts": [], **(extra or {})}
+    best = math.inf
+    wall0, cpu0 = time.perf_counter(), time.process_time()
+    order = rng.permutation(n_train)
+    pos = 0
+    for step in range(1, config.steps + 1):
+        if pos + config.batch > n_train:
+            order, pos = rng.permutation(n_train), 0
+        idx = order[pos:pos + config.batch]
+        pos += config.batch
+        lr = config.lr * min(1.0, step / config.warmup) * 0.5 * (1 + math.cos(math.pi * step / config.steps))
+        for g in opt.param_groups:
+            g["lr"] = lr
+        net.train()
+        loss, parts = loss_fn(net, batch(idx))
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        log["train"].append((step, loss.item()))
+        log["parts"].append(parts)
+        if step % config.eval_every == 0 or step == config.steps:
+            net.eval()
+            with torch.no_grad():
+                vals = [loss_fn(net, b) for b in val_batches]
+            v = float(np.mean([float(a) for a, _ in vals]))
+            vparts = {k: float(np.mean([p[k] for _, p in vals])) for k in vals[0][1]}
+            entry = {"step": step, "loss": v, **vparts, "wall_s": time.perf_counter() - wall0,
+                     "cpu_s": time.process_time() - cpu0}
+            log["validation"].append(entry)
+            if v < best:
+                best = v
+                log["best_step"] = step
+                torch.save(net.state_dict(), out / f"{name}.pt")
+                export_onnx(net, out / f"{name}.onnx", shape, output)
+            log["wall_seconds"] = time.perf_counter() - wall0
+            log["cpu_seconds"] = time.process_time() - cpu0
+            with open(out / f"{name}_training.json", "w") as fh:
+                json.dump(log, fh)
+            _plot(log, out / f"{name}_training.png")
+            if progress:
+                progress(f"{network} step {step}/{config.steps}: train {np.mean([t for _, t in log['train'][-config.eval_every:]]):.4f}"
+                         f" validation {v:.4f} {vparts} ({entry['wall_s']:.0f} s wall, {entry['cpu_s']:.0f} s CPU)")
+    return log

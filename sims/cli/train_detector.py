@@ -1,0 +1,64 @@
+"""``decentral train-detector``: retrain the learned circle detector on rendered scenes and/or labelled frames.
+
+Renders the training shards that are not yet in ``OUT/shards`` (varied scenes and ``table1`` runs by
+seed, :mod:`sims.experiments.detector_data`; the held-out varied scenes are refused), adds shards of
+the user's own labelled frames (``--labels``, see
+:func:`agents.perception.training.data.shard_from_labels`), then trains both networks on the CPU
+(``python -m agents.perception.training train``; PyTorch from the ``train`` extra) and writes
+``OUT/circles.onnx``, ``OUT/circle_refine.onnx`` and their loss curves. Use the result with
+``LearnedConfig(model=..., refine_model=...)``.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from decentral.errors import InputError
+
+__all__ = ["HELP", "add_arguments", "run"]
+
+HELP = "retrain the learned circle detector (rendered scenes and/or your labelled frames) on the CPU -> ONNX"
+
+
+def _range(text: str) -> range:
+    try:
+        a, b = (int(x) for x in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected FIRST:STOP, got {text!r}") from None
+    return range(a, b)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("out", metavar="OUT", type=Path, help="output folder (shards in OUT/shards, models in OUT)")
+    parser.add_argument("--varied", type=_range, default=range(2000, 2180), metavar="FIRST:STOP",
+                        help="varied scene seeds to render (default: 2000:2180)")
+    parser.add_argument("--varied-frames", type=int, default=10, help="frames per varied scene (default: 10)")
+    parser.add_argument("--table1", type=_range, default=range(100, 109), metavar="FIRST:STOP",
+                        help="table1 run seeds to render (default: 100:109)")
+    parser.add_argument("--table1-steps", type=int, default=30, help="steps per table1 run (default: 30)")
+    parser.add_argument("--labels", type=Path, nargs="*", default=[], metavar="LABELS.json",
+                        help="your labelled frames: {\"frames\": [{\"image\": ..., \"circles\": [[u, v, r], ...]}]}")
+    parser.add_argument("--steps", type=int, default=900, help="proposal network steps (default: 900)")
+    parser.add_argument("--refine-steps", type=int, default=2500, help="second-stage steps (default: 2500)")
+    parser.add_argument("--seed", type=int, default=0, help="training seed (default: 0)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from agents.perception.training.__main__ import main as train_main
+    from agents.perception.training.data import shard_from_labels, write_shard
+    from sims.experiments.detector_data import main as render_main
+
+    shards = args.out / "shards"
+    shards.mkdir(parents=True, exist_ok=True)
+    if args.varied_frames < 1 or args.table1_steps < 1:
+        raise InputError("--varied-frames and --table1-steps must be positive", field="--varied-frames")
+    render = ["--varied", f"{args.varied.start}:{args.varied.stop}", "--varied-frames", str(args.varied_frames),
+              "--table1", f"{args.table1.start}:{args.table1.stop}", "--table1-steps", str(args.table1_steps)]
+    if render_main([str(shards), *render]) != 0:
+        return 2
+    for k, labels in enumerate(args.labels):
+        write_shard(shards / f"labels-{k}.npz", shard_from_labels(labels))
+    return train_main(["train", str(shards), "-o", str(args.out), "--steps", str(args.steps),
+                       "--refine-steps", str(args.refine_steps), "--seed", str(args.seed),
+                       "--validation", "varied-*9.npz", "table1-*8.npz", "--oversample", "table1-*=2"])

@@ -1,0 +1,157 @@
+"""The learned detector's training pipeline: shards -> training -> ONNX that the detector loads (PyTorch only here)."""
+
+import json
+
+import numpy as np
+import pytest
+
+from agents.perception.training.data import (
+    detector_targets,
+    load_shards,
+    shard_from_frames,
+    write_shard,
+)
+from decentral.errors import InputError
+from sims.experiments.varied_scenes import sequence
+
+
+def _shards(tmp_path, seeds=(2000, 2001, 2002)):
+    """Tiny shards of 256 x 192 varied frames (2 frames each)."""
+    paths = []
+    for seed in seeds:
+        seq = sequence(seed, 2, width=256, height=192, radius=(8.0, 30.0))
+        arrays = shard_from_frames((f.image, [(s.u, s.v, s.r, v) for s, v in zip(f.spheres, f.visible)]) for f in seq)
+        path = tmp_path / f"varied-{seed}.npz"
+        write_shard(path, arrays)
+        paths.append(path)
+    return paths
+
+
+def test_targets_peak_at_each_visible_centre_and_ignore_hidden_spheres():
+    """A shown sphere gets heatmap 1 at its centre cell with its log radius; a mostly hidden one is masked out."""
+    heat, weight, reg = detector_targets(np.array([[50.0, 30.0, 12.0, 1.0], [150.0, 100.0, 20.0, 0.1]]), (48, 64))
+    cx, cy = (50.5 / 4 - 0.5), (30.5 / 4 - 0.5)
+    iy, ix = int(round(cy)), int(round(cx))
+    assert heat[iy, ix] == 1.0 and reg[3].sum() == 1.0
+    np.testing.assert_allclose(reg[:3, iy, ix], [np.log(12.0), cx - ix, cy - iy], atol=1e-6)
+    assert weight[round(100.5 / 4 - 0.5), round(150.5 / 4 - 0.5)] == 0.0
+
+
+def test_shards_load_with_frame_indices_and_crops(tmp_path):
+    """Loaded shards keep every frame's circles (in input pixels) and one crop per circle."""
+    paths = _shards(tmp_path, (2000, 2001))
+    data = load_shards(paths)
+    assert data.images.shape == (4, 192, 256, 3) and len(data.crops) == len(data.circles) == data.first[-1]
+    assert np.all(np.diff(data.circles[:, 0]) >= 0)
+    assert data.frame_circles(3).shape[1] == 4
+
+
+def test_bad_shard_is_an_input_error(tmp_path):
+    """A file that is not a shard raises InputError naming it."""
+    bad = tmp_path / "x.npz"
+    bad.write_text("nope")
+    with pytest.raises(InputError, match="x.npz"):
+        load_shards([bad])
+
+
+def test_labelled_frames_become_a_shard(tmp_path):
+    """A user's labels JSON and images give a shard with their circles; a bad entry names its field."""
+    import cv2
+
+    from agents.perception.training.data import shard_from_labels
+
+    img = np.full((192, 256, 3), 90, np.uint8)
+    cv2.circle(img, (100, 80), 20, (200, 60, 60), -1)
+    cv2.imwrite(str(tmp_path / "a.png"), img)
+    (tmp_path / "labels.json").write_text(json.dumps({"frames": [{"image": "a.png", "circles": [[100, 80, 20]]}]}))
+    arrays = shard_from_labels(tmp_path / "labels.json")
+    np.testing.assert_allclose(arrays["circles"], [[0, 100, 80, 20, 1]])
+    (tmp_path / "bad.json").write_text(json.dumps({"frames": [{"image": "a.png", "circles": [[1, 2]]}]}))
+    with pytest.raises(InputError, match=r"frames\[0\]"):
+        shard_from_labels(tmp_path / "bad.json")
+
+
+def test_training_runs_end_to_end_and_the_detector_loads_its_onnx(tmp_path):
+    """A few steps on tiny shards write both ONNX files, loss curves, and the detector runs them."""
+    pytest.importorskip("torch", reason="training needs PyTorch (the `train` extra)")
+    from agents.perception.learned import LearnedCircleDetector, LearnedConfig
+    from agents.perception.training.__main__ import main
+
+    _shards(tmp_path)
+    out = tmp_path / "model"
+    assert main(["train", str(tmp_path), "-o", str(out), "--steps", "3", "--refine-steps", "3", "--batch", "2",
+                 "--eval-every", "3", "--validation", "varied-2002.npz"]) == 0
+    for name in ("circles", "circle_refine"):
+        log = json.loads((out / f"{name}_training.json").read_text())
+        assert len(log["train"]) == 3 and log["validation"] and np.isfinite(log["validation"][-1]["loss"])
+        assert (out / f"{name}_training.png").stat().st_size > 0
+    image = sequence(2003, 1, width=256, height=192)[0].image
+    for backend in ("opencv", "onnxruntime"):
+        if backend == "onnxruntime":
+            pytest.importorskip("onnxruntime")
+        det = LearnedCircleDetector(LearnedConfig(model=out / "circles.onnx", refine_model=out / "circle_refine.onnx",
+                                                  threshold=0.05, backend=backend))
+        circles = det.detect(image)
+        assert all(np.isfinite([c.u, c.v, c.r]).all() and c.r > 0 for c in circles)
+
+
+def test_same_seed_gives_the_same_model(tmp_path):
+    """Two short trainings from one seed give the same weights up to 1e-5; another seed does not."""
+    torch = pytest.importorskip("torch", reason="training needs PyTorch (the `train` extra)")
+    from agents.perception.training.train import TrainConfig, train
+
+    paths = _shards(tmp_path)
+    data, val = load_shards(paths[:2]), load_shards(paths[2:])
+    weights = []
+    for k, seed in enumerate((4, 4, 5)):
+        train("detector", data, val, tmp_path / f"m{k}", TrainConfig(steps=2, batch=2, eval_every=2, seed=seed),
+              progress=None)
+        weights.append(torch.load(tmp_path / f"m{k}" / "circles.pt"))
+    a, b, c = (torch.cat([v.flatten().float() for v in w.values()]) for w in weights)
+    assert torch.allclose(a, b, atol=1e-5, rtol=0)
+    assert not torch.allclose(a, c, atol=1e-3, rtol=0)
+
+
+def test_cli_refuses_missing_shards_with_one_line(tmp_path, capsys):
+    """Training on a folder without shards exits 2 with one line naming the folder."""
+    from agents.perception.training.__main__ import main
+
+    assert main(["train", str(tmp_path), "-o", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(tmp_path) in err[0]
+
+
+def test_only_the_training_modules_import_torch():
+    """torch is imported by agents/perception/training/{model,train}.py only, and the package loads without it."""
+    import ast
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[3]
+    allowed = {"agents/perception/training/model.py", "agents/perception/training/train.py"}
+    offenders = []
+    for layer in ("decentral", "protocols", "agents", "sims"):
+        for path in (root / layer).rglob("*.py"):
+            tree = ast.parse(path.read_text(), filename=str(path))
+            names = [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
+            names += [n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module]
+            rel = str(path.relative_to(root))
+            offenders += [rel for n in names if n.split(".")[0] == "torch" and rel not in allowed]
+    assert not offenders, offenders
+    code = ("import sys\nimport agents.perception, agents.perception.learned, agents.perception.training.data\n"
+            "from sims.cli.main import build_parser\nbuild_parser()\nassert 'torch' not in sys.modules\n")
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=root)
+
+
+@pytest.mark.slow
+def test_train_detector_command_renders_and_trains(tmp_path):
+    """`decentral train-detector` renders shards, trains both networks for a few steps and writes both ONNX files."""
+    pytest.importorskip("torch", reason="training needs PyTorch (the `train` extra)")
+    from sims.cli.main import main
+
+    out = tmp_path / "det"
+    assert main(["train-detector", str(out), "--varied", "2008:2010", "--varied-frames", "1", "--table1", "100:100",
+                 "--steps", "2", "--refine-steps", "2"]) == 0
+    assert (out / "circles.onnx").is_file() and (out / "circle_refine.onnx").is_file()
+    assert sorted(p.name for p in (out / "shards").glob("*.npz")) == ["varied-2008.npz", "varied-2009.npz"]
