@@ -80,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
                                                       "under_5_s": seconds < 5.0}
         print(f"{'ros2_images_1cam':16s} {seconds:7.3f} s", flush=True)
         # perception alone on the same frames, in memory: what the image bag adds on top of it
-        from sims.experiments.perception_run import perceive_with_log
+        from sims.runners.perception_run import perceive_with_log
         from sims.render.frames import render_frames
         from sims.render.renderer import RenderConfig
 

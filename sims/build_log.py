@@ -13,7 +13,7 @@ time explicitly:
    (:func:`decentral.odometry.increments`).
 4. **Configurations** (and strut mounts) are each assembly's layout in force at the step time.
 5. **Detections** come from ``decentral.detections/1`` files (identified detections only), or from
-   running the perception front end (:func:`sims.experiments.perception_run.perceive_with_log`, the
+   running the perception front end (:func:`sims.runners.perception_run.perceive_with_log`, the
    path ``decentral perceive --log-template`` uses) on image files, a video or a bag's image topic.
 
 What was not matched is in the :class:`BuildReport`, whose :meth:`BuildReport.summary` is one line.
@@ -180,7 +180,7 @@ def _images(camera: RigCamera) -> Iterator[tuple[str, np.ndarray]]:
 
 def _perceive(camera: RigCamera, template: ObservationLog, matched: dict[int, int], options: dict):
     """Perceived identified detections of ``camera``'s matched frames: step index -> detections."""
-    from sims.experiments.perception_run import perceive_with_log
+    from sims.runners.perception_run import perceive_with_log
     from sims.io.detections_json import assemble_log
 
     order = sorted(matched, key=matched.get)  # frame indices in step order

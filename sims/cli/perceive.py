@@ -172,7 +172,7 @@ def perceive_paths(
             raise InputError("--motion odometry needs --log-template and --camera", field="--motion")
         perception = Perception(circles, identifier, track=track, motion="flow" if motion in ("flow", "auto") else None)
         return to_records(perceive_frames(_frames(paths, max_pixels), perception))
-    from sims.experiments.perception_run import perceive_with_log
+    from sims.runners.perception_run import perceive_with_log
 
     return list(perceive_with_log(_frames(paths, max_pixels), log, camera, family=family, tag_table=tag_table,
                                   track=track, motion=motion, min_radius=min_radius, max_radius=max_radius,

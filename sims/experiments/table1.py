@@ -61,7 +61,7 @@ def _render_and_perceive(sim, seed: int, clean: bool):
     """
     from agents.perception import AprilTagIdentifier
     from agents.perception.types import Circle
-    from sims.experiments.perception_run import perceive_with_log
+    from sims.runners.perception_run import perceive_with_log
     from sims.io.detections_json import assemble_log
     from sims.render.frames import render_frames
     from sims.render.renderer import RenderConfig
