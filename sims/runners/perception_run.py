@@ -1,23 +1,27 @@
-"""Perception of one camera's frames guided by an observation log (the camera model and the configurations).
+"""Perception of one camera's frames, alone or guided by an observation log (camera model and configurations).
 
-Shared by ``decentral perceive --log-template`` and the experiments: with the camera intrinsics and
-mounting, circles become eq. (1) circles, tags are read through the sphere model against the tags of
-the nodes configured at each step, and (optionally) the observer's odometry compensates its own
-rotation in the tracker.
+:func:`perceive_paths` runs the front end over image files or one video (``decentral perceive``);
+:func:`perceive_with_log`, shared by ``perceive --log-template``, ``build-log`` and the experiments,
+runs it frame k = step k of a log: with the camera intrinsics and mounting, circles become eq. (1)
+circles, tags are read through the sphere model against the tags of the nodes configured at each
+step, and (optionally) the observer's odometry compensates its own rotation in the tracker.
 """
 
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Iterable
+from typing import Callable, Iterable, Iterator, Sequence
 
 import numpy as np
 
 from decentral.errors import InputError
 from decentral.observations import ObservationLog
 
-__all__ = ["PerceivedCamera", "perceive_with_log"]
+__all__ = ["PerceivedCamera", "perceive_paths", "perceive_with_log", "to_records"]
+
+#: accepted --min-radius / --max-radius, pixels
+RADIUS_RANGE = (1.0, 1e5)
 
 
 @dataclass(frozen=True)
@@ -53,7 +57,6 @@ def perceive_with_log(
     from agents.perception import Perception, make_detector
     from agents.perception.motion import odometry_homography
     from agents.perception.sphere_tags import SphereTagConfig, SphereTagIdentifier, StickerLayout
-    from sims.cli.perceive import to_records
 
     if camera not in log.cameras:
         raise InputError(f"camera {camera!r} is not declared in the log", field="--camera")
@@ -85,3 +88,78 @@ def perceive_with_log(
         results.append(FrameResult(name, tuple(dets), secs))
         seconds.append(time.process_time() - start)
     return PerceivedCamera(tuple(to_records(results, K=cam.K)), tuple(seconds))
+
+
+def to_records(results, *, K: np.ndarray | None = None):
+    """Turn :class:`agents.perception.FrameResult` s into :class:`sims.io.detections_json.DetectionFrame` s.
+
+    With intrinsics ``K``, each circle becomes its eq. (1) circle (:func:`agents.perception.sphere.eq1_circle`).
+    """
+    from agents.perception.sphere import eq1_circle
+    from sims.io.detections_json import DetectionFrame, DetectionRecord, TagRecord
+
+    frames = []
+    for res in results:
+        dets = []
+        for d in res.detections:
+            c = eq1_circle(d.circle, K) if K is not None else d.circle
+            tag = None
+            if d.read is not None:
+                tag = TagRecord(d.read.tag, d.read.hamming, d.read.margin, np.asarray(d.read.corners))
+            dets.append(DetectionRecord(c.u, c.v, c.r, c.score, d.node, d.track, tag))
+        frames.append(DetectionFrame(res.source, tuple(dets)))
+    return frames
+
+
+def _frames(paths: Sequence[str], max_pixels: int | None, progress: Callable[[Iterator], Iterator] | None):
+    """The frames of ``paths`` (:func:`agents.perception.frames.iter_frames`), wrapped by ``progress`` if given."""
+    from agents.perception.frames import iter_frames
+
+    frames = iter_frames(list(paths), max_pixels)
+    return frames if progress is None else progress(frames)
+
+
+def perceive_paths(
+    paths: Sequence[str],
+    *,
+    family: str = "tag36h11",
+    track: bool = True,
+    tag_table: dict[int, int] | None = None,
+    min_radius: float = 8.0,
+    max_radius: float = 160.0,
+    motion: str = "auto",
+    detector: str = "hough",
+    log=None,
+    camera: str | None = None,
+    max_pixels: int | None = None,
+    progress: Callable[[Iterator], Iterator] | None = None,
+):
+    """Run perception over image files or one video; return the :class:`DetectionFrame` list.
+
+    ``log`` (an :class:`~decentral.observations.ObservationLog`) and ``camera`` supply the camera
+    model (eq. (1) circles) and, with ``motion="odometry"`` (or ``"auto"``, the default, when the log
+    has odometry for the camera's assembly), the observer's rotation per step; without a log,
+    ``"auto"`` is image registration. Frames over ``max_pixels`` pixels are refused before decoding.
+    ``progress``, if given, wraps the iterator of ``(name, image)`` frames (a progress bar, say).
+    """
+    from agents.perception import AprilTagConfig, AprilTagIdentifier, Perception, make_detector
+    from agents.perception.pipeline import perceive_frames
+    from sims.io.validate import require_range
+
+    require_range(min_radius, "--min-radius", *RADIUS_RANGE)
+    require_range(max_radius, "--max-radius", *RADIUS_RANGE)
+    if max_radius <= min_radius:
+        raise InputError("need --min-radius < --max-radius", field="--min-radius")
+    circles = make_detector(detector, min_radius, max_radius)
+    try:
+        identifier = AprilTagIdentifier(AprilTagConfig(family=family, tag_table=tag_table))
+    except ValueError as err:
+        raise InputError(str(err), field="--family") from None
+    if log is None:
+        if motion == "odometry":
+            raise InputError("--motion odometry needs --log-template and --camera", field="--motion")
+        perception = Perception(circles, identifier, track=track, motion="flow" if motion in ("flow", "auto") else None)
+        return to_records(perceive_frames(_frames(paths, max_pixels, progress), perception))
+    return list(perceive_with_log(_frames(paths, max_pixels, progress), log, camera, family=family, tag_table=tag_table,
+                                  track=track, motion=motion, min_radius=min_radius, max_radius=max_radius,
+                                  detector=detector).frames)
