@@ -84,7 +84,7 @@ def measure(n: int, seed: int, floor: float) -> dict:
     from decentral.ensemble import EnsembleProblem, RefineConfig, evaluate, refine
     from decentral.ensemble.observability import hinge_pairs
     from decentral.ensemble.rotation import quat_to_matrix
-    from sims.cli.ensemble import localize
+    from sims.runners.ensemble_run import localize
     from sims.ensembles import EnsembleSpec, generate
 
     with rod_floor(floor):

@@ -49,7 +49,7 @@ sys.path.insert(0, str(ROOT))
 
 from _common import output, parser, save_figure  # noqa: E402
 from decentral.ensemble import EnsembleProblem, normcut_localize  # noqa: E402
-from sims.cli.ensemble import distributed_config  # noqa: E402
+from sims.runners.ensemble_run import distributed_config  # noqa: E402
 from sims.ensembles import EnsembleSpec, generate  # noqa: E402
 from sims.ensembles.distributed import DistributedConfig, run_distributed  # noqa: E402
 from sims.io.atomic import write_json_atomic  # noqa: E402

@@ -123,7 +123,7 @@ def ensemble_part() -> str:
     from dataclasses import replace
 
     from decentral.ensemble import EnsembleProblem, HierarchyConfig, normcut_localize
-    from sims.cli.ensemble import distributed_config, localize
+    from sims.runners.ensemble_run import distributed_config, localize
     from sims.ensembles import EnsembleSpec, generate
     from sims.ensembles.distributed import run_distributed
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from decentral.ensemble import EnsembleProblem, evaluate
 from decentral.errors import InputError
-from sims.cli.ensemble import distributed_config, localize
+from sims.runners.ensemble_run import distributed_config, localize
 from sims.ensembles.distributed import run_distributed
 from sims.ensembles.generator import SHAPES, EnsembleSpec, generate
 from sims.ensembles.sensors import SensorModel
