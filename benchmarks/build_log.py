@@ -81,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{'ros2_images_1cam':16s} {seconds:7.3f} s", flush=True)
         # perception alone on the same frames, in memory: what the image bag adds on top of it
         from sims.runners.perception_run import perceive_with_log
-        from sims.render.frames import render_frames
+        from sims.render.frame_files import render_frames
         from sims.render.renderer import RenderConfig
 
         frames = {key: [] for key in sim.log.cameras}

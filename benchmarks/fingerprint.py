@@ -159,7 +159,7 @@ def ensemble_part() -> str:
 
 def perception_part() -> str:
     from agents.perception import DETECTORS, Perception, make_detector
-    from sims.render.frames import render_frames
+    from sims.render.frame_files import render_frames
     from sims.render.renderer import RenderConfig
     from sims.scenarios import get_scenario, simulate
 

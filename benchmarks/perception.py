@@ -45,7 +45,7 @@ cv2.setNumThreads(1)
 
 
 def _render(name: str, steps: int):
-    from sims.render.frames import render_frames
+    from sims.render.frame_files import render_frames
     from sims.render.renderer import RenderConfig
     from sims.scenarios import get_scenario, simulate
 

@@ -173,7 +173,7 @@ def _images(camera: RigCamera) -> Iterator[tuple[str, np.ndarray]]:
         from sims.io.bags import iter_images
 
         return iter_images(src.path, src.image_topic)
-    from agents.perception.frames import iter_frames
+    from agents.perception.frame_reader import iter_frames
 
     return iter_frames([str(p) for p in src.paths] if src.kind == "frames" else [str(src.path)])
 

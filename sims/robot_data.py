@@ -186,7 +186,7 @@ def write_robot_data(sim: Simulation, outdir: str | os.PathLike, *, odometry: st
            f"tolerance = {round(0.25 * float(np.min(np.diff(times))), 6) if len(times) > 1 else 0.05!r}", ""]
     rendered: dict[str, list] = {key: [] for key in log.cameras}
     if images:
-        from sims.render.frames import render_frames
+        from sims.render.frame_files import render_frames
         from sims.render.renderer import RenderConfig
 
         noisy = sim.truth.meta.get("config", {}).get("noise", True)

@@ -56,7 +56,7 @@ def _check_image_files(paths: Sequence[str], limits) -> None:
     """Image files are read whole before decoding: refuse one larger than the file-size limit (videos stream)."""
     import os
 
-    from agents.perception.frames import is_video
+    from agents.perception.frame_reader import is_video
     from sims.io.kinds import require_kind
 
     for path in paths:
@@ -84,7 +84,7 @@ def _tag_table(path: str | None) -> dict[int, int] | None:
 
 def _frame_total(paths: Sequence[str]) -> int | None:
     """Number of frames the inputs hold: one per image, a video's frame count (None if unknown)."""
-    from agents.perception.frames import is_video, native_stderr_silenced
+    from agents.perception.frame_reader import is_video, native_stderr_silenced
 
     if len(paths) == 1 and is_video(paths[0]):
         import cv2
@@ -142,7 +142,7 @@ def run(args: argparse.Namespace) -> int:
     filled = None
     if log is not None:
         try:
-            from agents.perception.frames import iter_frames
+            from agents.perception.frame_reader import iter_frames
 
             _, first = next(iter(iter_frames(args.frames, max_pixels)))
             sizes = {args.camera: (first.shape[1], first.shape[0])}

@@ -63,7 +63,7 @@ def _render_and_perceive(sim, seed: int, clean: bool):
     from agents.perception.types import Circle
     from sims.runners.perception_run import perceive_with_log
     from sims.io.detections_json import assemble_log
-    from sims.render.frames import render_frames
+    from sims.render.frame_files import render_frames
     from sims.render.renderer import RenderConfig
 
     config = RenderConfig.clean() if clean else RenderConfig()

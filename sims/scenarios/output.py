@@ -51,7 +51,7 @@ def save_simulation(sim: Simulation, outdir: str | os.PathLike, *, frames: str =
     path = prepare_outdir(outdir)
     truth, written = sim.truth, ()
     if frames != "none":
-        from sims.render.frames import write_frames
+        from sims.render.frame_files import write_frames
 
         files, per_step = write_frames(sim, path, mode=frames, seed=seed, progress=progress)
         truth, written = replace(truth, frames=per_step), tuple(files)

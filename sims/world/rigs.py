@@ -7,7 +7,7 @@ import numpy as np
 from decentral.observations import Pose
 from sims.world.camera import CameraSpec, default_K
 from decentral.geometry import rotz
-from sims.world.frames import camera_mount
+from sims.world.mounts import camera_mount
 from sims.world.world import CameraRig
 
 __all__ = ["strut_camera"]

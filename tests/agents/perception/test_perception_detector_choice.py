@@ -34,7 +34,7 @@ def test_default_is_the_hough_detector_and_rim_is_opt_in():
 def test_default_detector_finds_the_rendered_nodes_of_table1():
     """On rendered table1 frames the default detector finds at least 3 in 4 unoccluded nodes within a tenth
     of their radius (centre and radius), and every circle of a node's size lies on a node."""
-    render = pytest.importorskip("sims.render.frames")
+    render = pytest.importorskip("sims.render.frame_files")
     from sims.render.renderer import RenderConfig
     from sims.scenarios import get_scenario, simulate
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-render = pytest.importorskip("sims.render.frames")
+render = pytest.importorskip("sims.render.frame_files")
 
 from agents.perception import HoughCircleDetector  # noqa: E402
 from agents.perception.sphere import eq1_circle  # noqa: E402

@@ -6,7 +6,7 @@ import pytest
 
 from render_helpers import tiny_world
 from sims.render.effects import motion_kernel
-from sims.render.frames import write_frames
+from sims.render.frame_files import write_frames
 from sims.render.renderer import RenderConfig, Renderer
 from sims.scenarios import get_scenario, simulate
 from sims.world.camera import silhouette_circle

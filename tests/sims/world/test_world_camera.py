@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 from decentral.observations import Pose
 from sims.world.camera import CameraSpec, covered_fraction, default_K, project_nodes, visible_mask
 from decentral.geometry import rotz
-from sims.world.frames import CAM_LOOKS_ALONG_X, camera_mount
+from sims.world.mounts import CAM_LOOKS_ALONG_X, camera_mount
 
 K = default_K()
 R0 = 0.06
