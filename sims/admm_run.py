@@ -29,7 +29,7 @@ from decentral.admm import AdmmConfig
 from decentral.errors import InputError
 from decentral.factors import NoiseModel
 from decentral.observations import Estimate, EstimateStep, ObservationLog, require_log, resolve_reference
-from decentral.placement import count_reasons
+from decentral.unplaced import count_reasons
 from protocols.network import Crash, LinkConfig, NetworkConfig, Partition, SimulatedNetwork
 
 __all__ = ["AdmmRunConfig", "AdmmRun", "own_step", "run_admm"]

@@ -31,7 +31,7 @@ from agents.assembly import AgentConfig, AssemblyAgent
 from agents.runtime import AgentHost, LocalAgent, WindowRule
 from decentral.errors import InputError
 from decentral.observations import Estimate, EstimateStep, ObservationLog, PlanarPose
-from decentral.placement import count_reasons
+from decentral.unplaced import count_reasons
 from protocols.transport import Transport
 from sims.admm_run import own_step
 

@@ -38,7 +38,7 @@ from pathlib import Path
 
 from decentral.errors import DecentralError, InputError
 from decentral.observations import Estimate, EstimateStep, ObservationLog
-from decentral.placement import count_reasons
+from decentral.unplaced import count_reasons
 from sims.agent_run import poses_of, step_period
 from sims.parts import split_log, write_part
 

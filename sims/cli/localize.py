@@ -150,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _not_placed(estimate) -> str:
     """``; not placed: REASON N, ...`` over every (step, assembly) left out, most frequent first; empty if none."""
-    from decentral.placement import count_reasons
+    from decentral.unplaced import count_reasons
 
     reasons = count_reasons(step.unplaced for step in estimate.steps)
     why = ", ".join(f"{code} {n}" for code, n in sorted(reasons.items(), key=lambda kv: -kv[1]))
