@@ -61,7 +61,7 @@ ENVELOPE = 98  # + len(sender): the signed envelope of protocols.auth
 
 
 def _raw_message_class():
-    from protocols.flood import RawStep
+    from protocols.baselines.flood import RawStep
 
     return RawStep
 

@@ -1,0 +1,1 @@
+"""Baselines that the protocols' costs are measured against (not used by the agents themselves)."""
