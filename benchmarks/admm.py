@@ -44,7 +44,7 @@ from decentral.estimator import EstimatorConfig, estimate_log  # noqa: E402
 from decentral.metrics import estimate_gap  # noqa: E402
 from sims.admm_run import AdmmRunConfig, run_admm  # noqa: E402
 from sims.io.atomic import write_json_atomic  # noqa: E402
-from sims.scenarios import get_scenario, simulate  # noqa: E402
+from sims.simulation.scenarios import get_scenario, simulate  # noqa: E402
 
 KINDS = {"admm": ("admm.primal", "admm.dual"),
          "forms": ("admm.factors", "admm.bundle", "admm.bundle_ack", "admm.delta"),

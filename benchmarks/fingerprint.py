@@ -81,7 +81,7 @@ def _add_estimate(d: Digest, tag: str, estimate) -> None:
 def admm_part() -> str:
     from protocols.network import Crash
     from sims.admm_run import AdmmRunConfig, run_admm
-    from sims.scenarios import get_scenario, simulate
+    from sims.simulation.scenarios import get_scenario, simulate
 
     d = Digest()
     log = simulate(get_scenario("multi", n_assemblies=4, steps=3), seed=3).log
@@ -109,7 +109,7 @@ def admm_part() -> str:
 
 def central_part() -> str:
     from decentral.estimator import EstimatorConfig, estimate_log
-    from sims.scenarios import get_scenario, simulate
+    from sims.simulation.scenarios import get_scenario, simulate
 
     d = Digest()
     log = simulate(get_scenario("multi", n_assemblies=5, steps=4), seed=11).log
@@ -124,8 +124,8 @@ def ensemble_part() -> str:
 
     from decentral.ensemble import EnsembleProblem, HierarchyConfig, normcut_localize
     from sims.runners.ensemble_run import distributed_config, localize
-    from sims.ensembles import EnsembleSpec, generate
-    from sims.ensembles.distributed import run_distributed
+    from sims.simulation.ensembles import EnsembleSpec, generate
+    from sims.simulation.ensembles.distributed import run_distributed
 
     d = Digest()
     hierarchy = replace(HierarchyConfig(), leaf_size=16)  # several levels on small ensembles
@@ -159,9 +159,9 @@ def ensemble_part() -> str:
 
 def perception_part() -> str:
     from agents.perception import DETECTORS, Perception, make_detector
-    from sims.render.frame_files import render_frames
-    from sims.render.renderer import RenderConfig
-    from sims.scenarios import get_scenario, simulate
+    from sims.simulation.render.frame_files import render_frames
+    from sims.simulation.render.renderer import RenderConfig
+    from sims.simulation.scenarios import get_scenario, simulate
 
     d = Digest()
     sim = simulate(get_scenario("table1", steps=3, noise=False, ranges=(1.8, 2.5, 2.0)), seed=4)

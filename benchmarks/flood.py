@@ -250,7 +250,7 @@ def flood_absorbed(rates: list[float], steps: int) -> list[dict]:
 
     from decentral.estimator import EstimatorConfig, estimate_log
     from sims.launch import LaunchConfig, launch
-    from sims.scenarios import get_scenario, simulate
+    from sims.simulation.scenarios import get_scenario, simulate
 
     sim = simulate(get_scenario("multi", n_assemblies=5, steps=steps), seed=1)
     central = estimate_log(sim.log, EstimatorConfig(window=5))

@@ -45,9 +45,9 @@ cv2.setNumThreads(1)
 
 
 def _render(name: str, steps: int):
-    from sims.render.frame_files import render_frames
-    from sims.render.renderer import RenderConfig
-    from sims.scenarios import get_scenario, simulate
+    from sims.simulation.render.frame_files import render_frames
+    from sims.simulation.render.renderer import RenderConfig
+    from sims.simulation.scenarios import get_scenario, simulate
 
     sim = simulate(get_scenario(name, steps=steps), seed=0)
     frames: dict[str, list] = {}

@@ -84,7 +84,7 @@ def flood_bytes(log, raw_cls) -> "np.ndarray":
 
 
 def _ring(n: int, steps: int):
-    from sims.scenarios import get_scenario, simulate
+    from sims.simulation.scenarios import get_scenario, simulate
 
     return simulate(get_scenario("multi" if n <= 16 else "ring64", n_assemblies=n, steps=steps), seed=1)
 

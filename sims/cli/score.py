@@ -83,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
         return _run_ensemble(args)
     from decentral.metrics import score_estimate
     from sims.io.log_json import read_estimate
-    from sims.world.truth import read_truth
+    from sims.simulation.world.truth import read_truth
 
     estimate = read_estimate(args.estimate)
     truth = read_truth(args.truth)
@@ -135,7 +135,7 @@ def ensemble_score(estimate_path: str, truth_path: str) -> dict:
     if pairs is None:
         from scipy.spatial import cKDTree
 
-        from sims.ensembles.sensors import SensorModel
+        from sims.simulation.ensembles.sensors import SensorModel
 
         pairs = cKDTree(truth.position).query_pairs(SensorModel().reach(truth.radius), output_type="ndarray")
         source = "true contacts"

@@ -4,7 +4,7 @@ It draws what the perception front end has to cope with, directly in the image p
 (spherical nodes) with an AprilTag 36h11 sticker warped onto each, drawn far-to-near so nearer discs
 occlude farther ones, optional bars over them (struts), a textured floor, sensor noise and blur. The
 true circle of every disc is known exactly, so detector accuracy can be scored to sub-pixel level.
-The full 3-D renderer lives in :mod:`sims.render`; this one exists so perception can be tested on
+The full 3-D renderer lives in :mod:`sims.simulation.render`; this one exists so perception can be tested on
 controlled cases (a tag drop-out of exactly five frames, two nodes crossing) that are awkward to
 stage in 3-D.
 """

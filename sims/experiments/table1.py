@@ -63,8 +63,8 @@ def _render_and_perceive(sim, seed: int, clean: bool):
     from agents.perception.types import Circle
     from sims.runners.perception_run import perceive_with_log
     from sims.io.detections_json import assemble_log
-    from sims.render.frame_files import render_frames
-    from sims.render.renderer import RenderConfig
+    from sims.simulation.render.frame_files import render_frames
+    from sims.simulation.render.renderer import RenderConfig
 
     config = RenderConfig.clean() if clean else RenderConfig()
     images: dict[str, list] = {}
@@ -100,7 +100,7 @@ def run_table1(config: TableConfig = TableConfig(), progress=None) -> dict:
     from decentral.bearing import BearingConfig, estimate_log_bearing
     from decentral.estimator import EstimatorConfig, estimate_log
     from decentral.metrics import score_estimate
-    from sims.scenarios import get_scenario, simulate
+    from sims.simulation.scenarios import get_scenario, simulate
 
     noise = _noise()
     keys = ("position_m", "relative_position_pct", "yaw_deg", "coverage")
@@ -211,7 +211,7 @@ def run_reconfig(config: TableConfig = TableConfig(seeds=1, steps=80), progress=
     """
     from decentral.estimator import EstimatorConfig, estimate_log
     from decentral.metrics import relative_truth
-    from sims.scenarios import get_scenario, simulate
+    from sims.simulation.scenarios import get_scenario, simulate
 
     sim = simulate(get_scenario("reconfig", steps=config.steps), seed=0)
     log, frames, _, _, _ = _render_and_perceive(sim, 0, config.clean)

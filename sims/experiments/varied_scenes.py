@@ -20,9 +20,9 @@ import cv2
 import numpy as np
 
 from sims.experiments.synthetic_scene import disc_patch
-from sims.render.effects import motion_kernel
-from sims.render.surfaces import SURFACES, lighting_gradient, surface
-from sims.render.textures import TAG_IDS, tag_cells
+from sims.simulation.render.effects import motion_kernel
+from sims.simulation.render.surfaces import SURFACES, lighting_gradient, surface
+from sims.simulation.render.textures import TAG_IDS, tag_cells
 
 __all__ = [
     "TUNING_SEEDS", "HELD_OUT_SEEDS", "Sphere", "Strut", "Look", "Frame", "render", "sequence",
@@ -207,9 +207,9 @@ def render(spheres: tuple[Sphere, ...], struts: tuple[Strut, ...], look: Look, f
     Parameters
     ----------
     floor : ndarray, shape (H, W, 3)
-        Reflectance of the background (see :mod:`sims.render.surfaces`).
+        Reflectance of the background (see :mod:`sims.simulation.render.surfaces`).
     gradient : ndarray, shape (H, W)
-        Illumination factor (:func:`sims.render.surfaces.lighting_gradient`).
+        Illumination factor (:func:`sims.simulation.render.surfaces.lighting_gradient`).
     rng : numpy.random.Generator
         Draws the sensor noise.
     shake : (dx, dy)

@@ -19,9 +19,9 @@ import numpy as np
 from decentral.ensemble import EnsembleProblem, evaluate
 from decentral.errors import InputError
 from sims.runners.ensemble_run import distributed_config, localize
-from sims.ensembles.distributed import run_distributed
-from sims.ensembles.generator import SHAPES, EnsembleSpec, generate
-from sims.ensembles.sensors import SensorModel
+from sims.simulation.ensembles.distributed import run_distributed
+from sims.simulation.ensembles.generator import SHAPES, EnsembleSpec, generate
+from sims.simulation.ensembles.sensors import SensorModel
 from sims.io.validate import unknown_name
 from sims.study.options import Option, check_value, require
 

@@ -29,9 +29,9 @@ from decentral.factors import NoiseModel
 from decentral.metrics import score_estimate
 from sims.admm_run import AdmmRunConfig, run_admm
 from sims.io.validate import unknown_name
-from sims.scenarios import SCENARIOS, get_scenario, simulate
+from sims.simulation.scenarios import SCENARIOS, get_scenario, simulate
 from sims.study.options import Option, check_value, require
-from sims.world.sensors import SensorNoise
+from sims.simulation.world.sensors import SensorNoise
 
 __all__ = ["OPTIONS", "METRICS", "FILE_KEYS", "TRUTH_BESIDE", "normalize", "inputs", "run"]
 
@@ -199,7 +199,7 @@ def _parse_log(text: str, source: str):
 
 def _parse_truth(text: str, source: str):
     from sims.io.jsonfile import loads_json
-    from sims.world.truth import parse_truth
+    from sims.simulation.world.truth import parse_truth
 
     try:
         return parse_truth(loads_json(text, source))

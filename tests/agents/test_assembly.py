@@ -12,7 +12,7 @@ from protocols.admm_messages import ConfigAnnounce, ConfigRequest, FactorShare, 
 from protocols.messages import BROADCAST, AdmmDual, AdmmPrimal, decode
 from protocols.delta_messages import DeltaBundle, JointPoses
 from sims.admm_run import own_step
-from sims.scenarios import get_scenario, simulate
+from sims.simulation.scenarios import get_scenario, simulate
 
 
 @pytest.fixture(scope="module")

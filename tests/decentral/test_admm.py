@@ -9,7 +9,7 @@ from decentral.estimator import EstimatorConfig, solve_window
 from decentral.factors import measure_log
 from decentral.geometry import rot2
 from decentral.window import build_window
-from sims.scenarios import get_scenario, simulate
+from sims.simulation.scenarios import get_scenario, simulate
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,7 @@ import numpy as np
 from decentral.estimator import EstimatorConfig, estimate_log
 from decentral.unplaced import REASONS, count_reasons, unplaced_reasons
 from sims.admm_run import run_admm
-from sims.scenarios import get_scenario, simulate
+from sims.simulation.scenarios import get_scenario, simulate
 from tests.synthetic import camera, circle_motion, l_config, line_config, make_log
 
 N = 6

@@ -7,7 +7,7 @@ from decentral.estimator import EstimatorConfig, estimate_log
 from decentral.metrics import estimate_gap
 from protocols.network import Crash
 from sims.admm_run import AdmmRunConfig, run_admm
-from sims.scenarios import get_scenario, simulate
+from sims.simulation.scenarios import get_scenario, simulate
 from tests.synthetic import without
 
 POS_TOL, YAW_TOL = 1e-3, np.radians(0.05)

@@ -13,9 +13,9 @@ from sims.build_log import associate, build_log
 from sims.cli.main import main
 from sims.io.log_json import read_log
 from sims.io.rig import read_rig
-from sims.robot_data import write_robot_data
-from sims.scenarios import get_scenario, simulate
-from sims.world.sensors import SensorNoise
+from sims.simulation.robot_data import write_robot_data
+from sims.simulation.scenarios import get_scenario, simulate
+from sims.simulation.world.sensors import SensorNoise
 
 
 @pytest.fixture(scope="module")
@@ -197,7 +197,7 @@ def test_image_stamps_read_from_the_serialized_header_equal_the_decoded_ones(tmp
     """image_times reads header.stamp from the raw bytes (no image decoded): same as deserializing, in ROS 1
     and 2 bags, for Image and CompressedImage; the images decode to what was written."""
     from sims.io.bags import IMAGE_TYPES, _messages, _stamp, image_times, iter_images
-    from sims.robot_data import write_bag
+    from sims.simulation.robot_data import write_bag
 
     frames = [(t, np.full((4, 6, 3), 10 * k, np.uint8)) for k, t in enumerate((0.5, 1.25, 1.7e9 + 0.123456))]
     bag = write_bag(tmp_path / ("run.bag" if version == 1 else "run"), version, {}, {"/img": frames},

@@ -21,7 +21,7 @@ from decentral.metrics import estimate_gap, score_estimate
 from sims.cli.main import main
 from sims.io.log_json import write_log
 from sims.launch import CrashPlan, LaunchConfig, launch, parse_crash
-from sims.scenarios import get_scenario, simulate
+from sims.simulation.scenarios import get_scenario, simulate
 from tests.synthetic import without
 
 POS_TOL, YAW_TOL = 1e-3, np.radians(0.05)

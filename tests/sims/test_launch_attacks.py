@@ -17,7 +17,7 @@ import pytest
 
 from decentral.estimator import EstimatorConfig, estimate_log
 from sims.launch import LaunchConfig, launch
-from sims.scenarios import get_scenario, simulate
+from sims.simulation.scenarios import get_scenario, simulate
 from tests.synthetic import without
 
 PACE = dict(rate=0.2, round_period=0.05)

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from sims.io.log_json import write_log
-from sims.scenarios import get_scenario, simulate
+from sims.simulation.scenarios import get_scenario, simulate
 
 ROOT = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="scans /proc")

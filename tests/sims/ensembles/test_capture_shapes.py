@@ -7,8 +7,8 @@ import pytest
 from scipy import ndimage, sparse
 from scipy.sparse.csgraph import connected_components
 
-from sims.ensembles import EnsembleSpec, generate
-from sims.ensembles.containers import make_container
+from sims.simulation.ensembles import EnsembleSpec, generate
+from sims.simulation.ensembles.containers import make_container
 
 N = 600
 CAPTURE = ["capture-triple", "capture-sparse", "capture-open"]

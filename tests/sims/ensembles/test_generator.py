@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from sims.ensembles import EnsembleSpec, SensorModel, generate, save_observations, save_truth
+from sims.simulation.ensembles import EnsembleSpec, SensorModel, generate, save_observations, save_truth
 from sims.io.ensemble_npz import read_ensemble_truth
-from sims.ensembles.lattices import lattice_sites
-from sims.ensembles.sensors import observe_contacts, rotation_matrices, sensor_layout
+from sims.simulation.ensembles.lattices import lattice_sites
+from sims.simulation.ensembles.sensors import observe_contacts, rotation_matrices, sensor_layout
 from decentral.errors import InputError
 
 SHAPES_2D = ["triple", "sparse", "open", "twin", "funnel", "ring", "blobs", "capture-triple", "capture-sparse", "capture-open"]

@@ -8,7 +8,7 @@ from pettingzoo.test import parallel_api_test, parallel_seed_test
 
 from decentral.errors import InputError
 from protocols.network import Crash
-from sims.envs import relative_localization_v0
+from sims.simulation.envs import relative_localization_v0
 
 SMALL = dict(n_robots=4, arena=3.0)
 

@@ -2,10 +2,10 @@
 
 import numpy as np
 
-from sims.world.camera import CameraSpec, default_K
-from sims.world.rigs import strut_camera
-from sims.world.shapes import NODE_RADIUS, Shape
-from sims.world.world import AssemblyTrack, World
+from sims.simulation.world.camera import CameraSpec, default_K
+from sims.simulation.world.rigs import strut_camera
+from sims.simulation.world.shapes import NODE_RADIUS, Shape
+from sims.simulation.world.world import AssemblyTrack, World
 
 CAM_HEIGHT = 0.3  # the observer's root stands on a 0.24 m block: camera centre at z = 0.34
 

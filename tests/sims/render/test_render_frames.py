@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 
 from render_helpers import tiny_world
-from sims.render.effects import motion_kernel
-from sims.render.frame_files import write_frames
-from sims.render.renderer import RenderConfig, Renderer
-from sims.scenarios import get_scenario, simulate
-from sims.world.camera import silhouette_circle
+from sims.simulation.render.effects import motion_kernel
+from sims.simulation.render.frame_files import write_frames
+from sims.simulation.render.renderer import RenderConfig, Renderer
+from sims.simulation.scenarios import get_scenario, simulate
+from sims.simulation.world.camera import silhouette_circle
 
 
 def _render(world, *, config=None, k=0, seed=0):

@@ -2,7 +2,7 @@
 
 import pytest
 
-from sims.scenarios import get_scenario, simulate
+from sims.simulation.scenarios import get_scenario, simulate
 
 
 def _edges(sim, k=1):

@@ -4,7 +4,7 @@ import pytest
 
 from decentral.estimator import EstimatorConfig, estimate_log
 from decentral.metrics import score_estimate
-from sims.scenarios import get_scenario, simulate
+from sims.simulation.scenarios import get_scenario, simulate
 
 
 @pytest.mark.parametrize(

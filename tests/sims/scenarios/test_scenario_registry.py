@@ -4,12 +4,12 @@ from pathlib import Path
 
 import pytest
 
-import sims.scenarios as scenarios
+import sims.simulation.scenarios as scenarios
 from decentral.errors import InputError
-from sims.scenarios import SCENARIOS, get_scenario
-from sims.scenarios.base import Scenario
+from sims.simulation.scenarios import SCENARIOS, get_scenario
+from sims.simulation.scenarios.base import Scenario
 
-#: modules of sims/scenarios that hold shared machinery, not a scenario
+#: modules of sims/simulation/scenarios that hold shared machinery, not a scenario
 HELPERS = {"__init__", "base", "output"}
 
 
@@ -19,7 +19,7 @@ def test_registry_matches_the_modules_on_disk():
     on_disk = {p.stem for p in folder.glob("*.py")} - HELPERS
     assert on_disk == set(SCENARIOS)
     for name, module in SCENARIOS.items():
-        assert module == f"sims.scenarios.{name}"
+        assert module == f"sims.simulation.scenarios.{name}"
 
 
 @pytest.mark.parametrize("name", sorted(SCENARIOS))

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from sims.io.log_json import log_to_dict, parse_log
-from sims.scenarios import SCENARIOS, get_scenario, simulate
-from sims.world.shapes import NODE_RADIUS
+from sims.simulation.scenarios import SCENARIOS, get_scenario, simulate
+from sims.simulation.world.shapes import NODE_RADIUS
 
 SHORT = {"table1": 25, "reconfig": 125, "multi": 12, "single_node": 10}
 

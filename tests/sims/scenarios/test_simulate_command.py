@@ -6,7 +6,7 @@ import pytest
 
 from sims.cli.main import main
 from sims.io.log_json import read_log
-from sims.world.truth import read_truth
+from sims.simulation.world.truth import read_truth
 
 
 def test_simulate_writes_log_and_truth(tmp_path, capsys):

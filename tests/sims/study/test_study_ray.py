@@ -65,9 +65,9 @@ class _FilesGoneEngine(RayEngine):
 def test_recorded_logs_reach_ray_workers_without_the_files(ray_instance, tmp_path):
     """Log cells run on Ray from the texts shipped through the object store, the files gone from disk meanwhile."""
     from sims.io.log_json import write_log
-    from sims.scenarios import get_scenario, simulate
+    from sims.simulation.scenarios import get_scenario, simulate
     from sims.study.spec import read_spec
-    from sims.world.truth import write_truth
+    from sims.simulation.world.truth import write_truth
 
     files = []
     for seed in (1, 2):

@@ -13,8 +13,8 @@ from decentral.estimator import estimate_log
 from decentral.metrics import score_estimate
 from protocols.network import Crash, LinkConfig
 from sims.io.log_json import log_to_dict, parse_log
-from sims.swarm import SwarmConfig, SwarmSim, SwarmWorld, run_swarm
-from sims.swarm.world import streams_for, unicycle_step
+from sims.simulation.swarm import SwarmConfig, SwarmSim, SwarmWorld, run_swarm
+from sims.simulation.swarm.world import streams_for, unicycle_step
 
 FAST = SwarmConfig(n_robots=4, arena=3.0)  # small arena: robots meet within a few seconds
 
@@ -175,7 +175,7 @@ def test_bad_config_is_input_error(kw):
 def _robot_pair_run(drop_round: int | None):
     """R0 tracks R1 (known yaw) for 4 rounds of blind motion; R1's report of ``drop_round`` is lost."""
     from decentral.observations import Odometry
-    from sims.swarm.robot import SwarmRobot, Track
+    from sims.simulation.swarm.robot import SwarmRobot, Track
 
     cfg = replace(FAST, n_robots=2)
     r0, r1 = SwarmRobot("R0", cfg), SwarmRobot("R1", cfg)

@@ -1,4 +1,4 @@
-"""Properties of the pinhole model in sims.world.camera (Liu et al. 2024 eq. (1))."""
+"""Properties of the pinhole model in sims.simulation.world.camera (Liu et al. 2024 eq. (1))."""
 
 import numpy as np
 import pytest
@@ -6,9 +6,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from decentral.observations import Pose
-from sims.world.camera import CameraSpec, covered_fraction, default_K, project_nodes, visible_mask
+from sims.simulation.world.camera import CameraSpec, covered_fraction, default_K, project_nodes, visible_mask
 from decentral.geometry import rotz
-from sims.world.mounts import CAM_LOOKS_ALONG_X, camera_mount
+from sims.simulation.world.mounts import CAM_LOOKS_ALONG_X, camera_mount
 
 K = default_K()
 R0 = 0.06
@@ -79,7 +79,7 @@ def test_partial_cover_is_between_zero_and_one():
 @given(st.floats(-0.55, 0.55), st.floats(-0.45, 0.45), st.floats(0.4, 5.0))
 def test_silhouette_to_eq1_circle_inverts_the_silhouette(tx, ty, z):
     """Mapping a sphere's exact silhouette circle back gives its eq. (1) circle."""
-    from sims.world.camera import eq1_circle_from_silhouette, silhouette_circle
+    from sims.simulation.world.camera import eq1_circle_from_silhouette, silhouette_circle
 
     c = np.array([tx * z, ty * z, z])
     su, sv, sr = silhouette_circle(K, c, R0)
@@ -90,7 +90,7 @@ def test_silhouette_to_eq1_circle_inverts_the_silhouette(tx, ty, z):
 
 def test_silhouette_is_larger_than_eq1_off_axis():
     """Off the axis the exact silhouette is bigger than f r0 / z_c (eq. (1)'s model), on the axis not by much."""
-    from sims.world.camera import silhouette_circle
+    from sims.simulation.world.camera import silhouette_circle
 
     on = silhouette_circle(K, np.array([0.0, 0.0, 1.5]), R0)[2] / (K[0, 0] * R0 / 1.5)
     off = silhouette_circle(K, np.array([1.5 * np.tan(np.radians(30)), 0.0, 1.5]), R0)[2] / (K[0, 0] * R0 / 1.5)

@@ -6,7 +6,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sims.scenarios import get_scenario
+from sims.simulation.scenarios import get_scenario
 
 
 def _observe(scenario, world, seed):

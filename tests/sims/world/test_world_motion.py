@@ -1,10 +1,10 @@
-"""Properties of the root trajectories in sims.world.motion."""
+"""Properties of the root trajectories in sims.simulation.world.motion."""
 
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sims.world.motion import jitter, still, wander_many
+from sims.simulation.world.motion import jitter, still, wander_many
 
 
 @settings(max_examples=20, deadline=None)

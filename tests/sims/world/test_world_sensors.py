@@ -1,12 +1,12 @@
-"""Properties of the simulated sensors in sims.world.sensors."""
+"""Properties of the simulated sensors in sims.simulation.world.sensors."""
 
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from sims.scenarios import get_scenario, simulate
-from sims.world.sensors import STRAY_ID_BASE, SensorNoise, detections_at, odometry_at, sensor_streams
+from sims.simulation.scenarios import get_scenario, simulate
+from sims.simulation.world.sensors import STRAY_ID_BASE, SensorNoise, detections_at, odometry_at, sensor_streams
 
 
 def _world(**params):

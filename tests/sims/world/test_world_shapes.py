@@ -1,4 +1,4 @@
-"""Properties of the configuration library in sims.world.shapes."""
+"""Properties of the configuration library in sims.simulation.world.shapes."""
 
 import networkx as nx
 import numpy as np
@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sims.world.shapes import LIBRARY, NODE_RADIUS, library_shape, random_lattice
+from sims.simulation.world.shapes import LIBRARY, NODE_RADIUS, library_shape, random_lattice
 
 
 def _check(shape):

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from decentral.errors import InputError
-from sims.scenarios import get_scenario, simulate
-from sims.world.truth import parse_truth, read_truth, truth_to_dict, write_truth
+from sims.simulation.scenarios import get_scenario, simulate
+from sims.simulation.world.truth import parse_truth, read_truth, truth_to_dict, write_truth
 
 
 def test_truth_round_trips_through_json(tmp_path):
