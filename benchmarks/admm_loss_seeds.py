@@ -26,7 +26,7 @@ from _common import machine, parser, save
 from decentral.estimator import EstimatorConfig, estimate_log
 from decentral.metrics import estimate_gap
 from decentral.observations import Estimate
-from sims.admm_run import AdmmRunConfig, run_admm
+from sims.runners.admm_run import AdmmRunConfig, run_admm
 from sims.simulation.scenarios import get_scenario, simulate
 
 

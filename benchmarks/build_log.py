@@ -36,7 +36,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=3, help="timed repeats per case (default 3)")
     args = parser.parse_args(argv)
 
-    from sims.build_log import build_log
+    from sims.runners.build_log import build_log
     from sims.io.log_json import read_log, write_log
     from sims.io.rig import read_rig
     from sims.simulation.robot_data import write_robot_data

@@ -5,7 +5,7 @@ same machine and comparing the hashes (floating-point results are hashed bit for
 two machines need not agree; this is a same-machine check, not a test against recorded numbers). The
 parts:
 
-- ``admm``: the simulated decentralized runner (:func:`sims.admm_run.run_admm`) on seeded logs, clean,
+- ``admm``: the simulated decentralized runner (:func:`sims.runners.admm_run.run_admm`) on seeded logs, clean,
   with loss and jitter, with a crash, and with the cold-start-only share mode: every estimated pose and
   the messages and bytes sent per kind and per step;
 - ``central``: the centralized estimator (:func:`decentral.estimator.estimate_log`) on a seeded log;
@@ -80,7 +80,7 @@ def _add_estimate(d: Digest, tag: str, estimate) -> None:
 
 def admm_part() -> str:
     from protocols.network import Crash
-    from sims.admm_run import AdmmRunConfig, run_admm
+    from sims.runners.admm_run import AdmmRunConfig, run_admm
     from sims.simulation.scenarios import get_scenario, simulate
 
     d = Digest()

@@ -249,7 +249,7 @@ def flood_absorbed(rates: list[float], steps: int) -> list[dict]:
     import numpy as np
 
     from decentral.estimator import EstimatorConfig, estimate_log
-    from sims.launch import LaunchConfig, launch
+    from sims.runners.launch import LaunchConfig, launch
     from sims.simulation.scenarios import get_scenario, simulate
 
     sim = simulate(get_scenario("multi", n_assemblies=5, steps=steps), seed=1)

@@ -63,9 +63,9 @@ def run(args: argparse.Namespace) -> int:
     from protocols.network import LinkConfig
     from protocols.peers import key_file_exposure, load_peers, load_private_key, read_private_key_text
     from protocols.zmq_transport import ZmqTransport
-    from sims.agent_run import Pace, _counts, process_agent_config, run_agent
+    from sims.runners.agent_run import Pace, _counts, process_agent_config, run_agent
     from sims.io.log_json import write_estimate
-    from sims.parts import read_part
+    from sims.runners.parts import read_part
 
     if args.window < 1:
         raise InputError(f"must be >= 1, got {args.window}", field="--window")

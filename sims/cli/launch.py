@@ -37,7 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from sims.io.log_json import read_log, write_estimate
-    from sims.launch import LaunchConfig, launch, parse_crash
+    from sims.runners.launch import LaunchConfig, launch, parse_crash
 
     if args.window < 1:
         raise InputError(f"must be >= 1, got {args.window}", field="--window")

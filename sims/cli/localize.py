@@ -158,7 +158,7 @@ def _not_placed(estimate) -> str:
 
 
 def _run_admm(log, args, noise, reference, progress):
-    from sims.admm_run import AdmmRunConfig, run_admm
+    from sims.runners.admm_run import AdmmRunConfig, run_admm
 
     config = AdmmRunConfig(window=args.window, noise=noise, loss=args.loss, share_forms=args.share_forms,
                            aggregation=args.aggregation, max_rounds=args.max_rounds)

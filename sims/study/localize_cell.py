@@ -27,7 +27,7 @@ from decentral.errors import InputError
 from decentral.estimator import EstimatorConfig, estimate_log
 from decentral.factors import NoiseModel
 from decentral.metrics import score_estimate
-from sims.admm_run import AdmmRunConfig, run_admm
+from sims.runners.admm_run import AdmmRunConfig, run_admm
 from sims.io.validate import unknown_name
 from sims.simulation.scenarios import SCENARIOS, get_scenario, simulate
 from sims.study.options import Option, check_value, require

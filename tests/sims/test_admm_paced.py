@@ -6,7 +6,7 @@ import numpy as np
 from decentral.estimator import EstimatorConfig, estimate_log
 from decentral.metrics import estimate_gap
 from protocols.network import Crash
-from sims.admm_run import AdmmRunConfig, run_admm
+from sims.runners.admm_run import AdmmRunConfig, run_admm
 from sims.simulation.scenarios import get_scenario, simulate
 from tests.synthetic import without
 

@@ -9,7 +9,7 @@ import pytest
 from decentral.errors import InputError
 from decentral.estimator import EstimatorConfig, estimate_log
 from decentral.odometry import increments, interpolate_planar
-from sims.build_log import associate, build_log
+from sims.runners.build_log import associate, build_log
 from sims.cli.main import main
 from sims.io.log_json import read_log
 from sims.io.rig import read_rig

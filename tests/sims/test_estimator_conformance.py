@@ -7,7 +7,7 @@ import pytest
 from decentral.bearing import estimate_log_bearing
 from decentral.conformance import estimator_test
 from decentral.estimator import EstimatorConfig, estimate_log
-from sims.admm_run import AdmmRunConfig, run_admm
+from sims.runners.admm_run import AdmmRunConfig, run_admm
 from sims.cli.main import build_parser
 
 

@@ -20,7 +20,7 @@ from decentral.estimator import EstimatorConfig, estimate_log
 from decentral.metrics import estimate_gap, score_estimate
 from sims.cli.main import main
 from sims.io.log_json import write_log
-from sims.launch import CrashPlan, LaunchConfig, launch, parse_crash
+from sims.runners.launch import CrashPlan, LaunchConfig, launch, parse_crash
 from sims.simulation.scenarios import get_scenario, simulate
 from tests.synthetic import without
 
@@ -109,7 +109,7 @@ def test_agent_refuses_a_key_of_another_agent_in_one_line(tmp_path, capsys):
     sim = _sim(2, 2)
     main(["keys", "A0", "A1", "-o", str(tmp_path / "keys")])
     capsys.readouterr()
-    from sims.parts import split_log, write_part
+    from sims.runners.parts import split_log, write_part
 
     write_part(tmp_path / "A0.json", split_log(sim.log)["A0"], "A0")
     key_a1 = next((tmp_path / "keys").glob("A1.key*"))

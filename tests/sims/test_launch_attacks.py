@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from decentral.estimator import EstimatorConfig, estimate_log
-from sims.launch import LaunchConfig, launch
+from sims.runners.launch import LaunchConfig, launch
 from sims.simulation.scenarios import get_scenario, simulate
 from tests.synthetic import without
 
@@ -213,7 +213,7 @@ def _claiming(parts: dict, liar: str, victim: str) -> dict:
 
 
 def _launch_with_a_claimed_id_lie(tmp_path, monkeypatch):
-    import sims.launch as launch_module
+    import sims.runners.launch as launch_module
 
     sim = simulate(get_scenario("multi", n_assemblies=5, steps=10), seed=1)
     real_split = launch_module.split_log
@@ -245,8 +245,8 @@ def test_a_member_claiming_anothers_node_ids_leaves_every_converged_step_exact(t
 def test_a_claimed_node_id_lie_leaves_the_centralized_estimate_without_the_liar_in_the_simulated_runtime():
     """The same lie on the simulated network: every step equals the centralized estimate without A3 (1 mm)."""
     from decentral.metrics import estimate_gap
-    from sims.admm_run import run_admm
-    from sims.parts import split_log
+    from sims.runners.admm_run import run_admm
+    from sims.runners.parts import split_log
 
     sim = simulate(get_scenario("multi", n_assemblies=5, steps=8), seed=1)
     lying = _claiming(split_log(sim.log), "A3", "A1")

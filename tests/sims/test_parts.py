@@ -7,7 +7,7 @@ import pytest
 
 from decentral.errors import InputError
 from sims.io.log_json import log_to_dict
-from sims.parts import read_part, split_log, write_part
+from sims.runners.parts import read_part, split_log, write_part
 from sims.simulation.scenarios import get_scenario, simulate
 
 

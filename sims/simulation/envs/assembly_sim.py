@@ -12,7 +12,7 @@ roots move as unicycles under the env's commands, and every step
    eq. (19)) are compared with the truth for the env's ``infos``.
 
 A crashed agent is skipped while down and restarts empty when it comes back (as in
-:func:`sims.admm_run.run_admm`).
+:func:`sims.runners.admm_run.run_admm`).
 """
 
 from __future__ import annotations

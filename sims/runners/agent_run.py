@@ -33,7 +33,7 @@ from decentral.errors import InputError
 from decentral.observations import Estimate, EstimateStep, ObservationLog, PlanarPose
 from decentral.unplaced import count_reasons
 from protocols.transport import Transport
-from sims.admm_run import own_step
+from sims.runners.admm_run import own_step
 
 __all__ = ["Pace", "AgentRun", "run_agent", "step_period", "rounds_per_step", "process_agent_config", "poses_of"]
 
@@ -138,7 +138,7 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
     Parameters
     ----------
     part : ObservationLog
-        The agent's part (:mod:`sims.parts`): its own sensors only.
+        The agent's part (:mod:`sims.runners.parts`): its own sensors only.
     name : str
         Its assembly.
     transport : Transport

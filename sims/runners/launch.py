@@ -1,7 +1,7 @@
 """Run a whole log as one operating-system process per assembly on the loopback interface.
 
 :func:`launch` makes a key per agent and a peers file (free TCP ports on 127.0.0.1) in a temporary
-folder, splits the log into the agents' parts (:mod:`sims.parts`), starts one ``decentral agent``
+folder, splits the log into the agents' parts (:mod:`sims.runners.parts`), starts one ``decentral agent``
 per assembly, tells them all the same start time once every one is listening, kills and restarts
 agents on the ``--crash`` schedule, and composes the reference agent's ``decentral.estimate/1`` from
 what its processes streamed (a killed process has still reported every step it finished).
@@ -39,8 +39,8 @@ from pathlib import Path
 from decentral.errors import DecentralError, InputError
 from decentral.observations import Estimate, EstimateStep, ObservationLog
 from decentral.unplaced import count_reasons
-from sims.agent_run import poses_of, step_period
-from sims.parts import split_log, write_part
+from sims.runners.agent_run import poses_of, step_period
+from sims.runners.parts import split_log, write_part
 
 __all__ = ["CrashPlan", "LaunchConfig", "LaunchResult", "parse_crash", "launch"]
 
