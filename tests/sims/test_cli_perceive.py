@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from sims.cli.main import main
-from sims.experiments.synthetic_scene import SceneConfig, SceneNode, draw_scene, floor_texture
+from sims.lab.experiments.synthetic_scene import SceneConfig, SceneNode, draw_scene, floor_texture
 from sims.io.detections_json import read_detections
 
 

@@ -72,7 +72,7 @@ def test_perceive_runs_the_opt_in_detector_when_asked(tmp_path, detector):
     import cv2
 
     from sims.cli.main import main
-    from sims.experiments.synthetic_scene import SceneConfig, SceneNode, draw_scene, floor_texture
+    from sims.lab.experiments.synthetic_scene import SceneConfig, SceneNode, draw_scene, floor_texture
 
     floor = floor_texture(640, 480, np.random.default_rng(0))
     paths = []

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from sims.cli.main import main
-from sims.experiments.table1 import TableConfig, plot_reconfig, plot_table1, run_table1, table_markdown
+from sims.lab.experiments.table1 import TableConfig, plot_reconfig, plot_table1, run_table1, table_markdown
 
 FAKE = {
     "table_mean_over_seeds": {
@@ -56,7 +56,7 @@ def test_small_rendered_run_places_targets_and_beats_bearing():
 def test_restricted_estimate_keeps_only_the_other_methods_placements():
     """Like-for-like scoring keeps ours' poses only at the (step, target) pairs the baseline placed."""
     from decentral.observations import Estimate, EstimateStep, PlanarPose
-    from sims.experiments.table1 import _restricted
+    from sims.lab.experiments.table1 import _restricted
 
     pose = PlanarPose(np.zeros(3), 0.0)
     ours = Estimate("A0", (EstimateStep(0.0, {"A1": pose, "A2": pose}), EstimateStep(0.2, {"A1": pose})), {})

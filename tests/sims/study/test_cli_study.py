@@ -4,7 +4,7 @@
 def test_failed_cells_are_reported_one_line_each_on_stderr(capsys):
     """The CLI prints each failed cell's grid values and error in one warning line, then stops after ten."""
     from sims.cli.study import _FailureLines
-    from sims.study.cells import Cell
+    from sims.lab.study.cells import Cell
 
     lines = _FailureLines(("loss",))
     for k in range(12):

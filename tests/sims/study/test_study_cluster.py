@@ -13,9 +13,9 @@ import threading
 import pytest
 
 from decentral.errors import InputError
-from sims.study.engines import LocalEngine, RayEngine, check_reachable, one_line
-from sims.study.runner import run_study
-from sims.study.spec import parse_spec
+from sims.lab.study.engines import LocalEngine, RayEngine, check_reachable, one_line
+from sims.lab.study.runner import run_study
+from sims.lab.study.spec import parse_spec
 
 
 class FakeRayTaskError(RuntimeError):
@@ -123,7 +123,7 @@ class InlineEngine:
     name = "inline"
 
     def run(self, cells, on_result) -> None:
-        from sims.study.worker import work
+        from sims.lab.study.worker import work
 
         for cell in cells:
             on_result(cell, work(cell.command, dict(cell.params), cell.key))

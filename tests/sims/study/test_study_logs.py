@@ -10,10 +10,10 @@ import pytest
 from decentral.errors import InputError
 from sims.io.log_json import write_log
 from sims.simulation.scenarios import get_scenario, simulate
-from sims.study.cells import check_cells
-from sims.study.engines import LocalEngine
-from sims.study.runner import run_study
-from sims.study.spec import parse_spec, read_spec
+from sims.lab.study.cells import check_cells
+from sims.lab.study.engines import LocalEngine
+from sims.lab.study.runner import run_study
+from sims.lab.study.spec import parse_spec, read_spec
 from sims.simulation.world.truth import write_truth
 
 SCENARIO = {"n_assemblies": 2, "steps": 4}

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from sims.study.engines import LocalEngine, RayEngine
-from sims.study.runner import run_study
-from sims.study.spec import parse_spec
+from sims.lab.study.engines import LocalEngine, RayEngine
+from sims.lab.study.runner import run_study
+from sims.lab.study.spec import parse_spec
 
 ray = pytest.importorskip("ray")  # in the test extras; a plain install without it skips
 
@@ -66,7 +66,7 @@ def test_recorded_logs_reach_ray_workers_without_the_files(ray_instance, tmp_pat
     """Log cells run on Ray from the texts shipped through the object store, the files gone from disk meanwhile."""
     from sims.io.log_json import write_log
     from sims.simulation.scenarios import get_scenario, simulate
-    from sims.study.spec import read_spec
+    from sims.lab.study.spec import read_spec
     from sims.simulation.world.truth import write_truth
 
     files = []
@@ -86,7 +86,7 @@ def test_a_task_failing_in_ray_leaves_one_line_with_its_cause_and_where(ray_inst
     """A worker that cannot run the cell (here: the package missing) gives a failed row: cause, address, pid."""
     import sqlite3
 
-    import sims.study.engines as engines
+    import sims.lab.study.engines as engines
 
     def missing_package(command, params, key, texts=None):
         raise ModuleNotFoundError("No module named 'sims'")

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from decentral.errors import InputError
-from sims.study.engines import LocalEngine
-from sims.study.fits import fit_log, fit_power
-from sims.study.report import write_report
-from sims.study.runner import run_study
-from sims.study.spec import parse_spec
+from sims.lab.study.engines import LocalEngine
+from sims.lab.study.fits import fit_log, fit_power
+from sims.lab.study.report import write_report
+from sims.lab.study.runner import run_study
+from sims.lab.study.spec import parse_spec
 
 
 def _embedded_pngs(html: str) -> list[bytes]:

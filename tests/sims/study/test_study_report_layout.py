@@ -7,9 +7,9 @@ import sqlite3
 
 import pytest
 
-from sims.study.plots import draw_metric, y_limits
-from sims.study.report import LABELS, plan, write_report
-from sims.study.summary import STEADY_RTOL, collapse_constant_columns, fmt, steady
+from sims.lab.study.plots import draw_metric, y_limits
+from sims.lab.study.report import LABELS, plan, write_report
+from sims.lab.study.summary import STEADY_RTOL, collapse_constant_columns, fmt, steady
 
 
 def _label(name: str) -> str:

@@ -10,11 +10,11 @@ import subprocess
 import sys
 import time
 
-from sims.study.cells import check_cells
-from sims.study.engines import LocalEngine, _pinned_environment
-from sims.study.runner import run_study
-from sims.study.spec import parse_spec
-from sims.study.worker import PINNED_ENV
+from sims.lab.study.cells import check_cells
+from sims.lab.study.engines import LocalEngine, _pinned_environment
+from sims.lab.study.runner import run_study
+from sims.lab.study.spec import parse_spec
+from sims.lab.study.worker import PINNED_ENV
 
 
 def test_failing_cell_gets_a_failed_row_and_the_others_finish(specs, tmp_path, rows):
@@ -108,7 +108,7 @@ def crash_on_n_99(command, params, key):
     """A worker task that kills its own process for n = 99 and runs every other cell normally."""
     if params["n"] == 99:
         os._exit(1)
-    from sims.study.worker import work
+    from sims.lab.study.worker import work
 
     return work(command, params, key)
 

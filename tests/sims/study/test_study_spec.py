@@ -6,10 +6,10 @@ import pytest
 
 from decentral.errors import InputError
 from sims.cli.main import main
-from sims.study.cells import check_cells
-from sims.study.engines import LocalEngine
-from sims.study.runner import run_study
-from sims.study.spec import parse_spec
+from sims.lab.study.cells import check_cells
+from sims.lab.study.engines import LocalEngine
+from sims.lab.study.runner import run_study
+from sims.lab.study.spec import parse_spec
 
 
 def test_cells_are_the_product_of_the_grid_with_fixed_values(specs):

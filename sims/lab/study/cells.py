@@ -20,14 +20,14 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from decentral.errors import InputError
-from sims.study.spec import StudySpec, cell_key
+from sims.lab.study.spec import StudySpec, cell_key
 
 __all__ = ["CELL_COMMANDS", "Cell", "metrics_of", "check_cells", "execute", "run_cell", "placement"]
 
 #: study command -> module with ``OPTIONS``, ``METRICS``, ``normalize(params)`` and ``run(params)``
 CELL_COMMANDS: dict[str, str] = {
-    "localize": "sims.study.localize_cell",
-    "ensemble": "sims.study.ensemble_cell",
+    "localize": "sims.lab.study.localize_cell",
+    "ensemble": "sims.lab.study.ensemble_cell",
 }
 
 
@@ -52,7 +52,7 @@ class Cell:
     params : Mapping[str, Value]
         Normalized parameters ([fixed] and [grid] values).
     key : str
-        :func:`sims.study.spec.cell_key` of ``params`` (and of the input files' hashes): the cell's
+        :func:`sims.lab.study.spec.cell_key` of ``params`` (and of the input files' hashes): the cell's
         identity in the store.
     texts : Mapping[str, str]
         Contents of the cell's input files by key (``log``, ``truth``), read on the driver; empty

@@ -3,7 +3,7 @@ order they finish; the caller writes the rows. Engines never write the store the
 
 - :class:`LocalEngine`: a pool of ``workers`` processes on this machine (``spawn`` start, one BLAS
   thread each), at most one cell per worker in flight; each worker dies with the study process,
-  even a SIGKILLed one (:func:`sims.study.worker.init_worker`). When a worker dies (killed, out of memory,
+  even a SIGKILLed one (:func:`sims.lab.study.worker.init_worker`). When a worker dies (killed, out of memory,
   crashed) the pool breaks for every cell in flight: each of those is run again alone, and the one
   that kills its worker again gets a 'failed' row; the rest go on in a fresh pool.
 - :class:`RayEngine`: the same cells as Ray tasks (one CPU each), on a local Ray instance or the
@@ -24,8 +24,8 @@ from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Callable, Iterator, Sequence
 
 from decentral.errors import InputError
-from sims.study.cells import Cell
-from sims.study.worker import PINNED_ENV, init_worker, work
+from sims.lab.study.cells import Cell
+from sims.lab.study.worker import PINNED_ENV, init_worker, work
 
 __all__ = ["ENGINES", "LocalEngine", "RayEngine", "make_engine", "OnResult", "one_line", "check_reachable"]
 
@@ -124,7 +124,7 @@ class LocalEngine:
         Worker processes (>= 1).
     task : callable
         What a worker runs for a cell: ``task(command, params, key) -> row`` (default
-        :func:`sims.study.worker.work`); must be importable by name in a fresh process.
+        :func:`sims.lab.study.worker.work`); must be importable by name in a fresh process.
     """
 
     name = "local"

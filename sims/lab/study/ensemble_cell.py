@@ -23,7 +23,7 @@ from sims.simulation.ensembles.distributed import run_distributed
 from sims.simulation.ensembles.generator import SHAPES, EnsembleSpec, generate
 from sims.simulation.ensembles.sensors import SensorModel
 from sims.io.validate import unknown_name
-from sims.study.options import Option, check_value, require
+from sims.lab.study.options import Option, check_value, require
 
 __all__ = ["OPTIONS", "METRICS", "normalize", "run"]
 

@@ -14,7 +14,7 @@
 A study is the product of the lists in ``[grid]`` (in the order the keys are written, the last key
 varying fastest), each cell also given the values of ``[fixed]``. Values are TOML scalars (strings,
 integers, floats, booleans). This module only reads and shapes the file; which keys a command
-accepts is checked by :func:`sims.study.cells.check_cells`.
+accepts is checked by :func:`sims.lab.study.cells.check_cells`.
 """
 
 from __future__ import annotations

@@ -19,10 +19,10 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from sims.io.atomic import write_atomic
-from sims.study.fits import Fit
-from sims.study.plots import plot_metric
-from sims.study.store import BOOKKEEPING, DB_NAME, read_runs
-from sims.study.summary import (STEADY_RTOL, Steady, collapse_constant_columns, fmt, is_number, medians_per_setting,
+from sims.lab.study.fits import Fit
+from sims.lab.study.plots import plot_metric
+from sims.lab.study.store import BOOKKEEPING, DB_NAME, read_runs
+from sims.lab.study.summary import (STEADY_RTOL, Steady, collapse_constant_columns, fmt, is_number, medians_per_setting,
                                 order, steady)
 
 __all__ = ["Figure", "Plan", "ReportResult", "plan", "write_report", "LABELS"]

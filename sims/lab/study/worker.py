@@ -54,10 +54,10 @@ def init_worker(parent: int) -> None:
 
 
 def work(command: str, params: Mapping[str, Any], key: str, texts: Mapping[str, str] | None = None) -> dict[str, Any]:
-    """Run one cell in this process and return its row (see :func:`sims.study.cells.execute`).
+    """Run one cell in this process and return its row (see :func:`sims.lab.study.cells.execute`).
 
     ``texts``: the contents of the cell's input files (a recorded log), shipped with the task.
     """
-    from sims.study.cells import execute
+    from sims.lab.study.cells import execute
 
     return execute(command, params, key, texts)

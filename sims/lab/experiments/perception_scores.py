@@ -1,4 +1,4 @@
-"""Scoring perception output against the truth of :mod:`sims.experiments.varied_scenes` frames.
+"""Scoring perception output against the truth of :mod:`sims.lab.experiments.varied_scenes` frames.
 
 Definitions (one frame at a time, then summed over a sequence):
 
@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from agents.perception.types import TrackedCircle
-from sims.experiments.varied_scenes import Frame
+from sims.lab.experiments.varied_scenes import Frame
 
 __all__ = ["SequenceScore", "score_frame"]
 

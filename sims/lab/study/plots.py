@@ -14,8 +14,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from sims.study.fits import Fit, fit_log, fit_power
-from sims.study.summary import is_number, order
+from sims.lab.study.fits import Fit, fit_log, fit_power
+from sims.lab.study.summary import is_number, order
 
 __all__ = ["SIZES", "FIT_BOTH", "FIT_POWER", "y_limits", "draw_metric", "plot_metric"]
 

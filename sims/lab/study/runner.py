@@ -21,9 +21,9 @@ from importlib import metadata
 from pathlib import Path
 from typing import Callable
 
-from sims.study.cells import Cell, check_cells, metrics_of
-from sims.study.spec import StudySpec
-from sims.study.store import open_store
+from sims.lab.study.cells import Cell, check_cells, metrics_of
+from sims.lab.study.spec import StudySpec
+from sims.lab.study.store import open_store
 
 __all__ = ["StudyResult", "run_study", "provenance"]
 
@@ -116,7 +116,7 @@ def run_study(spec: StudySpec, directory: str | Path, engine, *, retry_failed: b
     directory : str or Path
         Where the store lives (created if needed).
     engine : LocalEngine or RayEngine
-        Where the cells run (:func:`sims.study.engines.make_engine`).
+        Where the cells run (:func:`sims.lab.study.engines.make_engine`).
     retry_failed : bool
         Delete the 'failed' rows first, so that those cells run again.
     progress : callable, optional

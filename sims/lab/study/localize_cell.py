@@ -10,7 +10,7 @@ With ``log`` (a recorded ``decentral.log/1``) nothing is simulated: the cell loc
 with ``truth`` (a ``decentral.truth/1``, or ``"beside"`` for the ``truth.json`` in the log's folder
 that ``decentral simulate`` writes), scores it; without truth, the metrics that need it are NULL.
 The files are read and validated once, on the machine that runs the study (:func:`inputs`), and
-their text travels to the cell with it (:mod:`sims.study.engines`), so no node needs the files.
+their text travels to the cell with it (:mod:`sims.lab.study.engines`), so no node needs the files.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from decentral.metrics import score_estimate
 from sims.runners.admm_run import AdmmRunConfig, run_admm
 from sims.io.validate import unknown_name
 from sims.simulation.scenarios import SCENARIOS, get_scenario, simulate
-from sims.study.options import Option, check_value, require
+from sims.lab.study.options import Option, check_value, require
 from sims.simulation.world.sensors import SensorNoise
 
 __all__ = ["OPTIONS", "METRICS", "FILE_KEYS", "TRUTH_BESIDE", "normalize", "inputs", "run"]

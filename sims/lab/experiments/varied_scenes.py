@@ -19,7 +19,7 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
-from sims.experiments.synthetic_scene import disc_patch
+from sims.lab.experiments.synthetic_scene import disc_patch
 from sims.simulation.render.effects import motion_kernel
 from sims.simulation.render.surfaces import SURFACES, lighting_gradient, surface
 from sims.simulation.render.textures import TAG_IDS, tag_cells
