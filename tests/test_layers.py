@@ -1,4 +1,4 @@
-"""Layering: decentral <- protocols <- agents <- sims, and heavy front-end libraries stay out of the core."""
+"""Layering: decentral <- protocols <- agents <- sims, sims by role, no import cycle, heavy libraries out of the core."""
 
 import ast
 import pkgutil
@@ -184,3 +184,33 @@ def test_no_import_cycle():
     cycles = list(nx.simple_cycles(graph))
     shown = [" -> ".join(f"{a} (line {graph.edges[a, b]['line']})" for a, b in zip(c, c[1:] + c[:1])) for c in cycles[:5]]
     assert not cycles, shown
+
+
+#: the parts of sims by role, and the parts each may import (docs/development.md draws the layout)
+SIMS_ROLES = {
+    "io": set(),
+    "simulation": {"io"},
+    "runners": {"io", "simulation"},
+    "lab": {"io", "simulation", "runners"},
+    "console": {"io", "simulation", "runners"},
+    "cli": {"io", "simulation", "runners", "lab", "console"},
+}
+
+
+def test_every_sims_module_belongs_to_a_role():
+    """sims holds only the role subpackages of SIMS_ROLES (no loose modules beside them)."""
+    loose = [name for name in _module_files() if name.startswith("sims.") and name.split(".")[1] not in SIMS_ROLES]
+    assert not loose, loose
+
+
+def test_sims_roles_import_one_way():
+    """Within sims, each role imports only the roles SIMS_ROLES allows it (io <- simulation <- runners <- lab,
+    the console beside the lab, the CLI over all), function-local imports counted."""
+    graph = _module_graph()
+    offenders = []
+    for a, b in graph.edges:
+        if a.startswith("sims.") and b.startswith("sims."):
+            ra, rb = a.split(".")[1], b.split(".")[1]
+            if ra != rb and rb not in SIMS_ROLES.get(ra, set()):
+                offenders.append(f"{a} (line {graph.edges[a, b]['line']}) -> {b}")
+    assert not offenders, offenders
