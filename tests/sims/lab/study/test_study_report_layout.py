@@ -147,7 +147,7 @@ def test_the_report_screenshot_is_a_full_width_page(tmp_path):
 
     from PIL import Image
 
-    script = Path(__file__).resolve().parents[3] / "benchmarks" / "screenshot_report.py"
+    script = Path(__file__).resolve().parents[4] / "benchmarks" / "screenshot_report.py"
     spec = _load_script(script)
     if spec.find_chromium() is None:
         pytest.skip("no chromium on PATH")
