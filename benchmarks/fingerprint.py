@@ -125,7 +125,7 @@ def ensemble_part() -> str:
     from decentral.ensemble import EnsembleProblem, HierarchyConfig, normcut_localize
     from sims.runners.ensemble_run import distributed_config, localize
     from sims.simulation.ensembles import EnsembleSpec, generate
-    from sims.simulation.ensembles.distributed import run_distributed
+    from sims.runners.ensemble_distributed import run_distributed
 
     d = Digest()
     hierarchy = replace(HierarchyConfig(), leaf_size=16)  # several levels on small ensembles

@@ -3,7 +3,7 @@
 ``--method ncut`` (default) is Funiak et al.'s Algorithm 1; ``incremental``, ``mds``, ``sdp`` and
 ``bottom-up`` are the baselines of its §VI-E. ``--distributed`` runs Algorithm 1 as one agent per
 module over the simulated network (``--loss``: probability that a message is dropped); that runner
-lives in :mod:`sims.simulation.ensembles.distributed` (``run_distributed``) and this command only calls it, so
+lives in :mod:`sims.runners.ensemble_distributed` (``run_distributed``) and this command only calls it, so
 if it is not installed the command says so and exits 2. The estimate then also holds ``messages``,
 ``phase_names`` and ``phase_messages``.
 
@@ -68,9 +68,9 @@ def _distributed(problem, args, progress=None) -> tuple:
     import numpy as np
 
     try:
-        from sims.simulation.ensembles.distributed import run_distributed
+        from sims.runners.ensemble_distributed import run_distributed
     except ImportError:
-        raise InputError("the distributed runner (sims.simulation.ensembles.distributed) is not available in this "
+        raise InputError("the distributed runner (sims.runners.ensemble_distributed) is not available in this "
                          "installation", field="--distributed") from None
     from sims.runners.ensemble_run import distributed_config
 

@@ -2,7 +2,7 @@
 
 :func:`localize` runs one of Funiak et al. 2008's Algorithm 1 (``"ncut"``) or the baselines of its
 §VI-E on a :class:`~decentral.ensemble.EnsembleProblem`; :func:`distributed_config` builds the
-:class:`~sims.simulation.ensembles.distributed.DistributedConfig` of a loss rate, a refinement tolerance and a
+:class:`~sims.runners.ensemble_distributed.DistributedConfig` of a loss rate, a refinement tolerance and a
 check interval. Used by ``decentral ensemble``, the studies and the benchmarks.
 """
 
@@ -45,8 +45,8 @@ def localize(problem, method: str, seed: int, tol: float | None = None, progress
 
 
 def distributed_config(loss: float = 0.0, tol: float | None = None, check_every: int | None = None):
-    """The :class:`~sims.simulation.ensembles.distributed.DistributedConfig` of ``--loss``, ``--tol``, ``--check-every``."""
-    from sims.simulation.ensembles.distributed import DistributedConfig
+    """The :class:`~sims.runners.ensemble_distributed.DistributedConfig` of ``--loss``, ``--tol``, ``--check-every``."""
+    from sims.runners.ensemble_distributed import DistributedConfig
 
     config = DistributedConfig(loss=loss)
     if tol is not None:

@@ -192,7 +192,7 @@ def test_library_callbacks_reach_their_totals(sim6):
 
 def test_distributed_stages_reach_their_total(ensemble):
     """run_distributed reports each stage; the last call has done == total and the message count grows."""
-    from sims.simulation.ensembles.distributed import run_distributed
+    from sims.runners.ensemble_distributed import run_distributed
     from sims.io.ensemble_npz import read_ensemble
 
     obs, _, _ = ensemble

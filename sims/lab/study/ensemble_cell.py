@@ -19,7 +19,7 @@ import numpy as np
 from decentral.ensemble import EnsembleProblem, evaluate
 from decentral.errors import InputError
 from sims.runners.ensemble_run import distributed_config, localize
-from sims.simulation.ensembles.distributed import run_distributed
+from sims.runners.ensemble_distributed import run_distributed
 from sims.simulation.ensembles.generator import SHAPES, EnsembleSpec, generate
 from sims.simulation.ensembles.sensors import SensorModel
 from sims.io.validate import unknown_name

@@ -2,7 +2,7 @@
 
 The generator settles circular modules under gravity into 2D containers or rasterizes 3D solids into
 a lattice, simulates the IR contact sensors and writes ``decentral.ensemble/1`` observations plus the
-truth (:mod:`sims.simulation.ensembles.generator`); :mod:`sims.simulation.ensembles.distributed` runs Funiak et al. 2008 §V as one
+truth (:mod:`sims.simulation.ensembles.generator`); :mod:`sims.runners.ensemble_distributed` runs Funiak et al. 2008 §V as one
 agent per module over the simulated network.
 """
 

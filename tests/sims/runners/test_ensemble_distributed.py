@@ -5,7 +5,7 @@ import pytest
 
 from decentral.ensemble import EnsembleProblem, HierarchyConfig, RefineConfig, align_points, normcut_localize
 from sims.simulation.ensembles import EnsembleSpec, generate
-from sims.simulation.ensembles.distributed import DistributedConfig, run_distributed
+from sims.runners.ensemble_distributed import DistributedConfig, run_distributed
 
 #: small leaves so that a small ensemble still has several levels, cuts, merges and refinements
 EXACT = HierarchyConfig(leaf_size=6, cut="exact")
