@@ -1,4 +1,4 @@
-"""Layering: decentral <- protocols <- agents <- sims, sims by role, no import cycle, heavy libraries out of the core."""
+"""Layering: decentral <- protocols <- agents <- sims, sims by role, no import cycle, heavy libraries kept out."""
 
 import ast
 import pkgutil
@@ -182,7 +182,8 @@ def test_no_import_cycle():
 
     graph = _module_graph()
     cycles = list(nx.simple_cycles(graph))
-    shown = [" -> ".join(f"{a} (line {graph.edges[a, b]['line']})" for a, b in zip(c, c[1:] + c[:1])) for c in cycles[:5]]
+    shown = [" -> ".join(f"{a} (line {graph.edges[a, b]['line']})" for a, b in zip(c, c[1:] + c[:1]))
+             for c in cycles[:5]]
     assert not cycles, shown
 
 

@@ -3,3 +3,5 @@
 The lab calls the runners (:mod:`sims.runners`) and the simulation (:mod:`sims.simulation`); neither
 of those imports the lab.
 """
+
+__all__: list[str] = []

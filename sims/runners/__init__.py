@@ -3,3 +3,5 @@
 The command-line modules (:mod:`sims.cli`) parse arguments, call a runner and report; the studies and
 experiments call the same runners over grids of cases.
 """
+
+__all__: list[str] = []

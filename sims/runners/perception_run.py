@@ -112,7 +112,7 @@ def to_records(results, *, K: np.ndarray | None = None):
 
 
 def _frames(paths: Sequence[str], max_pixels: int | None, progress: Callable[[Iterator], Iterator] | None):
-    """The frames of ``paths`` (:func:`agents.perception.frame_reader.iter_frames`), wrapped by ``progress`` if given."""
+    """The frames of ``paths`` (:func:`~agents.perception.frame_reader.iter_frames`), wrapped by ``progress``."""
     from agents.perception.frame_reader import iter_frames
 
     frames = iter_frames(list(paths), max_pixels)

@@ -3,3 +3,5 @@
 Everything here makes synthetic data and ground truth; it imports only :mod:`sims.io` among the
 other parts of :mod:`sims`.
 """
+
+__all__: list[str] = []
