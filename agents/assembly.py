@@ -470,7 +470,7 @@ class AssemblyAgent:
 
     def unplaced(self, placed: dict[str, PlanarPose] | None = None) -> dict[str, str]:
         """Why each assembly missing from :meth:`estimates` (or ``placed``) is missing (a reason code of
-        :data:`decentral.placement.REASONS`).
+        :data:`decentral.unplaced.REASONS`).
 
         The joint placement test's reason when this agent holds every agent's forms of the step;
         otherwise ``no_consensus`` (it cannot tell a lost row from an assembly nobody saw).

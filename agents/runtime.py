@@ -9,7 +9,7 @@ and calls the same three things in both cases, once per half round:
 3. send what it queued.
 
 :class:`AgentHost` does exactly this on any :class:`protocols.transport.Transport`; the simulated
-runner (:func:`sims.admm_run.run_admm`) calls it for every agent in simulated time over the
+runner (:func:`sims.runners.admm_run.run_admm`) calls it for every agent in simulated time over the
 :class:`protocols.network.SimulatedNetwork`, and ``decentral agent`` (:mod:`sims.cli.agent`) calls it
 for one agent in wall-clock time over the socket transport.
 

@@ -18,8 +18,8 @@ from decentral.bearing import BearingConfig, estimate_log_bearing
 from decentral.estimator import EstimatorConfig, estimate_log
 from decentral.factors import NoiseModel
 from decentral.metrics import score_estimate
-from sims.experiments.table1 import table_markdown
-from sims.scenarios import get_scenario, simulate
+from sims.lab.experiments.table1 import table_markdown
+from sims.simulation.scenarios import get_scenario, simulate
 
 #: the scenario's nominal sensor noise (its spec sheet, not its ground truth)
 NOISE = NoiseModel(sigma_pixel=0.7, sigma_radius=0.5, sigma_odom_p=0.002, sigma_odom_theta=0.002)

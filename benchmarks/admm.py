@@ -42,9 +42,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import output, parser, save_figure  # noqa: E402
 from decentral.estimator import EstimatorConfig, estimate_log  # noqa: E402
 from decentral.metrics import estimate_gap  # noqa: E402
-from sims.admm_run import AdmmRunConfig, run_admm  # noqa: E402
+from sims.runners.admm_run import AdmmRunConfig, run_admm  # noqa: E402
 from sims.io.atomic import write_json_atomic  # noqa: E402
-from sims.scenarios import get_scenario, simulate  # noqa: E402
+from sims.simulation.scenarios import get_scenario, simulate  # noqa: E402
 
 KINDS = {"admm": ("admm.primal", "admm.dual"),
          "forms": ("admm.factors", "admm.bundle", "admm.bundle_ack", "admm.delta"),

@@ -26,8 +26,8 @@ from _common import machine, parser, save
 from decentral.estimator import EstimatorConfig, estimate_log
 from decentral.metrics import estimate_gap
 from decentral.observations import Estimate
-from sims.admm_run import AdmmRunConfig, run_admm
-from sims.scenarios import get_scenario, simulate
+from sims.runners.admm_run import AdmmRunConfig, run_admm
+from sims.simulation.scenarios import get_scenario, simulate
 
 
 def _step_gap(central: Estimate, decentral: Estimate, k: int) -> tuple[float, float, int]:

@@ -1,7 +1,7 @@
 """How long ``build-log`` takes to turn a recorded run into a ``decentral.log/1``, single core.
 
 Fixed inputs: a simulated ``multi`` run (3 assemblies, one camera each, seed 0, ``--steps`` steps,
-60 by default) written as robot recordings (:func:`sims.robot_data.write_robot_data`):
+60 by default) written as robot recordings (:func:`sims.simulation.robot_data.write_robot_data`):
 
 - ``ros1`` / ``ros2``: ``nav_msgs/Odometry`` in a ROS 1 bag / ROS 2 bag plus timed detection files;
 - ``ros2_images``: the same odometry with the rendered camera images (``sensor_msgs/Image``, 1024x768
@@ -36,11 +36,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=3, help="timed repeats per case (default 3)")
     args = parser.parse_args(argv)
 
-    from sims.build_log import build_log
+    from sims.runners.build_log import build_log
     from sims.io.log_json import read_log, write_log
     from sims.io.rig import read_rig
-    from sims.robot_data import write_robot_data
-    from sims.scenarios import get_scenario, simulate
+    from sims.simulation.robot_data import write_robot_data
+    from sims.simulation.scenarios import get_scenario, simulate
 
     sim = simulate(get_scenario("multi", n_assemblies=3, steps=args.steps), seed=0)
     results: dict = {"steps": args.steps, "assemblies": 3, "cameras": 3, "repeats": args.repeats, "cases": {}}
@@ -80,9 +80,9 @@ def main(argv: list[str] | None = None) -> int:
                                                       "under_5_s": seconds < 5.0}
         print(f"{'ros2_images_1cam':16s} {seconds:7.3f} s", flush=True)
         # perception alone on the same frames, in memory: what the image bag adds on top of it
-        from sims.experiments.perception_run import perceive_with_log
-        from sims.render.frames import render_frames
-        from sims.render.renderer import RenderConfig
+        from sims.runners.perception_run import perceive_with_log
+        from sims.simulation.render.frame_files import render_frames
+        from sims.simulation.render.renderer import RenderConfig
 
         frames = {key: [] for key in sim.log.cameras}
         for _, key, frame in render_frames(sim, 0, RenderConfig()):

@@ -147,7 +147,7 @@ def _initial(method: str, protocol: str, prob, rng, gtol: float, bu_cluster: int
 def difficulty(prob, ens) -> dict:
     """What makes an instance hard: the exact top cut, the angular noise, the gaps of observed pairs."""
     from decentral.ensemble.ncut import normalized_cut
-    from sims.ensembles.sensors import rotation_matrices
+    from sims.simulation.ensembles.sensors import rotation_matrices
 
     cut = normalized_cut(prob.adjacency())
     a = cut.in_a
@@ -168,7 +168,7 @@ def run_instance(shape: str, seed: int, n: int, with_sdp: bool, protocols=PROTOC
     from decentral.ensemble import EnsembleProblem, evaluate
     from decentral.ensemble.refine import RefineConfig, refine
     from decentral.errors import SolverError
-    from sims.ensembles.generator import EnsembleSpec, generate
+    from sims.simulation.ensembles.generator import EnsembleSpec, generate
 
     ens = generate(EnsembleSpec(shape=shape, n=n), np.random.default_rng(seed))
     prob = EnsembleProblem.create(2, ens.n, ens.radius, ens.i, ens.j, ens.z)

@@ -9,7 +9,7 @@ turned against each other while each cube is right in itself.
 
 For every size N (default 2,500 4,000 4,500 6,750 7,000 7,500 8,000 9,000), generator seed and
 rod floor (``--floors``, module radii; 2.2 the earlier, 3.5 the current
-``sims.ensembles.lattices.THIN_PART_RADIUS["hcp"]``), in the same run: the hinges
+``sims.simulation.ensembles.lattices.THIN_PART_RADIUS["hcp"]``), in the same run: the hinges
 (``hinge_pairs``), the contacts crossing the middle of each rod (the fewer), Algorithm 1 with the
 defaults of ``decentral ensemble``, its global and local RMS (module radii), the RMS of each cube
 after aligning that cube alone, the largest rotation between the cubes (degrees, from their own
@@ -40,7 +40,7 @@ ROD_MIDDLES = (-0.9, 0.9)
 @contextmanager
 def rod_floor(radii: float):
     """Generate with the thin parts' least radius on the hcp lattice set to ``radii`` module radii."""
-    from sims.ensembles import lattices
+    from sims.simulation.ensembles import lattices
 
     saved = lattices.THIN_PART_RADIUS
     lattices.THIN_PART_RADIUS = {**saved, "hcp": radii}
@@ -84,8 +84,8 @@ def measure(n: int, seed: int, floor: float) -> dict:
     from decentral.ensemble import EnsembleProblem, RefineConfig, evaluate, refine
     from decentral.ensemble.observability import hinge_pairs
     from decentral.ensemble.rotation import quat_to_matrix
-    from sims.cli.ensemble import localize
-    from sims.ensembles import EnsembleSpec, generate
+    from sims.runners.ensemble_run import localize
+    from sims.simulation.ensembles import EnsembleSpec, generate
 
     with rod_floor(floor):
         ens = generate(EnsembleSpec(shape="triple3d", n=n), np.random.default_rng(seed))

@@ -1,7 +1,7 @@
 """Message complexity of the distributed localization (Funiak et al. 2008 §VI-F, Fig. 11 and 12).
 
 For ensembles of growing size (2D ``triple`` scenario, settled under gravity, fixed seeds) it runs
-:func:`sims.ensembles.distributed.run_distributed` over the lossless simulated network, records the
+:func:`sims.runners.ensemble_distributed.run_distributed` over the lossless simulated network, records the
 messages sent per module and per phase, fits messages per module against ``a + b ln N`` (least
 squares, R^2 reported), and saves ``OUT/NAME.json`` and ``.png`` (``--out``, default
 ``out/benchmarks``; ``--name``, default ``ensemble_messages``).
@@ -49,9 +49,9 @@ sys.path.insert(0, str(ROOT))
 
 from _common import output, parser, save_figure  # noqa: E402
 from decentral.ensemble import EnsembleProblem, normcut_localize  # noqa: E402
-from sims.cli.ensemble import distributed_config  # noqa: E402
-from sims.ensembles import EnsembleSpec, generate  # noqa: E402
-from sims.ensembles.distributed import DistributedConfig, run_distributed  # noqa: E402
+from sims.runners.ensemble_run import distributed_config  # noqa: E402
+from sims.simulation.ensembles import EnsembleSpec, generate  # noqa: E402
+from sims.runners.ensemble_distributed import DistributedConfig, run_distributed  # noqa: E402
 from sims.io.atomic import write_json_atomic  # noqa: E402
 
 

@@ -96,7 +96,7 @@ def make_config(name: str, skip_top: bool = False):
 
 
 def _generate(dim: int, n: int, folder: str) -> dict:
-    from sims.ensembles.generator import EnsembleSpec, generate, save_observations, save_truth
+    from sims.simulation.ensembles.generator import EnsembleSpec, generate, save_observations, save_truth
 
     t = time.perf_counter()
     ens = generate(EnsembleSpec(shape=SHAPE[dim], n=n), np.random.default_rng(0))

@@ -2,13 +2,13 @@
 
 For every cell of the matrix (ring size x transport x one-way delay x packet loss x busy processes per
 core) the log runs as one ``decentral agent`` per namespace behind impaired links
-(:mod:`sims.field`), and the reference agent's estimate is compared with the centralized estimate of
+(:mod:`sims.lab.field`), and the reference agent's estimate is compared with the centralized estimate of
 the same log, computed in the same run. Per cell: share of the centralized estimate's placements
 that the agents placed (on time, and at most one sensor step late), the position / yaw gap of the
 converged steps and of all placed steps, steps converged, rounds and bytes per window, frame
 latency (sender's clock to arrival: median, p90, max over windows; a TCP stall after a lost packet
 shows here), ``stats.status``, and the simulated runner's prediction of the convergence share at
-the same latency (:func:`sims.admm_run.run_admm` with the links' latency and jitter and the same
+the same latency (:func:`sims.runners.admm_run.run_admm` with the links' latency and jitter and the same
 round budget). Needs Linux and root (``ip netns``; ``iptables`` for loss).
 
 Usage: ``python benchmarks/field.py [--out DIR] [--sizes 5 8] [--transports udp zmq] [--delays 0 0.01
@@ -86,7 +86,7 @@ def _cell_metrics(central, est, records, reference):
 
 def _simulated(log, central, delay, jitter, loss, budget, round_period, seed):
     """The simulated runner at the same latency, jitter, loss and round budget: its convergence share."""
-    from sims.admm_run import AdmmRunConfig, run_admm
+    from sims.runners.admm_run import AdmmRunConfig, run_admm
 
     cfg = AdmmRunConfig(window=5, loss=loss, latency=delay * (1 - jitter), jitter=2 * jitter * delay,
                         round_period=round_period, max_rounds=budget, fast_forward=False)
@@ -99,11 +99,11 @@ def main(argv=None) -> int:
     from _common import machine, output, save, save_figure
 
     from decentral.estimator import EstimatorConfig, estimate_log
-    from sims.agent_run import rounds_per_step
-    from sims.field.netns import available
-    from sims.field.run import FieldConfig, run_field
-    from sims.launch import LaunchConfig
-    from sims.scenarios import get_scenario, simulate
+    from sims.runners.agent_run import rounds_per_step
+    from sims.lab.field.netns import available
+    from sims.lab.field.run import FieldConfig, run_field
+    from sims.runners.launch import LaunchConfig
+    from sims.simulation.scenarios import get_scenario, simulate
 
     why = available()
     if why:

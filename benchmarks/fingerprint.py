@@ -5,7 +5,7 @@ same machine and comparing the hashes (floating-point results are hashed bit for
 two machines need not agree; this is a same-machine check, not a test against recorded numbers). The
 parts:
 
-- ``admm``: the simulated decentralized runner (:func:`sims.admm_run.run_admm`) on seeded logs, clean,
+- ``admm``: the simulated decentralized runner (:func:`sims.runners.admm_run.run_admm`) on seeded logs, clean,
   with loss and jitter, with a crash, and with the cold-start-only share mode: every estimated pose and
   the messages and bytes sent per kind and per step;
 - ``central``: the centralized estimator (:func:`decentral.estimator.estimate_log`) on a seeded log;
@@ -80,8 +80,8 @@ def _add_estimate(d: Digest, tag: str, estimate) -> None:
 
 def admm_part() -> str:
     from protocols.network import Crash
-    from sims.admm_run import AdmmRunConfig, run_admm
-    from sims.scenarios import get_scenario, simulate
+    from sims.runners.admm_run import AdmmRunConfig, run_admm
+    from sims.simulation.scenarios import get_scenario, simulate
 
     d = Digest()
     log = simulate(get_scenario("multi", n_assemblies=4, steps=3), seed=3).log
@@ -109,7 +109,7 @@ def admm_part() -> str:
 
 def central_part() -> str:
     from decentral.estimator import EstimatorConfig, estimate_log
-    from sims.scenarios import get_scenario, simulate
+    from sims.simulation.scenarios import get_scenario, simulate
 
     d = Digest()
     log = simulate(get_scenario("multi", n_assemblies=5, steps=4), seed=11).log
@@ -123,9 +123,9 @@ def ensemble_part() -> str:
     from dataclasses import replace
 
     from decentral.ensemble import EnsembleProblem, HierarchyConfig, normcut_localize
-    from sims.cli.ensemble import distributed_config, localize
-    from sims.ensembles import EnsembleSpec, generate
-    from sims.ensembles.distributed import run_distributed
+    from sims.runners.ensemble_run import distributed_config, localize
+    from sims.simulation.ensembles import EnsembleSpec, generate
+    from sims.runners.ensemble_distributed import run_distributed
 
     d = Digest()
     hierarchy = replace(HierarchyConfig(), leaf_size=16)  # several levels on small ensembles
@@ -159,9 +159,9 @@ def ensemble_part() -> str:
 
 def perception_part() -> str:
     from agents.perception import DETECTORS, Perception, make_detector
-    from sims.render.frames import render_frames
-    from sims.render.renderer import RenderConfig
-    from sims.scenarios import get_scenario, simulate
+    from sims.simulation.render.frame_files import render_frames
+    from sims.simulation.render.renderer import RenderConfig
+    from sims.simulation.scenarios import get_scenario, simulate
 
     d = Digest()
     sim = simulate(get_scenario("table1", steps=3, noise=False, ranges=(1.8, 2.5, 2.0)), seed=4)

@@ -249,8 +249,8 @@ def flood_absorbed(rates: list[float], steps: int) -> list[dict]:
     import numpy as np
 
     from decentral.estimator import EstimatorConfig, estimate_log
-    from sims.launch import LaunchConfig, launch
-    from sims.scenarios import get_scenario, simulate
+    from sims.runners.launch import LaunchConfig, launch
+    from sims.simulation.scenarios import get_scenario, simulate
 
     sim = simulate(get_scenario("multi", n_assemblies=5, steps=steps), seed=1)
     central = estimate_log(sim.log, EstimatorConfig(window=5))

@@ -2,14 +2,14 @@
 
 Two sets of frames:
 
-- ``varied`` (default): image-plane sequences of :mod:`sims.experiments.varied_scenes` at 1024 x 768
+- ``varied`` (default): image-plane sequences of :mod:`sims.lab.experiments.varied_scenes` at 1024 x 768
   with 5-10 spheres (floors of several kinds, colours close to the floor's, 15-90 px radius,
   highlights, lighting gradients, tags on the cap, occlusion by spheres and struts, smear), on the
   held-out scene seeds (no parameter was tuned on them; ``--tuning`` adds the tuning seeds), each
   circle detector of ``--detectors`` side by side (default all: ``hough``, the default, and the
   opt-in ``rim``, ``symmetry`` and ``learned``). Per scene and detector: recall (a detection within max(2 px, 0.1 r) of a
   sphere's centre and 10 % of its radius; spheres at least half visible), radius error, false and double circles per sphere, wrong ids, ids carried
-  through frames without a tag read (:mod:`sims.experiments.perception_scores`). Tag reads, ours
+  through frames without a tag read (:mod:`sims.lab.experiments.perception_scores`). Tag reads, ours
   (the default reader inside our circles: the AprilTag 3 library, OpenCV's quads where it reads
   nothing; no tracking) against the AprilTag 3 C library on the whole grey frame (``pupil-apriltags``, the ``bench`` extra; skipped with a note when not installed):
   share of facing tags read, wrong ids, CPU time per frame.
@@ -45,9 +45,9 @@ cv2.setNumThreads(1)
 
 
 def _render(name: str, steps: int):
-    from sims.render.frames import render_frames
-    from sims.render.renderer import RenderConfig
-    from sims.scenarios import get_scenario, simulate
+    from sims.simulation.render.frame_files import render_frames
+    from sims.simulation.render.renderer import RenderConfig
+    from sims.simulation.scenarios import get_scenario, simulate
 
     sim = simulate(get_scenario(name, steps=steps), seed=0)
     frames: dict[str, list] = {}
@@ -241,7 +241,7 @@ def _score_reads(frame, reads) -> tuple[int, int, int]:
 def _ours(seq, name: str, repeats: int) -> dict:
     """Our front end with the detector ``name`` on one varied sequence: scores, tag reads and times."""
     from agents.perception import Perception
-    from sims.experiments.perception_scores import SequenceScore, score_frame
+    from sims.lab.experiments.perception_scores import SequenceScore, score_frame
 
     ours = Perception(name)
     cpu = np.full((repeats, len(seq)), np.inf)
@@ -293,7 +293,7 @@ def _apriltag3(seq, detector) -> dict:
 
 def _run_varied(seed: int, frames: int, repeats: int, detectors, apriltag) -> dict:
     """One held-out or tuning scene: our front end with each detector, and the references."""
-    from sims.experiments.varied_scenes import sequence
+    from sims.lab.experiments.varied_scenes import sequence
 
     seq = sequence(seed, frames)
     alt = _hough_alt_seconds({"all": [(k, fr) for k, fr in enumerate(seq)]}, 1)
@@ -350,7 +350,7 @@ def _held_out_summary(scenes: list[dict], name: str) -> dict:
 def run_varied(args) -> dict:
     """The varied scenes: held-out seeds (and tuning ones with ``--tuning``), each detector side by side."""
     from agents.perception import make_detector
-    from sims.experiments.varied_scenes import HELD_OUT_SEEDS, TUNING_SEEDS
+    from sims.lab.experiments.varied_scenes import HELD_OUT_SEEDS, TUNING_SEEDS
 
     apriltag = _reference_apriltag()
     make_detector()  # sets the allocator up before anything is timed (agents.perception.heap)

@@ -1,4 +1,4 @@
-"""Frame rendering speed of sims.render at 1024x768, single core, against a full-frame reference.
+"""Frame rendering speed of sims.simulation.render at 1024x768, single core, against a full-frame reference.
 
 Fixed inputs: the ``table1`` scenario (one camera, three targets + the observer: 13 nodes) and
 ``multi`` with 6 assemblies (6 cameras), seed 0, 20 steps each. For every camera frame we time:
@@ -27,13 +27,13 @@ from _common import machine, parser, save  # noqa: I001  (pins threads before nu
 import cv2
 import numpy as np
 
-from sims.render import raycast
-from sims.render.renderer import RenderConfig, Renderer
-from sims.scenarios import get_scenario, simulate
-from sims.world.camera import CameraSpec, default_K
-from sims.world.rigs import strut_camera
-from sims.world.shapes import NODE_RADIUS, Shape
-from sims.world.world import AssemblyTrack, World
+from sims.simulation.render import raycast
+from sims.simulation.render.renderer import RenderConfig, Renderer
+from sims.simulation.scenarios import get_scenario, simulate
+from sims.simulation.world.camera import CameraSpec, default_K
+from sims.simulation.world.rigs import strut_camera
+from sims.simulation.world.shapes import NODE_RADIUS, Shape
+from sims.simulation.world.world import AssemblyTrack, World
 
 
 def full_frame_reference(renderer: Renderer, rig, k: int):

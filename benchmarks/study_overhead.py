@@ -5,7 +5,7 @@ estimator), each a different seed, sized by their number of steps so that one ce
 ``--durations`` seconds when called directly (calibrated at the start of the run). For each
 duration the same cells are run
 
-- directly: :func:`sims.study.cells.run_cell` in this process, one after the other (the reference,
+- directly: :func:`sims.lab.study.cells.run_cell` in this process, one after the other (the reference,
   measured before and after the engines, and averaged, so a drifting machine load hits both sides);
 - as a study on the local pool (``--workers``, 1 by default so that it compares with the serial
   reference), pool start-up, result transfer and one SQLite transaction per row included;
@@ -40,10 +40,10 @@ import time
 from pathlib import Path
 
 from _common import machine, parser, save
-from sims.study.cells import run_cell
-from sims.study.engines import LocalEngine, RayEngine
-from sims.study.runner import run_study
-from sims.study.spec import parse_spec
+from sims.lab.study.cells import run_cell
+from sims.lab.study.engines import LocalEngine, RayEngine
+from sims.lab.study.runner import run_study
+from sims.lab.study.spec import parse_spec
 
 BASE = {"scenario": "multi", "n_assemblies": 2, "mode": "centralized", "window": 5}
 

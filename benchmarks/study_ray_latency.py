@@ -1,7 +1,7 @@
 """Time to the first row of a study on Ray, as ``decentral study --engine ray`` runs it (a fresh local instance).
 
 Each repeat runs the same tiny study (``--cells`` ensemble cells of 60 modules, ~0.1 s each) into a
-new store with :class:`sims.study.engines.RayEngine` starting its own Ray instance with
+new store with :class:`sims.lab.study.engines.RayEngine` starting its own Ray instance with
 ``--workers`` CPUs, in two ways, alternating which goes first:
 
 - ``per_task_env`` (the reference): the pinned BLAS environment given to every task, which makes
@@ -47,9 +47,9 @@ def one_study(per_task_env: bool, cells: int, workers: int) -> dict:
     """Run the tiny study once on a fresh Ray instance; the timings of this run."""
     import ray
 
-    from sims.study.engines import RayEngine
-    from sims.study.runner import run_study
-    from sims.study.spec import parse_spec
+    from sims.lab.study.engines import RayEngine
+    from sims.lab.study.runner import run_study
+    from sims.lab.study.spec import parse_spec
 
     spec = parse_spec(SPEC.format(seeds=list(range(cells))))
     engine = RayEngine(None, workers)

@@ -22,7 +22,7 @@ from _common import machine, output, parser, save, save_figure  # noqa: I001  (p
 import numpy as np
 
 from protocols.network import LinkConfig
-from sims.swarm import SwarmConfig, run_swarm
+from sims.simulation.swarm import SwarmConfig, run_swarm
 
 LOSSES = (0.0, 0.1, 0.3, 0.5)
 

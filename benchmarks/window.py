@@ -24,7 +24,7 @@ from decentral.estimator import EstimatorConfig, solve_window
 from decentral.factors import NoiseModel, measure_log
 from decentral.relaxation import recover_positions, reduce_rotations, solve_literal_primal
 from decentral.window import build_window
-from sims.scenarios import get_scenario, simulate
+from sims.simulation.scenarios import get_scenario, simulate
 
 
 #: the SDP reference is run only up to this many rotations (its PSD cone is dense after eliminating positions)

@@ -8,7 +8,7 @@ on the same log in the same run.
 
 Measured, per ring size (``multi`` for n <= 16, ``ring64`` above, scenario seed 1, K = 5, no loss):
 
-* **simulated network** (:func:`sims.admm_run.run_admm`, the default agents): bytes per agent, every
+* **simulated network** (:func:`sims.runners.admm_run.run_admm`, the default agents): bytes per agent, every
   frame plus its envelope; ratio of the total to the flood's total, and of the busiest agent to its
   fair share of the flood (flood total / n), for the cold-start window (step 0) and the steady-state
   windows (later steps); frames per agent per steady window divided by its view-graph degree; the
@@ -61,7 +61,7 @@ ENVELOPE = 98  # + len(sender): the signed envelope of protocols.auth
 
 
 def _raw_message_class():
-    from protocols.flood import RawStep
+    from protocols.baselines.flood import RawStep
 
     return RawStep
 
@@ -84,7 +84,7 @@ def flood_bytes(log, raw_cls) -> "np.ndarray":
 
 
 def _ring(n: int, steps: int):
-    from sims.scenarios import get_scenario, simulate
+    from sims.simulation.scenarios import get_scenario, simulate
 
     return simulate(get_scenario("multi" if n <= 16 else "ring64", n_assemblies=n, steps=steps), seed=1)
 
@@ -106,7 +106,7 @@ def simulated(n: int, steps: int, raw_cls) -> dict:
 
     import numpy as np
 
-    from sims.admm_run import AdmmRunConfig, run_admm
+    from sims.runners.admm_run import AdmmRunConfig, run_admm
 
     sim = _ring(n, steps)
     names = list(sim.log.assemblies)
@@ -154,7 +154,7 @@ def processes(n: int, steps: int, raw_cls, rate: float, round_period: float) -> 
 
     import numpy as np
 
-    from sims.launch import LaunchConfig, launch
+    from sims.runners.launch import LaunchConfig, launch
 
     sim = _ring(n, steps)
     names = list(sim.log.assemblies)

@@ -30,7 +30,7 @@ from decentral.errors import InputError
 from decentral.factors import NoiseModel, StepMeasurements, measure_log
 from decentral.geometry import rotz, wrap_angle
 from decentral.observations import Estimate, EstimateStep, ObservationLog, PlanarPose, require_log, resolve_reference
-from decentral.placement import count_reasons
+from decentral.unplaced import count_reasons
 
 __all__ = ["BearingConfig", "estimate_log_bearing", "solve_bearing_window"]
 
@@ -149,7 +149,7 @@ def estimate_log_bearing(log: ObservationLog, config: BearingConfig = BearingCon
 
 def _estimate_target(measurements, reference, target, k, config) -> PlanarPose | str:
     """The target's pose at step ``k`` relative to the reference, or why there is none (a reason code of
-    :data:`decentral.placement.REASONS`: no bearing of it, or bearings that do not determine it)."""
+    :data:`decentral.unplaced.REASONS`: no bearing of it, or bearings that do not determine it)."""
     span = _odometry_span(measurements, (reference, target), k, config.window)
     yaw_o, pos_o = _dead_reckon(measurements, reference, span)
     yaw_a, pos_a = _dead_reckon(measurements, target, span)

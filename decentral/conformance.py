@@ -19,7 +19,7 @@ import numpy as np
 from decentral.errors import DecentralError
 from decentral.geometry import wrap_angle
 from decentral.observations import Detection, Estimate, ObservationLog, PlanarPose
-from decentral.placement import REASONS, count_reasons
+from decentral.unplaced import REASONS, count_reasons
 from decentral.synthetic import camera, circle_motion, l_config, make_log, true_relative
 
 __all__ = ["REQUIRED_STATS", "conformance_log", "estimator_test"]
@@ -85,7 +85,7 @@ def estimator_test(fn: Callable[..., Estimate], config: Any = None, *, name: str
     :class:`~decentral.errors.DecentralError` (not a crash); it returns an :class:`Estimate` in the frame
     of the reference it was given, one step per log step at the log's times; every other assembly is
     either placed (a finite :class:`PlanarPose`) or listed in ``unplaced`` with a code of
-    :data:`decentral.placement.REASONS`, never both; ``stats`` holds :data:`REQUIRED_STATS`, with
+    :data:`decentral.unplaced.REASONS`, never both; ``stats`` holds :data:`REQUIRED_STATS`, with
     ``unplaced`` the count of the steps' reasons and ``stray_detections`` the log's stray tags, and is
     JSON-serializable without NaN; on a noiseless log every placed pose is within ``position_tol`` (m)
     and ``yaw_tol`` (rad) of the truth; and the same input gives the same estimate.
@@ -137,7 +137,7 @@ def estimator_test(fn: Callable[..., Estimate], config: Any = None, *, name: str
                          f"step {k}: assembly {a!r} must be either placed or given an unplaced reason, not "
                          f"{'both' if placed else 'neither'}")
                 _require(why is None or why in REASONS, name,
-                         f"step {k}: unplaced reason {why!r} of {a!r} is not one of decentral.placement.REASONS")
+                         f"step {k}: unplaced reason {why!r} of {a!r} is not one of decentral.unplaced.REASONS")
             for a, pose in step.poses.items():
                 _require(a in others, name, f"step {k} places {a!r}, which is not an assembly of the log")
                 _require(isinstance(pose, PlanarPose), name, f"step {k}: the pose of {a!r} is not a PlanarPose")
@@ -159,7 +159,7 @@ def estimator_test(fn: Callable[..., Estimate], config: Any = None, *, name: str
         counted = count_reasons(step.unplaced for step in est.steps)
         _require(dict(est.stats["unplaced"]) == counted, name,
                  f"stats['unplaced'] is {est.stats['unplaced']}, the steps' reasons count {counted} "
-                 f"(decentral.placement.count_reasons)")
+                 f"(decentral.unplaced.count_reasons)")
         stray = sum(step.stray_detections() for step in log.steps)
         _require(est.stats["stray_detections"] == stray, name,
                  f"stats['stray_detections'] is {est.stats['stray_detections']}, the log has {stray} stray tag(s)")

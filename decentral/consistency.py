@@ -34,7 +34,7 @@ ALPHA = 1e-3
 #: viewing ray) at most c = 3; the simulator's sensors depart further from the weighting model (odometry
 #: noise proportional to motion, occluded nodes 3x noisier), and honest members reach T/d = 6 on a
 #: window. 12 is the smallest value of 3, 5, 6, 8, 10, 12 that raised no alarm on honest 5-assembly
-#: logs (seeds 1-20, 240 windows); it holds on seeds 21-40 (tests/sims/test_lies_simulated.py)
+#: logs (seeds 1-20, 240 windows); it holds on seeds 21-40 (tests/sims/runners/test_lies_simulated.py)
 DISPERSION = 12.0
 
 __all__ = ["Screening", "member_tests", "residual", "screen_by_margin", "screen_members"]

@@ -25,7 +25,7 @@ from decentral.errors import InputError
 from decentral.factors import NoiseModel, StepMeasurements, measure_log
 from decentral.geometry import wrap_angle
 from decentral.observations import Estimate, EstimateStep, ObservationLog, PlanarPose, require_log, resolve_reference
-from decentral.placement import count_reasons, unplaced_reasons
+from decentral.unplaced import count_reasons, unplaced_reasons
 from decentral.relaxation import RelaxationResult, recover_positions, reduce_rotations, solve_relaxation, yaw_hessian
 from decentral.window import WindowProblem, build_window
 

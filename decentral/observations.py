@@ -160,7 +160,7 @@ class EstimateStep:
     """Poses relative to the reference at one step; assemblies that cannot be placed are absent.
 
     ``unplaced`` says why each absent assembly (other than the reference) is absent: a reason code of
-    :data:`decentral.placement.REASONS`, e.g. ``{"A2": "yaw_std_above_limit"}``.
+    :data:`decentral.unplaced.REASONS`, e.g. ``{"A2": "yaw_std_above_limit"}``.
     """
 
     t: float

@@ -21,7 +21,7 @@ from decentral.consistency import screen_members
 #: test solves the window once more per member; larger windows are solved as they come)
 SCREEN_MAX_MEMBERS = 8
 from decentral.geometry import rot2
-from decentral.placement import unplaced_reasons
+from decentral.unplaced import unplaced_reasons
 from protocols.admm_messages import FormAck, FormBundle, pack_bundle
 from protocols.aggregation import DownRepair, TreeAggregation
 from protocols.delta_messages import JointPoses
@@ -144,7 +144,7 @@ class WindowShare:
 
     def unplaced(self, joint, names, name: str, step: int, limit: float) -> dict[str, str]:
         """Why the joint placement test leaves an assembly out at ``step`` (assembly -> reason code of
-        :func:`decentral.placement.unplaced_reasons`)."""
+        :func:`decentral.unplaced.unplaced_reasons`)."""
         placed = {a for a, _ in self.placeable_keys(joint, name, step, limit)}
         problems = self.kept if self.kept is not None else self.problems()
         return unplaced_reasons(

@@ -1,3 +1,3 @@
-"""sims: worlds and scenarios, OpenCV rendering, the PettingZoo env, experiments and the CLI."""
+"""sims: around the library, by role: file formats (io), the simulation, runners, the lab, the console and the CLI."""
 
 __all__: list[str] = []

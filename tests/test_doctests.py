@@ -10,7 +10,7 @@ MODULES = [
     "decentral.estimator",
     "decentral.ensemble.hierarchical",
     "decentral.conformance",
-    "sims.admm_run",
+    "sims.runners.admm_run",
     "sims.io.log_json",
     "agents.perception.conformance",
     "protocols.conformance",

@@ -13,7 +13,7 @@ one row per module, SIMD style:
 - every message is a copy handed to the network in one :meth:`protocols.network.SimulatedNetwork.send_many`
   call per round and kind, with its exact wire size, and only the copies that
   :meth:`~protocols.network.SimulatedNetwork.poll_many` returns are received;
-- rounds are counted as the round clock of :mod:`sims.ensembles.distributed` counts them.
+- rounds are counted as the round clock of :mod:`sims.runners.ensemble_distributed` counts them.
 
 On a lossy network (``ModuleConfig.reliable``) the pose shares are acknowledged and retransmitted
 every ``retry_rounds`` rounds until acknowledged, exactly as the per-message path does it (same

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from decentral.ensemble import EnsembleProblem, refine
-from decentral.ensemble.placement import place_breadth_first
+from decentral.ensemble.breadth_first import place_breadth_first
 from protocols.ensemble.aggregation import split_by_subtree
 from protocols.ensemble.messages import Command
 

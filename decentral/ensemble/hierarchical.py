@@ -26,7 +26,7 @@ from decentral.ensemble.abstraction import abstract_graph, choose_leaders, hop_c
 from decentral.ensemble.alignment import AlignmentStats, merge_point_pairs
 from decentral.ensemble.ncut import normalized_cut
 from decentral.ensemble.ordering import hierarchy_order
-from decentral.ensemble.placement import place_breadth_first
+from decentral.ensemble.breadth_first import place_breadth_first
 from decentral.ensemble.problem import EnsembleEstimate, EnsembleProblem
 from decentral.ensemble.refine import RefineConfig, refine
 

@@ -11,7 +11,7 @@ import time
 
 from decentral.errors import InputError
 from sims.cli import feedback
-from sims.run_status import add_strict, report_status
+from sims.runners.run_status import add_strict, report_status
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -84,9 +84,9 @@ def _sigterm(signum, frame):
 def run(args: argparse.Namespace) -> int:
     from protocols.network import LinkConfig
     from protocols.peers import key_file_exposure, load_peers, load_private_key, read_private_key_text
-    from sims.agent_run import Pace, _counts, process_agent_config, run_agent
+    from sims.runners.agent_run import Pace, _counts, process_agent_config, run_agent
     from sims.io.log_json import write_estimate
-    from sims.parts import read_part
+    from sims.runners.parts import read_part
 
     if args.window < 1:
         raise InputError(f"must be >= 1, got {args.window}", field="--window")

@@ -1,6 +1,6 @@
 """``decentral build-log``: a rig file and the data it names (TUM/CSV odometry, detections, frames,
 videos, ROS 1/2 bags) in, a ``decentral.log/1`` out. The rig format is in :mod:`sims.io.rig` and
-``docs/rig.md``; the time association in :mod:`sims.build_log`."""
+``docs/rig.md``; the time association in :mod:`sims.runners.build_log`."""
 
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from decentral.errors import InputError
-    from sims.build_log import build_log
+    from sims.runners.build_log import build_log
     from sims.io.atomic import write_json_atomic
     from sims.io.log_json import write_log
     from sims.io.paths import check_output

@@ -45,7 +45,7 @@ def swarm_config(args: argparse.Namespace):
     import math
 
     from protocols.network import LinkConfig
-    from sims.swarm import SwarmConfig
+    from sims.simulation.swarm import SwarmConfig
 
     if not 0.0 <= args.loss < 1.0:
         raise InputError(f"must be in [0, 1), got {args.loss}", field="--loss")
@@ -72,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"must be in 1..65535, got {args.port}", field="--port")
     truth = None
     if args.truth:
-        from sims.world.truth import read_truth
+        from sims.simulation.world.truth import read_truth
 
         truth = read_truth(args.truth)
     if args.swarm:

@@ -34,8 +34,8 @@ def run(args: argparse.Namespace) -> int:
     from decentral.metrics import score_estimate
     from sims.cli.score import format_table
     from sims.io.log_json import write_estimate
-    from sims.scenarios import get_scenario, simulate
-    from sims.scenarios.output import save_simulation
+    from sims.simulation.scenarios import get_scenario, simulate
+    from sims.simulation.scenarios.output import save_simulation
 
     params = {"steps": args.steps} if args.steps else {}
     sim = simulate(get_scenario(args.scenario, **params), seed=args.seed)

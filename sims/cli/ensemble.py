@@ -3,7 +3,7 @@
 ``--method ncut`` (default) is Funiak et al.'s Algorithm 1; ``incremental``, ``mds``, ``sdp`` and
 ``bottom-up`` are the baselines of its §VI-E. ``--distributed`` runs Algorithm 1 as one agent per
 module over the simulated network (``--loss``: probability that a message is dropped); that runner
-lives in :mod:`sims.ensembles.distributed` (``run_distributed``) and this command only calls it, so
+lives in :mod:`sims.runners.ensemble_distributed` (``run_distributed``) and this command only calls it, so
 if it is not installed the command says so and exits 2. The estimate then also holds ``messages``,
 ``phase_names`` and ``phase_messages``.
 
@@ -26,12 +26,11 @@ import argparse
 import math
 import time
 from contextlib import nullcontext
-from dataclasses import replace
 
 from decentral.errors import InputError
 from sims.cli import feedback
 
-__all__ = ["HELP", "METHODS", "add_arguments", "run", "localize"]
+__all__ = ["HELP", "METHODS", "add_arguments", "run"]
 
 HELP = "localize every module of an ensemble from neighbour observations (Funiak et al. 2008)"
 
@@ -65,55 +64,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --distributed: refinement iterations between convergence checks (default: 10)")
 
 
-def localize(problem, method: str, seed: int, tol: float | None = None, progress=None):
-    """Run a centralized ``method`` on ``problem``; returns a LocalizationResult (no I/O).
-
-    ``tol`` (module radii) replaces the gradient tolerance of every refinement; ``progress`` is
-    passed to the hierarchical method (the baselines report none).
-    """
-    import numpy as np
-
-    rng = np.random.default_rng(seed)
-    if method == "ncut":
-        from decentral.ensemble.hierarchical import HierarchyConfig, normcut_localize
-
-        config = HierarchyConfig() if tol is None else HierarchyConfig().with_tolerance(tol)
-        return normcut_localize(problem, rng, config, progress=progress)
-    from decentral.ensemble import baselines
-    from decentral.ensemble.baselines.common import FINAL_REFINE
-
-    final = FINAL_REFINE if tol is None else replace(FINAL_REFINE, gtol=tol)
-    if method == "incremental":
-        return baselines.incremental_localize(problem, final)
-    if method == "mds":
-        return baselines.classical_mds(problem, final)
-    if method == "sdp":
-        return baselines.sdp_localize(problem, final)
-    if method == "bottom-up":
-        return baselines.bottom_up_localize(problem, rng, refine_config=final)
-    raise InputError(f"unknown method {method!r}", field="--method")
-
-
-def distributed_config(loss: float = 0.0, tol: float | None = None, check_every: int | None = None):
-    """The :class:`~sims.ensembles.distributed.DistributedConfig` of ``--loss``, ``--tol``, ``--check-every``."""
-    from sims.ensembles.distributed import DistributedConfig
-
-    config = DistributedConfig(loss=loss)
-    if tol is not None:
-        config = replace(config, hierarchy=config.hierarchy.with_tolerance(tol), top_gtol=tol)
-    if check_every is not None:
-        config = replace(config, check_every=check_every)
-    return config
-
-
 def _distributed(problem, args, progress=None) -> tuple:
     import numpy as np
 
     try:
-        from sims.ensembles.distributed import run_distributed
+        from sims.runners.ensemble_distributed import run_distributed
     except ImportError:
-        raise InputError("the distributed runner (sims.ensembles.distributed) is not available in this "
+        raise InputError("the distributed runner (sims.runners.ensemble_distributed) is not available in this "
                          "installation", field="--distributed") from None
+    from sims.runners.ensemble_run import distributed_config
+
     config = distributed_config(args.loss or 0.0, args.tol, args.check_every)
     res = run_distributed(problem, np.random.default_rng(args.seed), config, progress=progress)
     extra = {
@@ -162,6 +122,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         # the baselines report no progress: only the hierarchy gets a bar
         bar = feedback.progress("ensemble", total=problem.n, unit="module") if args.method == "ncut" else nullcontext()
+        from sims.runners.ensemble_run import localize
+
         with bar as progress:
             res = localize(problem, args.method, args.seed, args.tol, progress=progress)
         extra = {"cost": np.float64(res.cost), "iterations_per_module": res.iterations_per_module}

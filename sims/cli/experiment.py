@@ -39,7 +39,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from sims.experiments.table1 import TableConfig, plot_reconfig, plot_table1, run_reconfig, run_table1, table_markdown
+    from sims.lab.experiments.table1 import TableConfig, plot_reconfig, plot_table1, run_reconfig, run_table1, table_markdown
     from sims.io.atomic import write_atomic, write_json_atomic
 
     if args.seeds < 1:

@@ -43,7 +43,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from sims.io.log_json import ESTIMATE_FORMAT, load_json, parse_estimate
     from sims.io.trajectories import estimate_trajectories, truth_trajectories, write_trajectories
-    from sims.world.truth import TRUTH_FORMAT, parse_truth
+    from sims.simulation.world.truth import TRUTH_FORMAT, parse_truth
 
     from sims.io.kinds import require_kind
 

@@ -6,7 +6,7 @@ import argparse
 
 from decentral.errors import InputError
 from sims.cli import feedback
-from sims.run_status import add_strict, report_status
+from sims.runners.run_status import add_strict, report_status
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -41,7 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from sims.io.log_json import read_log, write_estimate
-    from sims.launch import LaunchConfig, launch, parse_crash
+    from sims.runners.launch import LaunchConfig, launch, parse_crash
 
     if args.window < 1:
         raise InputError(f"must be >= 1, got {args.window}", field="--window")

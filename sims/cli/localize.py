@@ -1,7 +1,7 @@
 """``decentral localize``: a ``decentral.log/1`` in, a ``decentral.estimate/1`` out (docs/formats.md).
 
 A progress bar counts log steps (with ADMM rounds and messages in ``--mode admm``); one summary
-line closes the run. ``--mode admm`` warns on stderr (one line, :mod:`sims.run_status`) when its
+line closes the run. ``--mode admm`` warns on stderr (one line, :mod:`sims.runners.run_status`) when its
 ``stats.status`` is not ``ok`` (steps whose window did not converge within ``--max-rounds``), exits
 with :data:`~sims.cli.main.EXIT_NO_RESULT` (3) when it placed no assembly at all, and with 4 under
 ``--strict`` when some step did not converge (the estimate is still written: its ``stats`` say what
@@ -164,7 +164,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _not_placed(estimate) -> str:
     """``; not placed: REASON N, ...`` over every (step, assembly) left out, most frequent first; empty if none."""
-    from decentral.placement import count_reasons
+    from decentral.unplaced import count_reasons
 
     reasons = count_reasons(step.unplaced for step in estimate.steps)
     why = ", ".join(f"{code} {n}" for code, n in sorted(reasons.items(), key=lambda kv: -kv[1]))
@@ -172,7 +172,7 @@ def _not_placed(estimate) -> str:
 
 
 def _run_admm(log, args, noise, reference, progress):
-    from sims.admm_run import AdmmRunConfig, run_admm
+    from sims.runners.admm_run import AdmmRunConfig, run_admm
 
     for name in ("latency", "jitter"):
         if not 0.0 <= getattr(args, name) < 60.0:
@@ -207,7 +207,7 @@ def _report(estimate, args: argparse.Namespace, n_assemblies: int) -> int:
     feedback.summary(f"{steps} steps, {stats['rounds_total']} rounds, {total['sent']} messages "
                      f"({total['bytes_sent'] / 1e6:.2f} MB), converged {n_converged}/{steps} steps, "
                      f"{coverage} -> {args.output}")
-    from sims.run_status import report_status
+    from sims.runners.run_status import report_status
 
     strict = report_status(stats, steps, args.strict)  # one line: how many steps did not converge, and why
     if possible and not placed:

@@ -18,7 +18,7 @@ HELP = "make a module ensemble (2D settled under gravity, or 3D lattice) and its
 OPTIONS = {"n": "-n", "radius": "--radius", "lattice": "--lattice", "jitter": "--jitter"}
 
 
-#: the names of sims.ensembles.generator.SHAPES by dimension, listed here so that ``--help`` does not
+#: the names of sims.simulation.ensembles.generator.SHAPES by dimension, listed here so that ``--help`` does not
 #: import the generator (scipy); a test keeps the two equal
 SHAPES_2D = ("triple", "sparse", "open", "twin", "funnel", "ring", "blobs", "capture-triple", "capture-sparse",
              "capture-open")
@@ -42,8 +42,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from sims.ensembles.generator import EnsembleSpec, generate, save_observations, save_truth
-    from sims.ensembles.sensors import SensorModel
+    from sims.simulation.ensembles.generator import EnsembleSpec, generate, save_observations, save_truth
+    from sims.simulation.ensembles.sensors import SensorModel
     from sims.io.validate import MAX_METRES, MIN_METRES, require_range
 
     if not 0 < args.threshold < 1:

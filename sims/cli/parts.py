@@ -24,7 +24,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from sims.io.log_json import read_log
     from sims.io.paths import name_stem
-    from sims.parts import part_of, write_part
+    from sims.runners.parts import part_of, write_part
 
     log = read_log(args.log)
     names = list(log.assemblies) if args.only is None else list(dict.fromkeys(args.only))

@@ -18,13 +18,9 @@ from decentral.errors import InputError
 from sims.cli import feedback
 from sims.io.limits import current_limits, over_limit
 
-__all__ = ["HELP", "add_arguments", "run", "perceive_paths", "to_records"]
+__all__ = ["HELP", "add_arguments", "run"]
 
 HELP = "find, identify and track the spherical nodes in camera frames (writes decentral.detections/1)"
-
-#: accepted --min-radius / --max-radius, pixels
-RADIUS_RANGE = (1.0, 1e5)
-
 
 #: the names of agents.perception.apriltag.FAMILIES, listed here so that building the parser of every
 #: command does not import OpenCV (a test keeps the two equal)
@@ -61,7 +57,7 @@ def _check_image_files(paths: Sequence[str], limits) -> None:
     """Image files are read whole before decoding: refuse one larger than the file-size limit (videos stream)."""
     import os
 
-    from agents.perception.frames import is_video
+    from agents.perception.frame_reader import is_video
     from sims.io.kinds import require_kind
 
     for path in paths:
@@ -87,32 +83,9 @@ def _tag_table(path: str | None) -> dict[int, int] | None:
         raise err.located(path) from None
 
 
-def to_records(results, *, K: np.ndarray | None = None):
-    """Turn :class:`agents.perception.FrameResult` s into :class:`sims.io.detections_json.DetectionFrame` s.
-
-    With intrinsics ``K``, each circle becomes its eq. (1) circle (:func:`agents.perception.sphere.eq1_circle`).
-    """
-    import numpy as np
-
-    from agents.perception.sphere import eq1_circle
-    from sims.io.detections_json import DetectionFrame, DetectionRecord, TagRecord
-
-    frames = []
-    for res in results:
-        dets = []
-        for d in res.detections:
-            c = eq1_circle(d.circle, K) if K is not None else d.circle
-            tag = None
-            if d.read is not None:
-                tag = TagRecord(d.read.tag, d.read.hamming, d.read.margin, np.asarray(d.read.corners))
-            dets.append(DetectionRecord(c.u, c.v, c.r, c.score, d.node, d.track, tag))
-        frames.append(DetectionFrame(res.source, tuple(dets)))
-    return frames
-
-
 def _frame_total(paths: Sequence[str]) -> int | None:
     """Number of frames the inputs hold: one per image, a video's frame count (None if unknown)."""
-    from agents.perception.frames import is_video, native_stderr_silenced
+    from agents.perception.frame_reader import is_video, native_stderr_silenced
 
     if len(paths) == 1 and is_video(paths[0]):
         import cv2
@@ -125,60 +98,6 @@ def _frame_total(paths: Sequence[str]) -> int | None:
             cap.release()
         return count if count > 0 else None
     return len(paths)
-
-
-def _frames(paths: Sequence[str], max_pixels: int | None = None):
-    """The input frames, with a progress bar counting them."""
-    from agents.perception.frames import iter_frames
-
-    return feedback.track(iter_frames(list(paths), max_pixels), "perceive", total=_frame_total(paths), unit="frame")
-
-
-def perceive_paths(
-    paths: Sequence[str],
-    *,
-    family: str = "tag36h11",
-    track: bool = True,
-    tag_table: dict[int, int] | None = None,
-    min_radius: float = 8.0,
-    max_radius: float = 160.0,
-    motion: str = "auto",
-    detector: str = "hough",
-    log=None,
-    camera: str | None = None,
-    max_pixels: int | None = None,
-):
-    """Run perception over image files or one video; return the :class:`DetectionFrame` list.
-
-    ``log`` (an :class:`~decentral.observations.ObservationLog`) and ``camera`` supply the camera
-    model (eq. (1) circles) and, with ``motion="odometry"`` (or ``"auto"``, the default, when the log
-    has odometry for the camera's assembly), the observer's rotation per step; without a log,
-    ``"auto"`` is image registration. Frames over ``max_pixels`` pixels are refused before decoding.
-    """
-    from agents.perception import Perception, make_detector
-    from agents.perception.apriltag3 import make_identifier
-    from agents.perception.pipeline import perceive_frames
-    from sims.io.validate import require_range
-
-    require_range(min_radius, "--min-radius", *RADIUS_RANGE)
-    require_range(max_radius, "--max-radius", *RADIUS_RANGE)
-    if max_radius <= min_radius:
-        raise InputError("need --min-radius < --max-radius", field="--min-radius")
-    circles = make_detector(detector, min_radius, max_radius)
-    try:
-        identifier = make_identifier(family, tag_table)
-    except ValueError as err:
-        raise InputError(str(err), field="--family") from None
-    if log is None:
-        if motion == "odometry":
-            raise InputError("--motion odometry needs --log-template and --camera", field="--motion")
-        perception = Perception(circles, identifier, track=track, motion="flow" if motion in ("flow", "auto") else None)
-        return to_records(perceive_frames(_frames(paths, max_pixels), perception))
-    from sims.experiments.perception_run import perceive_with_log
-
-    return list(perceive_with_log(_frames(paths, max_pixels), log, camera, family=family, tag_table=tag_table,
-                                  track=track, motion=motion, min_radius=min_radius, max_radius=max_radius,
-                                  detector=detector).frames)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -205,6 +124,8 @@ def run(args: argparse.Namespace) -> int:
         log = read_log(args.log_template)
         if args.camera not in log.cameras:
             raise InputError(f"camera {args.camera!r} is not declared", source=args.log_template, field="assemblies")
+    from sims.runners.perception_run import perceive_paths
+
     frames = perceive_paths(
         args.frames,
         family=args.family,
@@ -217,11 +138,12 @@ def run(args: argparse.Namespace) -> int:
         log=log,
         camera=args.camera,
         max_pixels=max_pixels,
+        progress=lambda frames: feedback.track(frames, "perceive", total=_frame_total(args.frames), unit="frame"),
     )
     filled = None
     if log is not None:
         try:
-            from agents.perception.frames import iter_frames
+            from agents.perception.frame_reader import iter_frames
 
             _, first = next(iter(iter_frames(args.frames, max_pixels)))
             sizes = {args.camera: (first.shape[1], first.shape[0])}

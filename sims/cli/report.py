@@ -17,7 +17,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from sims.io.kinds import require_folder
-    from sims.study.report import write_report
+    from sims.lab.study.report import write_report
 
     require_folder(args.directory, "study.sqlite")
     result = write_report(args.directory)

@@ -83,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
         return _run_ensemble(args)
     from decentral.metrics import score_estimate
     from sims.io.log_json import read_estimate
-    from sims.world.truth import read_truth
+    from sims.simulation.world.truth import read_truth
 
     estimate = read_estimate(args.estimate)
     truth = read_truth(args.truth)
@@ -121,36 +121,6 @@ def _check_times_match(unmatched: int, estimate, truth_times, args: argparse.Nam
         feedback.warn(f"{unmatched} of {steps} estimate steps match no truth time and are not scored")
 
 
-def ensemble_score(estimate_path: str, truth_path: str) -> dict:
-    """Global and local RMS (module radii) of an ensemble estimate file against a truth file, JSON-ready."""
-    import numpy as np
-
-    from decentral.ensemble.metrics import evaluate
-    from sims.io.ensemble_npz import read_ensemble_positions, read_ensemble_truth
-
-    truth = read_ensemble_truth(truth_path)
-    n, dim = truth.position.shape
-    position = read_ensemble_positions(estimate_path, n, dim)
-    pairs, source = truth.pairs, "observed"
-    if pairs is None:
-        from scipy.spatial import cKDTree
-
-        from sims.ensembles.sensors import SensorModel
-
-        pairs = cKDTree(truth.position).query_pairs(SensorModel().reach(truth.radius), output_type="ndarray")
-        source = "true contacts"
-    if len(pairs) == 0:
-        raise InputError("no neighbour pairs: cannot fix the scale", source=truth_path, field="pairs")
-    if np.ptp(position, axis=0).max() == 0.0:
-        raise InputError("every module at one point", source=estimate_path, field="position")
-    err = evaluate(position, truth.position, pairs, truth.radius)
-    if not (np.isfinite(err.global_rms) and np.isfinite(err.local_rms)):
-        raise InputError("degenerate estimate (no finite alignment)", source=estimate_path, field="position")
-    return {"modules": n, "dim": dim, "units": "module radii", "global_rms": err.global_rms,
-            "local_rms": err.local_rms, "scale": err.scale, "regions": err.regions, "pairs": int(len(pairs)),
-            "pairs_from": source}
-
-
 def _print_json(args: argparse.Namespace, doc: dict) -> bool:
     """Refuse a score that is not finite (never printed as NaN/Infinity); print it as JSON with ``--json``.
 
@@ -168,6 +138,8 @@ def _print_json(args: argparse.Namespace, doc: dict) -> bool:
 
 
 def _run_ensemble(args: argparse.Namespace) -> int:
+    from sims.runners.ensemble_run import ensemble_score
+
     score = ensemble_score(args.estimate, args.truth)
     if not _print_json(args, score):
         print(f"{'modules':>8} {'global RMS [radii]':>19} {'local RMS [radii]':>18} {'scale':>7} {'regions':>8}")

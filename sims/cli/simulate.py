@@ -13,7 +13,7 @@ __all__ = ["HELP", "add_arguments", "run", "parse_params"]
 HELP = "simulate a scenario: write OUTDIR/log.json (decentral.log/1), OUTDIR/truth.json and frames"
 
 
-#: the names of sims.scenarios.SCENARIOS and sims.robot_data.ODOMETRY_FORMATS, listed here so that
+#: the names of sims.simulation.scenarios.SCENARIOS and sims.simulation.robot_data.ODOMETRY_FORMATS, listed here so that
 #: ``--help`` does not import numpy (a test keeps them equal)
 SCENARIO_NAMES = ("table1", "reconfig", "multi", "single_node", "ring64")
 ODOMETRY_FORMATS = ("tum", "csv", "ros1", "ros2")
@@ -58,8 +58,8 @@ def parse_params(items: list[str]) -> dict:
 
 def run(args: argparse.Namespace) -> int:
     """Simulate, then write the log, the truth and (optionally) frames into ``args.output``."""
-    from sims.scenarios import get_scenario, simulate
-    from sims.scenarios.output import save_simulation
+    from sims.simulation.scenarios import get_scenario, simulate
+    from sims.simulation.scenarios.output import save_simulation
 
     params = parse_params(args.params)
     if args.steps is not None:
@@ -72,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
         saved = save_simulation(sim, args.output, frames=args.frames, seed=args.seed, progress=bar)
     robot = ""
     if args.robot_data:
-        from sims.robot_data import write_robot_data
+        from sims.simulation.robot_data import write_robot_data
 
         rig = write_robot_data(sim, args.robot_data, odometry=args.robot_odometry, images=args.robot_images,
                                seed=args.seed)

@@ -3,7 +3,7 @@
 The spec (TOML: ``name``, ``command``, ``[fixed]``, ``[grid]``) is checked whole before any cell
 runs; cells without a row in ``DIR/study.sqlite`` then run on the chosen engine, and each finished
 cell's row is committed as it ends. Running the same command again runs only the missing cells.
-Library: :mod:`sims.study`.
+Library: :mod:`sims.lab.study`.
 """
 
 from __future__ import annotations
@@ -33,9 +33,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from decentral.errors import InputError
-    from sims.study.engines import make_engine
-    from sims.study.runner import default_workers, run_study
-    from sims.study.spec import read_spec
+    from sims.lab.study.engines import make_engine
+    from sims.lab.study.runner import default_workers, run_study
+    from sims.lab.study.spec import read_spec
 
     if args.workers is not None and args.workers < 1:
         raise InputError(f"must be >= 1, got {args.workers}", field="--workers")

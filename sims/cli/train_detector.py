@@ -1,7 +1,7 @@
 """``decentral train-detector``: retrain the learned circle detector on rendered scenes and/or labelled frames.
 
 Renders the training shards that are not yet in ``OUT/shards`` (varied scenes and ``table1`` runs by
-seed, :mod:`sims.experiments.detector_data`; the held-out varied scenes are refused), adds shards of
+seed, :mod:`sims.lab.experiments.detector_data`; the held-out varied scenes are refused), adds shards of
 the user's own labelled frames (``--labels``, see
 :func:`agents.perception.training.data.shard_from_labels`), then trains both networks on the CPU
 (``python -m agents.perception.training train``; PyTorch from the ``train`` extra) and writes
@@ -47,7 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from agents.perception.training.__main__ import main as train_main
     from agents.perception.training.data import shard_from_labels, write_shard
-    from sims.experiments.detector_data import main as render_main
+    from sims.lab.experiments.detector_data import main as render_main
 
     shards = args.out / "shards"
     shards.mkdir(parents=True, exist_ok=True)

@@ -3,10 +3,10 @@
 The operator of Kanovsky's simulation (§4.1) sees the ground truth, takes control of any robot
 (forward, backward, rotate in place), and commands it to *take a picture* (which robots are in its
 view cone), to *report* what it knows to the swarm over the network, and to *read* the network and
-localize. :class:`OperatorSwarm` runs that loop over the project's swarm (:mod:`sims.swarm`): the true
+localize. :class:`OperatorSwarm` runs that loop over the project's swarm (:mod:`sims.simulation.swarm`): the true
 world, each robot's on-board EKF agent and the simulated radio, advanced one step per :meth:`tick`.
 
-Within a step the robots work as in :class:`sims.swarm.SwarmSim` (phase A: odometry and detections;
+Within a step the robots work as in :class:`sims.simulation.swarm.SwarmSim` (phase A: odometry and detections;
 phase B: estimates), but gated by the operator's commands: a robot's camera is read only at a step
 where it takes a picture, its detections and estimates go on the radio only when it reports, and what
 arrives for it is held in its inbox, unread, until it is told to read (the paper's "received and
@@ -30,10 +30,10 @@ import numpy as np
 from decentral.errors import InputError
 from decentral.geometry import rot2, wrap_angle
 from protocols.messages import BROADCAST, OdometryReport, PoseEstimates, Tracks
-from sims.swarm.config import SwarmConfig
-from sims.swarm.robot import SHARE_MAX_STD, SwarmRobot
-from sims.swarm.sim import SwarmSim
-from sims.swarm.world import wander_actions
+from sims.simulation.swarm.config import SwarmConfig
+from sims.simulation.swarm.robot import SHARE_MAX_STD, SwarmRobot
+from sims.simulation.swarm.sim import SwarmSim
+from sims.simulation.swarm.world import wander_actions
 
 __all__ = ["DRIVE_ACTIONS", "OperatorSwarm", "TickRecord"]
 
@@ -82,7 +82,7 @@ class OperatorSwarm:
     ----------
     config : SwarmConfig
     seed : int
-        Entry point of all randomness (as :class:`sims.swarm.SwarmSim`).
+        Entry point of all randomness (as :class:`sims.simulation.swarm.SwarmSim`).
     auto : bool
         Every robot takes a picture, reports and reads every step, and the robots the operator is
         not driving wander (the swarm's own loop); otherwise only what the operator commands happens
@@ -92,7 +92,7 @@ class OperatorSwarm:
 
     Examples
     --------
-    >>> from sims.swarm import SwarmConfig
+    >>> from sims.simulation.swarm import SwarmConfig
     >>> op = OperatorSwarm(SwarmConfig(n_robots=3), seed=1)
     >>> op.drive("R0", "forward"); op.tick().k
     1

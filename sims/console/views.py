@@ -101,7 +101,7 @@ class Replay:
     ----------
     log : decentral.observations.ObservationLog
     estimate : decentral.observations.Estimate
-    truth : sims.world.truth.Truth, optional
+    truth : sims.simulation.world.truth.Truth, optional
     """
 
     def __init__(self, log, estimate, truth=None):

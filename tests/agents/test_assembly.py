@@ -11,8 +11,8 @@ from decentral.errors import InputError, ProtocolError
 from protocols.admm_messages import ConfigAnnounce, ConfigRequest, FactorShare, FormBundle, pack_forms
 from protocols.messages import BROADCAST, AdmmDual, AdmmPrimal, decode
 from protocols.delta_messages import DeltaBundle, JointPoses
-from sims.admm_run import own_step
-from sims.scenarios import get_scenario, simulate
+from sims.runners.admm_run import own_step
+from sims.simulation.scenarios import get_scenario, simulate
 
 
 @pytest.fixture(scope="module")

@@ -7,8 +7,8 @@ from agents.assembly import OwnStep
 from agents.runtime import LocalAgent, WindowRule
 from decentral.errors import InputError
 from protocols.messages import AdmmPrimal
-from sims.admm_run import AdmmRunConfig, run_admm
-from sims.scenarios import get_scenario, simulate
+from sims.runners.admm_run import AdmmRunConfig, run_admm
+from sims.simulation.scenarios import get_scenario, simulate
 
 
 class _Stub:

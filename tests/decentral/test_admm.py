@@ -9,7 +9,7 @@ from decentral.estimator import EstimatorConfig, solve_window
 from decentral.factors import measure_log
 from decentral.geometry import rot2
 from decentral.window import build_window
-from sims.scenarios import get_scenario, simulate
+from sims.simulation.scenarios import get_scenario, simulate
 
 
 @pytest.fixture(scope="module")
@@ -121,7 +121,7 @@ def test_per_step_forms_give_the_window_forms_joint_solution():
     as one form per pair over the window and the odometry chain (a window adds only its newest step)."""
     from agents.assembly import AssemblyAgent
     from decentral.admm import solve_joint
-    from sims.admm_run import AdmmRunConfig, _agent_config, own_step
+    from sims.runners.admm_run import AdmmRunConfig, _agent_config, own_step
 
     log = simulate(get_scenario("multi", n_assemblies=4, steps=4), seed=1).log
     whole, split = [], []

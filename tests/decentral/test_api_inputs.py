@@ -11,7 +11,7 @@ from decentral.errors import InputError
 from decentral.estimator import EstimatorConfig, estimate_log
 from decentral.metrics import estimate_gap, score_estimate
 from decentral.observations import Step
-from sims.admm_run import run_admm
+from sims.runners.admm_run import run_admm
 from sims.io.log_json import estimate_to_dict, log_to_dict
 from sims.io.trajectories import estimate_trajectories
 from tests.synthetic import camera, circle_motion, l_config, line_config, make_log

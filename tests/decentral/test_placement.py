@@ -3,9 +3,9 @@
 import numpy as np
 
 from decentral.estimator import EstimatorConfig, estimate_log
-from decentral.placement import REASONS, count_reasons, unplaced_reasons
-from sims.admm_run import run_admm
-from sims.scenarios import get_scenario, simulate
+from decentral.unplaced import REASONS, count_reasons, unplaced_reasons
+from sims.runners.admm_run import run_admm
+from sims.simulation.scenarios import get_scenario, simulate
 from tests.synthetic import camera, circle_motion, l_config, line_config, make_log
 
 N = 6
@@ -67,7 +67,7 @@ def test_admm_reasons_match_the_centralized_ones():
     """With every agent's forms shared, the reference agent gives the centralized reasons step by step."""
     log = split_scene()
     central = estimate_log(log, EstimatorConfig(window=3))
-    from sims.admm_run import AdmmRunConfig
+    from sims.runners.admm_run import AdmmRunConfig
 
     admm = run_admm(log, config=AdmmRunConfig(window=3, max_rounds=30)).estimate  # A2, A3 never settle
     for a, b in zip(central.steps[1:], admm.steps[1:]):

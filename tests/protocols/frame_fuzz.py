@@ -20,7 +20,7 @@ import protocols.admm_messages  # noqa: F401  (registers its kinds)
 import protocols.ensemble.messages  # noqa: F401
 from protocols.admm_messages import ConfigAnnounce, ConfigRequest, FactorShare, FormAck, FormBundle
 from protocols.delta_messages import DeltaBundle, JointPoses
-from protocols.flood import RawStep
+from protocols.baselines.flood import RawStep
 from protocols.ensemble.messages import Ack, ClusterClaim, Command, Hello, Join, PoseShare, Report, TreeFlood
 from protocols.messages import (
     HEADER_SIZE,

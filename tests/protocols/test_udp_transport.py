@@ -10,7 +10,7 @@ import pytest
 
 from decentral.errors import InputError
 from protocols.auth import new_private_key, public_key_bytes
-from protocols.flood import RawStep
+from protocols.baselines.flood import RawStep
 from protocols.datagrams import Reassembler, split_frame
 from protocols.messages import BROADCAST, Heartbeat
 from protocols.network import LinkConfig

@@ -60,7 +60,7 @@ def test_3d_estimate_holds_unit_quaternions(tmp_path):
 
 def test_distributed_writes_message_counts(tmp_path):
     """--distributed adds messages (n), phase_names and phase_messages that sum to the total."""
-    pytest.importorskip("sims.ensembles.distributed")
+    pytest.importorskip("sims.runners.ensemble_distributed")
     obs = _save(tmp_path / "obs.npz", **_valid(shape=(5, 4)))
     out = tmp_path / "est.npz"
     assert main(["ensemble", obs, "-o", str(out), "--distributed", "--seed", "3"]) == 0

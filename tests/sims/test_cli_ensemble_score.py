@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from decentral.ensemble.metrics import evaluate
-from sims.cli import ensemble as ensemble_cmd
 from sims.cli.main import main
 from sims.io.ensemble_npz import read_ensemble
+from sims.runners import ensemble_run
 
 
 @pytest.fixture(scope="module")
@@ -134,16 +134,16 @@ def test_looser_tolerance_refines_less(ens, tmp_path):
 
 def test_distributed_tolerance_sets_level_and_top_and_check_every():
     """--tol reaches every level's and the top's tolerance of the distributed run; --check-every its checks."""
-    cfg = ensemble_cmd.distributed_config(0.0, 0.01, 5)
+    cfg = ensemble_run.distributed_config(0.0, 0.01, 5)
     assert cfg.top_gtol == 0.01 and cfg.hierarchy.level_refine.gtol == 0.01 and cfg.check_every == 5
-    assert ensemble_cmd.distributed_config() == type(cfg)()
+    assert ensemble_run.distributed_config() == type(cfg)()
 
 
 def test_distributed_run_at_its_cap_warns(ens, tmp_path, capsys, monkeypatch):
     """A distributed refinement stopped by the iteration cap is reported as a non-convergence warning."""
     obs, _, _ = ens
-    capped = replace(ensemble_cmd.distributed_config(), top_max_iter=2, level_max_iter=2)
-    monkeypatch.setattr(ensemble_cmd, "distributed_config", lambda *a, **k: capped)
+    capped = replace(ensemble_run.distributed_config(), top_max_iter=2, level_max_iter=2)
+    monkeypatch.setattr(ensemble_run, "distributed_config", lambda *a, **k: capped)
     assert main(["ensemble", str(obs), "-o", str(tmp_path / "d.npz"), "--distributed"]) == 0
     err = capsys.readouterr().err
     assert "decentral ensemble: warning: distributed refinement did not converge" in err

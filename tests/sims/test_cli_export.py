@@ -16,8 +16,8 @@ from decentral.observations import Estimate, EstimateStep, PlanarPose
 from sims.cli.main import main
 from sims.io.log_json import write_estimate
 from sims.io.trajectories import estimate_trajectories, trajectory_lines
-from sims.scenarios import SCENARIOS, get_scenario, simulate
-from sims.scenarios.output import save_simulation
+from sims.simulation.scenarios import SCENARIOS, get_scenario, simulate
+from sims.simulation.scenarios.output import save_simulation
 
 BIN = Path(sys.executable).parent
 

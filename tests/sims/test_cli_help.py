@@ -61,7 +61,7 @@ def test_make_ensemble_errors_name_the_option(tmp_path, capsys, argv, option):
 def test_make_ensemble_lists_every_shape_of_the_generator_with_its_dimension():
     """make-ensemble's SHAPES_2D and SHAPES_3D are exactly the generator's shapes, by dimension."""
     from sims.cli.make_ensemble import SHAPES_2D, SHAPES_3D
-    from sims.ensembles.generator import SHAPES
+    from sims.simulation.ensembles.generator import SHAPES
 
     assert SHAPES_2D + SHAPES_3D == tuple(SHAPES)
     assert {SHAPES[s] for s in SHAPES_2D} == {2} and {SHAPES[s] for s in SHAPES_3D} == {3}
@@ -73,8 +73,8 @@ def test_the_choice_lists_repeated_for_a_light_help_equal_their_sources():
     from sims.cli.simulate import ODOMETRY_FORMATS as SIMULATE_ODOMETRY
     from sims.cli.simulate import SCENARIO_NAMES
     from sims.io.trajectories import FORMATS
-    from sims.robot_data import ODOMETRY_FORMATS
-    from sims.scenarios import SCENARIOS
+    from sims.simulation.robot_data import ODOMETRY_FORMATS
+    from sims.simulation.scenarios import SCENARIOS
 
     assert SCENARIO_NAMES == tuple(SCENARIOS)
     assert SIMULATE_ODOMETRY == ODOMETRY_FORMATS

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from sims.cli.main import main
-from sims.experiments.synthetic_scene import SceneConfig, SceneNode, draw_scene, floor_texture
+from sims.lab.experiments.synthetic_scene import SceneConfig, SceneNode, draw_scene, floor_texture
 from sims.io.detections_json import read_detections
 
 
@@ -106,7 +106,7 @@ def test_log_template_options_go_together(tmp_path, capsys):
 
 def test_log_assembly_from_a_rendered_run(tmp_path):
     """Frames of a rendered run + its log template give a decentral.log/1 with identified detections."""
-    pytest.importorskip("sims.render")
+    pytest.importorskip("sims.simulation.render")
     from sims.io.log_json import read_log
 
     run = tmp_path / "run"
@@ -130,7 +130,7 @@ def test_log_assembly_from_a_rendered_run(tmp_path):
 
 def test_auto_motion_uses_the_logs_odometry_not_registration(tmp_path, monkeypatch):
     """With a log template that has odometry, the default motion source is the odometry (no image registration)."""
-    pytest.importorskip("sims.render")
+    pytest.importorskip("sims.simulation.render")
     from agents.perception import motion
 
     def no_flow(self, *args, **kwargs):

@@ -176,7 +176,7 @@ def test_ensemble_bar_and_npz_output(ensemble, tmp_path, capsys, bars_on):
 def test_library_callbacks_reach_their_totals(sim6):
     """estimate_log and run_admm call progress once per step up to the step count (with ADMM counters)."""
     from decentral.estimator import estimate_log
-    from sims.admm_run import run_admm
+    from sims.runners.admm_run import run_admm
     from sims.io.log_json import read_log
 
     log = read_log(sim6 / "log.json")
@@ -192,7 +192,7 @@ def test_library_callbacks_reach_their_totals(sim6):
 
 def test_distributed_stages_reach_their_total(ensemble):
     """run_distributed reports each stage; the last call has done == total and the message count grows."""
-    from sims.ensembles.distributed import run_distributed
+    from sims.runners.ensemble_distributed import run_distributed
     from sims.io.ensemble_npz import read_ensemble
 
     obs, _, _ = ensemble

@@ -7,8 +7,8 @@ import pytest
 from decentral.estimator import EstimatorConfig, estimate_log
 from sims.cli.main import main
 from sims.io.log_json import estimate_to_dict
-from sims.scenarios import get_scenario, simulate
-from sims.scenarios.output import save_simulation
+from sims.simulation.scenarios import get_scenario, simulate
+from sims.simulation.scenarios.output import save_simulation
 
 
 @pytest.fixture(scope="module")

@@ -18,7 +18,7 @@ from sims.cli.main import COMMANDS
 BUDGET_CPU_S = 0.3
 #: never imported just to print help or the version
 HEAVY = ("numpy", "scipy", "cv2", "cvxpy", "clarabel", "networkx", "matplotlib", "ray", "zmq", "onnx",
-         "onnxruntime", "pettingzoo", "nacl", "sims.ensembles.generator", "sims.render", "agents.perception")
+         "onnxruntime", "pettingzoo", "nacl", "sims.simulation.ensembles.generator", "sims.simulation.render", "agents.perception")
 
 _CHILD = """
 import json, sys

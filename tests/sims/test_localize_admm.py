@@ -8,10 +8,10 @@ import pytest
 from decentral.estimator import EstimatorConfig, estimate_log
 from decentral.metrics import estimate_gap, score_estimate
 from protocols.network import Crash, Partition
-from sims.admm_run import AdmmRunConfig, own_step, run_admm
+from sims.runners.admm_run import AdmmRunConfig, own_step, run_admm
 from sims.cli.main import main
 from sims.io.log_json import write_log
-from sims.scenarios import get_scenario, simulate
+from sims.simulation.scenarios import get_scenario, simulate
 
 POS_TOL, YAW_TOL = 1e-3, np.radians(0.05)
 

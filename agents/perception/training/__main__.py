@@ -8,7 +8,7 @@ name) except those matching a ``--validation`` pattern, which form the validatio
 ``python -m agents.perception.training label LABELS.json SHARD.npz`` turns a user's labelled frames
 (see :func:`agents.perception.training.data.shard_from_labels`) into a shard.
 
-Rendered training shards: ``python -m sims.experiments.detector_data``. Bad input ends with one
+Rendered training shards: ``python -m sims.lab.experiments.detector_data``. Bad input ends with one
 line naming the file or option and exit status 2.
 """
 

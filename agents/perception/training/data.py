@@ -10,7 +10,7 @@ A **shard** is an ``.npz`` file of ``n`` frames and ``m`` circles:
   full-resolution frame (the second stage's data).
 
 :func:`shard_from_frames` builds one from any frames and circles (rendered scenes:
-``sims.experiments.detector_data``; a user's own labelled frames: :func:`shard_from_labels`).
+``sims.lab.experiments.detector_data``; a user's own labelled frames: :func:`shard_from_labels`).
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ from decentral.ensemble.abstraction import abstract_graph, choose_leaders, hop_c
 from decentral.ensemble.baselines.common import FINAL_REFINE, run_per_component
 from decentral.ensemble.hierarchical import LocalizationResult, merge_parts
 from decentral.ensemble.ncut import algebraic_connectivity
-from decentral.ensemble.placement import place_breadth_first
+from decentral.ensemble.breadth_first import place_breadth_first
 from decentral.ensemble.problem import EnsembleProblem
 from decentral.ensemble.refine import RefineConfig, refine
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from decentral.ensemble.baselines.common import FINAL_REFINE, run_per_component
 from decentral.ensemble.hierarchical import LocalizationResult
-from decentral.ensemble.placement import place_breadth_first
+from decentral.ensemble.breadth_first import place_breadth_first
 from decentral.ensemble.problem import EnsembleProblem
 from decentral.ensemble.refine import RefineConfig, refine
 

@@ -1,8 +1,8 @@
-"""Synthetic frames for the perception tests (image-plane discs with tags, see sims.experiments.synthetic_scene)."""
+"""Synthetic frames for the perception tests (image-plane discs with tags, see sims.lab.experiments.synthetic_scene)."""
 
 import numpy as np
 
-from sims.experiments.synthetic_scene import SceneConfig, SceneNode, draw_scene, floor_texture
+from sims.lab.experiments.synthetic_scene import SceneConfig, SceneNode, draw_scene, floor_texture
 
 W, H = 640, 480
 

@@ -7,7 +7,7 @@ from agents.perception import AprilTagConfig, AprilTagIdentifier
 from agents.perception.apriltag import tag_quality
 from agents.perception.types import Circle
 from perception_scenes import frame, layout
-from sims.experiments.synthetic_scene import SceneNode
+from sims.lab.experiments.synthetic_scene import SceneNode
 
 
 def _circles(nodes):

@@ -9,7 +9,7 @@ from agents.perception import AprilTagIdentifier, Perception  # noqa: E402
 from agents.perception.apriltag3 import AprilTag3Config, AprilTag3Identifier, make_identifier  # noqa: E402
 from agents.perception.types import Circle, Identifier  # noqa: E402
 from perception_scenes import frame, layout  # noqa: E402
-from sims.experiments.synthetic_scene import SceneNode  # noqa: E402
+from sims.lab.experiments.synthetic_scene import SceneNode  # noqa: E402
 
 
 def _circles(nodes):

@@ -7,7 +7,7 @@ from agents.perception import HoughCircleDetector
 from agents.perception.hough import suppress
 from agents.perception.types import Circle
 from perception_scenes import H, W, frame, layout
-from sims.experiments.synthetic_scene import Bar, SceneNode
+from sims.lab.experiments.synthetic_scene import Bar, SceneNode
 
 
 def _match(circles, node, tol=0.3):

@@ -34,9 +34,9 @@ def test_default_is_the_hough_detector_and_rim_is_opt_in():
 def test_default_detector_finds_the_rendered_nodes_of_table1():
     """On rendered table1 frames the default detector finds at least 3 in 4 unoccluded nodes within a tenth
     of their radius (centre and radius), and every circle of a node's size lies on a node."""
-    render = pytest.importorskip("sims.render.frames")
-    from sims.render.renderer import RenderConfig
-    from sims.scenarios import get_scenario, simulate
+    render = pytest.importorskip("sims.simulation.render.frame_files")
+    from sims.simulation.render.renderer import RenderConfig
+    from sims.simulation.scenarios import get_scenario, simulate
 
     sim = simulate(get_scenario("table1", steps=3), seed=2)
     frames = [f for _, key, f in render.render_frames(sim, 5, RenderConfig()) if key == "A0/cam0"]
@@ -72,7 +72,7 @@ def test_perceive_runs_the_opt_in_detector_when_asked(tmp_path, detector):
     import cv2
 
     from sims.cli.main import main
-    from sims.experiments.synthetic_scene import SceneConfig, SceneNode, draw_scene, floor_texture
+    from sims.lab.experiments.synthetic_scene import SceneConfig, SceneNode, draw_scene, floor_texture
 
     floor = floor_texture(640, 480, np.random.default_rng(0))
     paths = []

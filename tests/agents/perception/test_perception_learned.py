@@ -7,7 +7,7 @@ from agents.perception import Perception, make_detector
 from agents.perception.learned import MODEL_DIR, LearnedCircleDetector, LearnedConfig, decode
 from agents.perception.types import CircleDetector
 from decentral.errors import InputError
-from sims.experiments.varied_scenes import HELD_OUT_SEEDS, TUNING_SEEDS, sequence
+from sims.lab.experiments.varied_scenes import HELD_OUT_SEEDS, TUNING_SEEDS, sequence
 
 
 def _strict(c, s):

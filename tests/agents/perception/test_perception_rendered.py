@@ -3,13 +3,13 @@
 import numpy as np
 import pytest
 
-render = pytest.importorskip("sims.render.frames")
+render = pytest.importorskip("sims.simulation.render.frame_files")
 
 from agents.perception import HoughCircleDetector  # noqa: E402
 from agents.perception.sphere import eq1_circle  # noqa: E402
 from agents.perception.sphere_tags import SphereTagReader  # noqa: E402
-from sims.render.renderer import RenderConfig  # noqa: E402
-from sims.scenarios import get_scenario, simulate  # noqa: E402
+from sims.simulation.render.renderer import RenderConfig  # noqa: E402
+from sims.simulation.scenarios import get_scenario, simulate  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,7 @@ from agents.perception.tracking import TrackerConfig
 from agents.perception.kalman import circle_iou, warp_state
 from agents.perception.types import Circle, TagRead
 from perception_scenes import frame
-from sims.experiments.synthetic_scene import SceneNode
+from sims.lab.experiments.synthetic_scene import SceneNode
 
 
 def _read(node):

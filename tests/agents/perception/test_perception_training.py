@@ -12,7 +12,7 @@ from agents.perception.training.data import (
     write_shard,
 )
 from decentral.errors import InputError
-from sims.experiments.varied_scenes import sequence
+from sims.lab.experiments.varied_scenes import sequence
 
 
 def _shards(tmp_path, seeds=(2000, 2001, 2002)):

@@ -5,9 +5,9 @@ import pytest
 
 from agents.perception import make_detector
 from agents.perception.types import Circle, TagRead, TrackedCircle
-from sims.experiments.perception_scores import SequenceScore, score_frame
-from sims.experiments.varied_scenes import HELD_OUT_SEEDS, TUNING_SEEDS, Look, Sphere, Strut, render, sequence
-from sims.render.surfaces import SURFACES, lighting_gradient, surface
+from sims.lab.experiments.perception_scores import SequenceScore, score_frame
+from sims.lab.experiments.varied_scenes import HELD_OUT_SEEDS, TUNING_SEEDS, Look, Sphere, Strut, render, sequence
+from sims.simulation.render.surfaces import SURFACES, lighting_gradient, surface
 
 W, H = 640, 480
 RIM_DETECTORS = ("rim", "symmetry")

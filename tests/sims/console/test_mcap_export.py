@@ -15,7 +15,7 @@ from mcap.reader import make_reader  # noqa: E402
 from sims.console.mcap_export import SCHEMAS, write_streams_mcap, write_swarm_mcap  # noqa: E402
 from sims.console.streams import StreamFollower  # noqa: E402
 from sims.console.operator import OperatorSwarm  # noqa: E402
-from sims.swarm import SwarmConfig  # noqa: E402
+from sims.simulation.swarm import SwarmConfig  # noqa: E402
 
 
 def _read(path):

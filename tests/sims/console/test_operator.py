@@ -12,7 +12,7 @@ from decentral.errors import InputError
 from protocols.messages import OdometryReport
 from protocols.network import LinkConfig
 from sims.console.operator import OperatorSwarm
-from sims.swarm import SwarmConfig
+from sims.simulation.swarm import SwarmConfig
 
 CFG = SwarmConfig(n_robots=4, dt=0.1, dropout=0.0)
 SEED = 8  # R1 and R2 see each other, R1 sees R0, R2 does not (asserted where it matters)

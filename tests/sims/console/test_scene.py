@@ -11,7 +11,7 @@ import pytest
 from sims.console.scene import ellipse_axes, loss_colour, svg
 from sims.console.operator import OperatorSwarm
 from sims.console.views import swarm_frame
-from sims.swarm import SwarmConfig
+from sims.simulation.swarm import SwarmConfig
 
 
 def _attrs(text: str, cls: str) -> list[dict]:

@@ -11,8 +11,8 @@ import pytest
 @pytest.fixture(scope="session")
 def _simulated():
     from sims.io.log_json import log_to_dict
-    from sims.scenarios import get_scenario, simulate
-    from sims.world.truth import truth_to_dict
+    from sims.simulation.scenarios import get_scenario, simulate
+    from sims.simulation.world.truth import truth_to_dict
 
     sim = simulate(get_scenario("single_node", steps=4), seed=0)
     return log_to_dict(sim.log), truth_to_dict(sim.truth)
@@ -40,8 +40,8 @@ def estimate_doc(_simulated):
 
 @pytest.fixture(scope="session")
 def _ensemble():
-    from sims.ensembles.generator import EnsembleSpec, generate
-    from sims.ensembles.sensors import SensorModel
+    from sims.simulation.ensembles.generator import EnsembleSpec, generate
+    from sims.simulation.ensembles.sensors import SensorModel
 
     ens = generate(EnsembleSpec("triple", 30, 0.05, "hcp", 0.03, SensorModel()), np.random.default_rng(0))
     return ens
@@ -50,7 +50,7 @@ def _ensemble():
 @pytest.fixture
 def ensemble_arrays(tmp_path_factory, _ensemble):
     """The arrays of a valid 30-module ``decentral.ensemble/1`` file, as a dict."""
-    from sims.ensembles.generator import save_observations
+    from sims.simulation.ensembles.generator import save_observations
 
     path = tmp_path_factory.mktemp("ens") / "obs.npz"
     save_observations(path, _ensemble)

@@ -102,7 +102,7 @@ def test_a_stale_part_file_of_a_killed_run_is_removed_by_the_next_run(log_doc, t
 def test_kill_9_at_random_moments_leaves_no_part_file_after_the_next_run(tmp_path):
     """SIGKILL at random moments of `localize` never leaves a .part file past the next successful run."""
     from sims.io.log_json import log_to_dict
-    from sims.scenarios import get_scenario, simulate
+    from sims.simulation.scenarios import get_scenario, simulate
 
     log = write_json_text(tmp_path / "log.json", log_to_dict(simulate(get_scenario("multi", steps=30), seed=1).log))
     rng = np.random.default_rng(0)

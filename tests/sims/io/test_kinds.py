@@ -14,7 +14,7 @@ def test_every_project_format_is_a_known_kind():
     """Each format constant of the readers (and the key files') is a key of KINDS."""
     from protocols.peers import KEY_FORMAT, PEERS_FORMAT, PUBKEY_FORMAT
     from sims.io import detections_json, ensemble_npz, log_json, rig, robot_files
-    from sims.world.truth import TRUTH_FORMAT
+    from sims.simulation.world.truth import TRUTH_FORMAT
 
     formats = {log_json.LOG_FORMAT, log_json.ESTIMATE_FORMAT, TRUTH_FORMAT, detections_json.DETECTIONS_FORMAT,
                rig.RIG_FORMAT, robot_files.LAYOUT_FORMAT, ensemble_npz.OBSERVATION_FORMAT,

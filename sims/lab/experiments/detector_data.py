@@ -1,0 +1,104 @@
+"""Training data for the learned circle detector: rendered frames and their circles, as npz shards.
+
+Two sources, both with exact truth and reproducible from their seeds:
+
+- ``varied``: :func:`sims.lab.experiments.varied_scenes.sequence` scenes (floors of several kinds,
+  spheres coloured close to the floor, highlights, occlusion, smear), scene seeds from
+  :data:`TRAIN_VARIED_SEEDS` upwards. The held-out scenes (:data:`~sims.lab.experiments.varied_scenes.HELD_OUT_SEEDS`)
+  are refused.
+- ``table1``: the 3-D renderer's ``table1`` scenario (tower assemblies on a table), simulation and
+  render seeds from :data:`TRAIN_TABLE1_SEEDS` upwards (the experiments and benchmarks use seeds
+  0-9).
+
+A shard (``<source>-<seed>.npz``) holds, for ``n`` frames and ``m`` circles in all:
+
+- ``images`` (n, H, W, 3) uint8 BGR, each frame resized to the network's input (default 256 x 192);
+- ``scale`` (n,) float: full-resolution pixels per input pixel;
+- ``circles`` (m, 5) float32: frame index, u, v, r (silhouette circle, full-resolution pixels) and the
+  visible fraction of the disc;
+- ``crops`` (m, 64, 64, 3) uint8: a square crop of the full-resolution frame centred on each circle,
+  4 radii wide (:func:`agents.perception.crops.crop_circle`): the second stage's training data.
+
+(:mod:`agents.perception.training.data`.) ``python -m sims.lab.experiments.detector_data OUTDIR --varied 2000:2100``
+renders a range of seeds (see ``--help``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from agents.perception.training.data import shard_from_frames, write_shard
+from decentral.errors import InputError
+from sims.lab.experiments.varied_scenes import HELD_OUT_SEEDS, sequence
+
+__all__ = ["TRAIN_TABLE1_SEEDS", "TRAIN_VARIED_SEEDS", "table1_shard", "varied_shard"]
+
+#: first scene seed of the varied training scenes (0-31 tuned the hand-made detectors, 1000-1007 held out)
+TRAIN_VARIED_SEEDS = 2000
+#: first seed of the table1 training runs (the experiments and benchmarks use 0-9)
+TRAIN_TABLE1_SEEDS = 100
+
+
+def varied_shard(seed: int, frames: int, **kw) -> dict[str, np.ndarray]:
+    """A shard of ``frames`` frames of varied scene ``seed`` (never a held-out scene)."""
+    if seed in HELD_OUT_SEEDS:
+        raise InputError(f"scene {seed} is held out for evaluation; choose another seed", field="seed")
+    seq = sequence(seed, frames)
+    return shard_from_frames(((f.image, [(s.u, s.v, s.r, vis) for s, vis in zip(f.spheres, f.visible)])
+                              for f in seq), **kw)
+
+
+def table1_shard(seed: int, steps: int, *, scenario: str = "table1", **kw) -> dict[str, np.ndarray]:
+    """A shard of every camera's frames of the ``scenario`` run ``seed`` (``steps`` steps)."""
+    from sims.simulation.render.frame_files import render_frames
+    from sims.simulation.render.renderer import RenderConfig
+    from sims.simulation.scenarios import get_scenario, simulate
+
+    sim = simulate(get_scenario(scenario, steps=steps), seed=seed)
+    return shard_from_frames(((fr.image, [(n["su"], n["sv"], n["sr"], n["visible"]) for n in fr.nodes])
+                              for _, _, fr in render_frames(sim, seed, RenderConfig())), **kw)
+
+
+def _range(text: str) -> range:
+    try:
+        a, b = (int(x) for x in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected FIRST:STOP, got {text!r}") from None
+    return range(a, b)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description="Render training shards for the learned circle detector.")
+    ap.add_argument("outdir")
+    ap.add_argument("--varied", type=_range, default=range(0), help="varied scene seeds FIRST:STOP")
+    ap.add_argument("--varied-frames", type=int, default=10, help="frames per varied scene (default 10)")
+    ap.add_argument("--table1", type=_range, default=range(0), help="table1 run seeds FIRST:STOP")
+    ap.add_argument("--table1-steps", type=int, default=30, help="steps per table1 run (default 30)")
+    ap.add_argument("--stride", type=int, default=1, help="render every STRIDE-th seed of the ranges ...")
+    ap.add_argument("--offset", type=int, default=0, help="... starting at OFFSET (parallel workers)")
+    args = ap.parse_args(argv)
+    out = Path(args.outdir)
+    out.mkdir(parents=True, exist_ok=True)
+    jobs = [("varied", s) for s in args.varied] + [("table1", s) for s in args.table1]
+    for i, (kind, seed) in enumerate(jobs):
+        if i % args.stride != args.offset:
+            continue
+        path = out / f"{kind}-{seed}.npz"
+        if path.exists():
+            continue
+        try:
+            arrays = varied_shard(seed, args.varied_frames) if kind == "varied" else table1_shard(seed, args.table1_steps)
+        except InputError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        write_shard(path, arrays)
+        print(f"{path}: {len(arrays['images'])} frames, {len(arrays['circles'])} circles", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,386 @@
+"""One agent as an operating-system process: its part of the log, a real transport, the wall clock.
+
+This is the process runtime of :mod:`agents.runtime`: the same :class:`agents.runtime.AgentHost`
+the simulated runner drives, here for one agent, on wall-clock timers:
+
+- **steps**: step ``k`` of the part is handed to the agent at ``start + (t_k - t_0) / rate`` (the
+  log's pace, or ``rate`` times faster); a process that starts late (a restart) begins with the
+  step under way and never sees the ones it missed;
+- **rounds**: half round ``h`` runs at ``start + h * round_period / 2`` (phase ``h % 2`` of round
+  ``h // 2``); every process of a run counts rounds from the same ``start``, so their round numbers
+  agree (the aggregation tree names start rounds); a half round missed under load is skipped; a
+  process told a later start than a peer finds it from the peer's round numbers and follows the
+  earliest start (:mod:`sims.runners.start_clock`; reported in ``stats["clock"]``);
+- **the window** ends by the agent's own rule (:class:`agents.runtime.WindowRule`, budget = the
+  rounds between two steps) or when the next step comes; its estimate is what the agent holds then;
+- **after the last step** the agent keeps answering for ``linger`` seconds, then stops.
+
+Each finished step is appended at once as one JSON line to ``stream`` (if given): ``{"step", "t",
+"poses", "unplaced", "converged", "rounds", "window_seconds", "counts", "heard", "latency_ms",
+"lagged", "counters"}`` with the transport's cumulative counts, the frame latencies of the window
+(median, p90, max, ms) and the agent's protocol counters, so that a process killed with SIGKILL has
+still reported every step it finished.
+
+- **a late start**: a process that starts after its START first asks its peers for the run's clock
+  (:class:`PeerClock`) and follows the START two of them agree on, from the step under way.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from agents.assembly import AgentConfig, AssemblyAgent
+from agents.runtime import AgentHost, LocalAgent, WindowRule
+from decentral.errors import InputError
+from decentral.observations import Estimate, EstimateStep, ObservationLog, PlanarPose
+from decentral.unplaced import count_reasons
+from protocols.messages import BROADCAST, Heartbeat
+from protocols.transport import Transport
+from sims.runners.admm_run import own_step
+from sims.runners.run_status import placed_steps, run_status
+from sims.runners.start_clock import StartClock
+
+__all__ = ["Pace", "PeerClock", "AgentRun", "run_agent", "step_period", "rounds_per_step", "process_agent_config", "poses_of"]
+
+
+@dataclass(frozen=True)
+class Pace:
+    """When a process runs its steps and rounds (wall-clock seconds).
+
+    Attributes
+    ----------
+    start : float
+        Wall time (``time.time()``) of the log's first step; every process of a run gets the same.
+    rate : float
+        Log seconds per wall second (1: the log's timestamps; 4: four times faster).
+    round_period : float
+        Wall seconds per ADMM round.
+    linger : float
+        Wall seconds the agent keeps answering after its last step.
+    """
+
+    start: float
+    rate: float = 1.0
+    round_period: float = 0.01
+    linger: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.rate) and self.rate > 0):
+            raise InputError(f"must be > 0, got {self.rate!r}", field="--rate")
+        if not (np.isfinite(self.round_period) and self.round_period > 0):
+            raise InputError(f"must be > 0, got {self.round_period!r}", field="--round-period")
+
+    def due(self, log: ObservationLog, k: int) -> float:
+        """Wall time at which step ``k`` of ``log`` comes."""
+        return self.start + (log.steps[k].t - log.steps[0].t) / self.rate
+
+    def half(self, now: float) -> int:
+        """Index of the half round under way at wall time ``now`` (negative before the start)."""
+        return int(np.floor((now - self.start) / (self.round_period / 2) + 1e-6))  # (a step due on a boundary)
+
+
+class PeerClock:
+    """When the peers' round clock started, from the frames that arrive (``sent_at - round * round_period``).
+
+    Every process of a run counts rounds from the same START, so each frame tells its sender's START
+    (clocks synchronized, as START itself assumes). :meth:`start` answers once two different senders
+    agree within a round period (one member alone cannot move it), with the later of their values (a
+    process running behind its clock only makes its value later).
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace as N
+    >>> clock = PeerClock(round_period=0.1)
+    >>> clock.observe([N(message=N(sender="A0", round=10), sent_at=11.0),
+    ...                N(message=N(sender="A1", round=20), sent_at=12.05)])
+    >>> clock.start()
+    10.05
+    """
+
+    def __init__(self, round_period: float, senders: int = 2):
+        self.round_period, self.senders = float(round_period), int(senders)
+        self._seen: dict[str, float] = {}
+
+    def observe(self, deliveries) -> None:
+        """Take the arrivals of one poll."""
+        for d in deliveries:
+            r = getattr(d.message, "round", 0)
+            if r > 0 and np.isfinite(d.sent_at):
+                self._seen[d.message.sender] = d.sent_at - r * self.round_period
+
+    def start(self) -> float | None:
+        """The peers' START once ``senders`` of them agree within a round period, else ``None``."""
+        values = sorted(self._seen.values())
+        for i in range(len(values) - self.senders + 1):
+            if values[i + self.senders - 1] - values[i] <= self.round_period:
+                return values[i + self.senders - 1]
+        return None
+
+    def reset(self) -> None:
+        """Forget what was observed (after adopting a START)."""
+        self._seen.clear()
+
+
+@dataclass
+class AgentRun:
+    """What one agent process produced.
+
+    Attributes
+    ----------
+    estimate : Estimate
+        Its own estimates (relative to itself) of the steps it ran.
+    steps : list of dict
+        The stream records, one per finished step.
+    heard : set of str
+        Assemblies from which a frame arrived.
+    stats : dict
+        Transport counts, rejections, rounds and what it missed.
+    """
+
+    estimate: Estimate
+    steps: list = field(default_factory=list)
+    heard: set = field(default_factory=set)
+    stats: dict = field(default_factory=dict)
+
+
+def step_period(log: ObservationLog) -> float:
+    """Median log seconds between two steps (1 s for a one-step log)."""
+    t = np.array([s.t for s in log.steps])
+    return float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+
+
+def rounds_per_step(log: ObservationLog, rate: float, round_period: float) -> int:
+    """Rounds between two sensor steps at this pace: the window's round budget."""
+    return max(2, int(step_period(log) / rate / round_period))
+
+
+def process_agent_config(part: ObservationLog, name: str, reference: str, window: int, rate: float,
+                         round_period: float) -> AgentConfig:
+    """The configuration of agent ``name`` running its ``part`` at this pace.
+
+    Its waits are bounded by the rounds between two steps (:meth:`agents.runtime.WindowRule.share_timeout`).
+    """
+    rule = WindowRule(budget=rounds_per_step(part, rate, round_period))
+    return AgentConfig(name=name, assemblies=tuple(part.assemblies), reference=reference,
+                       cameras=tuple(part.cameras.values()), node_radius=part.node_radius, window=window,
+                       share_timeout=rule.share_timeout(AgentConfig.share_timeout))
+
+
+def _counts(transport: Transport, name: str) -> dict:
+    stats = transport.stats()
+    mine = stats.per_sender.get(name)
+    return {
+        "messages": int(mine.sent) if mine is not None else 0,
+        "bytes": int(mine.bytes_sent) if mine is not None else 0,
+        "rejected": dict(getattr(stats, "rejected", {}) or {}),
+        "dropped": dict(stats.drop_reasons),
+    }
+
+
+def run_agent(part: ObservationLog, name: str, transport: Transport, config: AgentConfig, pace: Pace,
+              stream=None, clock: Callable[[], float] = time.time,
+              wait: Callable[[float], None] | None = None) -> AgentRun:
+    """Run agent ``name`` over its ``part`` of a log on ``transport`` at ``pace``; return what it estimated.
+
+    Parameters
+    ----------
+    part : ObservationLog
+        The agent's part (:mod:`sims.runners.parts`): its own sensors only.
+    name : str
+        Its assembly.
+    transport : Transport
+        A transport this agent is attached to (sends and polls as ``name``).
+    config : AgentConfig
+        The agent's configuration (``config.name == name``).
+    pace : Pace
+        Start time, rate, round period, linger.
+    stream : file-like, optional
+        Where each finished step is appended as a JSON line (flushed at once).
+    clock : callable
+        Wall clock (``time.time``).
+    wait : callable, optional
+        ``wait(seconds)``: block until then or until a frame arrives (default: ``time.sleep``).
+    """
+    wait = wait or time.sleep
+    per_step = step_period(part) / pace.rate
+    budget = rounds_per_step(part, pace.rate, pace.round_period)
+    local = LocalAgent(AssemblyAgent(config), WindowRule(budget=budget))
+    heard: set[str] = set()
+    told = pace.start
+    start_clock = StartClock(pace.round_period)  # peers' starts from their round numbers (sims.runners.start_clock)
+
+    clocks = PeerClock(pace.round_period)
+
+    answered: dict[str, float] = {}
+    latencies: list[float] = []  # sent_at to arrival of the frames of the current window (s)
+
+    class _Listening:  # records who was heard and when the peers' rounds started, then hands the frames on
+        def poll(self, agent, now):
+            arrivals = transport.poll(agent, now)
+            heard.update(d.message.sender for d in arrivals)
+            clocks.observe(arrivals)
+            latencies.extend(d.latency for d in arrivals)
+            for d in arrivals:
+                if d.message.round > 0:  # (a round-0 heartbeat asks for the clock: it tells no start)
+                    start_clock.heard(d.message.sender, d.message.round, now, told - start_clock.moved)
+                # a peer that (re)started asks for the run's clock with a round-0 heartbeat: answer with this round
+                m = d.message
+                if (isinstance(m, Heartbeat) and m.round == 0 and current is not None
+                        and now - answered.get(m.sender, -1e9) > pace.round_period):
+                    answered[m.sender] = now
+                    transport.send(Heartbeat(sender=name, receiver=m.sender, round=max(1, pace.half(now) // 2),
+                                             t=now), now)
+            return arrivals
+
+        def send(self, message, now):
+            transport.send(message, now)
+
+    host = AgentHost(local, _Listening())
+    n = len(part.steps)
+    now = clock()
+    k = 0
+    while k + 1 < n and pace.due(part, k + 1) <= now:
+        k += 1  # a late start (a restart) begins with the step under way
+    first = k
+    done_half = max(pace.half(now), 0) - 1  # half rounds count from the start (0), or from now when late
+    current: int | None = None
+    records: list[dict] = []
+    max_behind, lagged = 20, 0
+    began, took = now, None
+    end = pace.due(part, n - 1) + max(pace.linger, per_step)
+
+    def close(step: int) -> None:
+        local.end_window()
+        poses = {a: {"p": [float(x) for x in pose.p], "theta": float(pose.theta)}
+                 for a, pose in sorted(local.window_estimate.items())}
+        record = {"step": step, "t": part.steps[step].t, "poses": poses, "unplaced": dict(local.window_unplaced),
+                  "converged": local.converged,
+                  "rounds": local.rounds, "window_seconds": took, "counts": _counts(transport, name), "heard": sorted(heard),
+                  "latency_ms": _quantiles(latencies), "lagged": lagged,
+                  "excluded": list(getattr(local.agent, "excluded", ())),
+                  "suspects": list(getattr(local.agent, "suspects", ())), "clock": start_clock.report(),
+                  "counters": {k: int(v) for k, v in local.agent.counters.items()}}  # (to trace a wrong window)
+        latencies.clear()
+        records.append(record)
+        if stream is not None:
+            stream.write(json.dumps(record) + "\n")
+            stream.flush()
+
+    adopted = []  # (wall time, the START given, the peers' START adopted)
+    # started after its START (a restart, a late start): first listen until two peers tell their clock (at most
+    # a few steps), so that a START that is not the peers' is noticed before it runs a step of the wrong time
+    listen_until = now + max(4 * per_step, 1.0) if now > pace.start + per_step / 2 else now
+    asked, caught_up = -1e9, False
+    while True:
+        now = clock()
+        listening = current is None and (now < pace.start or (now < listen_until and clocks.start() is None))
+        if listening:
+            # before this agent's first step: listen, so that a START later than the peers' is noticed
+            _Listening().poll(name, now)  # (what arrives now belongs to windows it cannot join yet)
+            if now >= asked + 0.1:
+                transport.send(Heartbeat(sender=name, receiver=BROADCAST, round=0, t=now), now)  # what is the clock?
+                asked = now
+        elif current is None and not caught_up:
+            caught_up = True
+            while k + 1 < n and pace.due(part, k + 1) <= now:
+                k += 1  # listened past some steps: begin with the step under way
+            first = k
+            done_half = max(pace.half(now), 0) - 1
+        peers_start = clocks.start()
+        if peers_start is not None and peers_start < pace.start - per_step / 2:
+            # the peers started earlier (a restart given a fresh START): run on their clock from the step under way
+            adopted.append((now, pace.start, peers_start))
+            pace = dataclasses.replace(pace, start=peers_start)
+            told, start_clock = peers_start, StartClock(pace.round_period)  # small skews are measured from here on
+            clocks.reset()
+            listen_until = now
+            while k + 1 < n and pace.due(part, k + 1) <= now:
+                k += 1
+            if current is None:
+                first = k
+            done_half = max(pace.half(now), 0) - 1
+            end = pace.due(part, n - 1) + max(pace.linger, per_step)
+        if told - start_clock.follow() != pace.start:  # a peer started a little earlier: follow its start
+            pace = dataclasses.replace(pace, start=told - start_clock.moved)
+            end = pace.due(part, n - 1) + max(pace.linger, per_step)
+        if k < n and now >= pace.due(part, k) and not listening:
+            if current is not None:
+                close(current)
+            host.on_step(own_step(part, name, k), now, max(0, pace.half(now)) // 2)
+            current, k = k, k + 1
+            began, took = now, None
+        h = pace.half(now)
+        if h > done_half and h >= 0 and current is not None:
+            # every half round in order, late ones back to back (skipping a phase would break the protocol's
+            # alternation); a process more than `max_behind` halves late jumps to the next round's phase 0
+            if h - (done_half + 1) > max_behind:
+                done_half = h - 1 if h % 2 == 0 else h  # resume at a phase 0: now, or at the next half round
+                lagged += 1
+            nxt = done_half + 1
+            if nxt <= h:
+                host.half_round(now, nxt // 2, nxt % 2)
+                done_half = nxt
+                if took is None and local.done:
+                    took = clock() - began  # wall time of the window, by the agent's own rule
+                if done_half < h:
+                    continue  # still behind: no waiting
+        if k >= n and now >= end:
+            break
+        next_half = pace.start + (done_half + 1) * pace.round_period / 2
+        next_step = pace.due(part, k) if k < n else end
+        if listening:  # before the first step: poll again soon (or at the START)
+            wait(max(0.0, min(clock() + 0.02, pace.start) - clock()) if clock() < pace.start else 0.02)
+            continue
+        wait(max(0.0, min(next_half, next_step) - clock()))
+    if current is not None:
+        close(current)
+    names = part.assemblies
+    steps = tuple(EstimateStep(r["t"], poses_of(r["poses"]), r["unplaced"]) for r in records)
+    final = _counts(transport, name)
+    unplaced = count_reasons(step.unplaced for step in steps)
+    status, status_counts = run_status([r["converged"] for r in records], placed_steps(steps), unplaced,
+                                       not_run=n - len(records))
+    stats = {
+        "unplaced": unplaced,
+        "status": status,
+        "status_counts": status_counts,
+        "estimator": "consensus-admm",
+        "mode": "process",
+        "agent": name,
+        "first_step": first,
+        "skipped": first,  # steps that were over when it started (a late start or a restart)
+        "adopted_start": [{"at": a, "given": g, "peers": p} for a, g, p in adopted],
+        "processes": 1,
+        "messages": {"total": final["messages"], "per_agent": {name: final["messages"]}},
+        "bytes": {"total": final["bytes"], "per_agent": {name: final["bytes"]}},
+        "rejected": final["rejected"],
+        "dropped": final["dropped"],
+        "rounds_per_step": [r["rounds"] for r in records],
+        "converged_per_step": [r["converged"] for r in records],
+        "missing": sorted(a for a in names if a != name and a not in heard),
+        "round_period": pace.round_period,
+        "lagged": lagged,  # times the process fell more than 20 half rounds behind and jumped
+        "rate": pace.rate,
+        "clock": start_clock.report(),  # peers' start offsets, and how far this agent's start was moved
+    }
+    est = Estimate(name, steps, stats)
+    return AgentRun(est, records, heard, stats)
+
+
+def _quantiles(latencies: list[float]) -> list[float] | None:
+    """``[median, p90, max]`` of frame latencies in ms (sender's clock to arrival), ``None`` without frames."""
+    if not latencies:
+        return None
+    q = np.quantile(np.asarray(latencies, float), [0.5, 0.9, 1.0]) * 1e3
+    return [round(float(x), 3) for x in q]
+
+
+def poses_of(raw: dict) -> dict[str, PlanarPose]:
+    """A stream record's ``poses`` as :class:`PlanarPose` objects."""
+    return {a: PlanarPose(np.array(v["p"], float), float(v["theta"])) for a, v in raw.items()}

@@ -1,0 +1,134 @@
+"""What a decentralized run's ``stats.status`` says, with counts per reason, and its one-line warning.
+
+Every decentralized runner (``localize --mode admm``, ``agent``, ``launch``, a study cell) ends with
+the same verdict, computed here from what each step's window did:
+
+- ``ok``: every step's window converged (its answer is the consensus, the centralized estimate's
+  fixed point) and the run was not cut short;
+- ``degraded``: some step did not converge; ``status_counts`` says how many and why;
+- ``timeout``: the run was cut short (``launch --timeout``) before every step was reported.
+
+``status_counts`` (always present, zeros included) counts
+
+- ``unconverged``: steps whose window ended (the next sensor step came, or the round budget ran
+  out) before the agent's convergence test held;
+- ``provisional``: of those, steps that still have an answer: the joint solution of the forms the
+  agent held, or its last iterate (placing at least one assembly);
+- ``unanswered``: of those, steps that placed no assembly at all;
+- ``not_run``: steps the agent never ran (it was down, started late, or the run was cut short);
+- one entry per reason of an assembly-step left unplaced (:data:`decentral.unplaced.REASONS`,
+  e.g. ``no_consensus``), as in ``stats.unplaced``.
+
+The commands print :func:`status_warning` as one warning line when a run is not ``ok``, and with
+``--strict`` exit with :data:`EXIT_DEGRADED` (4) (:func:`report_status`).
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Iterable, Mapping, Sequence
+
+__all__ = ["STATUSES", "EXIT_DEGRADED", "run_status", "status_warning", "placed_steps", "add_strict", "report_status"]
+
+#: the values ``stats.status`` takes
+STATUSES = ("ok", "degraded", "timeout")
+
+#: exit status of ``--strict`` runs whose status is not ``ok`` (3 is "placed nothing", 2 "bad input")
+EXIT_DEGRADED = 4
+
+
+def run_status(converged: Sequence[bool], placed: Sequence[bool], unplaced: Mapping[str, int] | None = None, *,
+               not_run: int = 0, timed_out: bool = False) -> tuple[str, dict[str, int]]:
+    """The verdict and the counts per reason of a run (see the module docstring).
+
+    Parameters
+    ----------
+    converged : sequence of bool, shape (S,)
+        Per step the agent ran: whether its window converged.
+    placed : sequence of bool, shape (S,)
+        Per step the agent ran: whether its answer placed at least one assembly.
+    unplaced : mapping, optional
+        Assembly-steps left unplaced, per reason (``stats.unplaced``).
+    not_run : int
+        Steps of the log the agent never ran.
+    timed_out : bool
+        Whether the run was cut short.
+
+    Returns
+    -------
+    status : str
+        ``ok``, ``degraded`` or ``timeout``.
+    counts : dict
+        Counts per reason (``unconverged``, ``provisional``, ``unanswered``, ``not_run`` and
+        the unplaced reasons).
+
+    Examples
+    --------
+    >>> run_status([True, True], [True, True])
+    ('ok', {'unconverged': 0, 'provisional': 0, 'unanswered': 0, 'not_run': 0})
+    >>> run_status([True, False], [True, True], {"no_consensus": 2})[0]
+    'degraded'
+    """
+    if len(converged) != len(placed):
+        raise ValueError("converged and placed must have one entry per step")
+    off = [p for c, p in zip(converged, placed) if not c]
+    counts = {"unconverged": len(off), "provisional": sum(1 for p in off if p),
+              "unanswered": sum(1 for p in off if not p), "not_run": int(not_run)}
+    for reason, n in sorted((unplaced or {}).items()):
+        counts[str(reason)] = int(n)
+    if timed_out:
+        return "timeout", counts
+    return ("ok" if not off and not not_run else "degraded"), counts
+
+
+def status_warning(status: str, counts: Mapping[str, int], steps: int) -> str | None:
+    """One line saying why a run is not ``ok`` (``None`` when it is).
+
+    Examples
+    --------
+    >>> status_warning("degraded", {"unconverged": 3, "provisional": 2, "unanswered": 1, "not_run": 0,
+    ...                             "no_consensus": 4}, 30)
+    'status degraded: 3 of 30 steps did not converge (2 provisional: the joint solution of the forms held; 1 placed no one); 4 assembly-steps not placed (no_consensus 4)'
+    """
+    if status == "ok":
+        return None
+    parts = []
+    if counts.get("unconverged"):
+        parts.append(f"{counts['unconverged']} of {steps} steps did not converge ({counts.get('provisional', 0)} "
+                     f"provisional: the joint solution of the forms held; {counts.get('unanswered', 0)} placed no one)")
+    if counts.get("not_run"):
+        parts.append(f"{counts['not_run']} of {steps} steps never ran (agent down, late or cut short)")
+    reasons = {k: v for k, v in counts.items() if k not in _OWN and v}
+    if reasons:
+        parts.append(f"{sum(reasons.values())} assembly-steps not placed ("
+                     + ", ".join(f"{k} {v}" for k, v in sorted(reasons.items(), key=lambda kv: -kv[1])) + ")")
+    return f"status {status}: " + ("; ".join(parts) if parts else "cut short")
+
+
+_OWN = ("unconverged", "provisional", "unanswered", "not_run")
+
+
+def placed_steps(steps: Iterable) -> list[bool]:
+    """Per :class:`decentral.observations.EstimateStep`: whether it places at least one assembly."""
+    return [bool(step.poses) for step in steps]
+
+
+# ---------------------------------------------------------------------------- the commands' side
+def add_strict(parser: argparse.ArgumentParser) -> None:
+    """Add ``--strict`` to a command's parser (``agent``, ``launch``)."""
+    parser.add_argument("--strict", action="store_true",
+                        help=f"exit with status {EXIT_DEGRADED} when stats.status is not 'ok' (some step did not "
+                             "converge, or never ran); the estimate is written either way")
+
+
+def report_status(stats: Mapping, steps: int, strict: bool) -> int:
+    """Warn on stderr (one line) when ``stats['status']`` is not ``ok``; return the exit status ``--strict`` asks
+    for (:data:`EXIT_DEGRADED`, else 0)."""
+    from sims.cli import feedback
+
+    line = status_warning(stats["status"], stats.get("status_counts", {}), steps)
+    if line is None:
+        return 0
+    feedback.warn(line + (f" (exit status {EXIT_DEGRADED})" if strict else "; --strict makes this exit "
+                          f"{EXIT_DEGRADED}"))
+    return EXIT_DEGRADED if strict else 0

@@ -1,0 +1,101 @@
+"""The field harness: agents as processes in network namespaces behind impaired links (Linux, root)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from decentral.estimator import EstimatorConfig, estimate_log
+from sims.lab.field.netns import Field, available, leftovers
+from sims.lab.field.proxy import LinkDelay
+from sims.lab.field.run import FieldConfig, run_field
+from sims.runners.launch import CrashPlan, LaunchConfig
+from sims.simulation.scenarios import get_scenario, simulate
+
+POS_TOL, YAW_TOL = 1e-3, np.radians(0.05)
+PACE = dict(rate=0.4, round_period=0.025)
+needs_field = pytest.mark.skipif(available() is not None, reason=f"field harness: {available()}")
+
+
+def _gaps(central, estimate, steps):
+    """Per step: (placed the same assemblies, max position gap, max yaw gap) against the centralized estimate."""
+    out = []
+    for k in steps:
+        c, e = central.steps[k], estimate.steps[k]
+        dp = [np.linalg.norm(c.poses[a].p - e.poses[a].p) for a in c.poses if a in e.poses]
+        dy = [abs(np.angle(np.exp(1j * (c.poses[a].theta - e.poses[a].theta)))) for a in c.poses if a in e.poses]
+        out.append((set(c.poses) == set(e.poses), max(dp, default=0.0), max(dy, default=0.0)))
+    return out
+
+
+def test_link_delay_is_seeded_and_keeps_stream_order():
+    """The same seed gives the same departures; an ordered link never lets a chunk overtake the one before."""
+    a, b = LinkDelay(0.05, 0.2, None, 3), LinkDelay(0.05, 0.2, None, 3)
+    assert [a.departure(t, 10) for t in range(5)] == [b.departure(t, 10) for t in range(5)]
+    ordered = LinkDelay(0.05, 1.0, None, 4, ordered=True)
+    times = [ordered.departure(0.001 * t, 10) for t in range(50)]
+    assert times == sorted(times)
+
+
+def test_rate_limit_spaces_departures():
+    """At 1000 bytes/s, ten 100-byte datagrams sent at once leave over about a second."""
+    d = LinkDelay(0.0, 0.0, 1000.0, 0)
+    last = [d.departure(0.0, 100) for _ in range(10)][-1]
+    assert last == pytest.approx(0.9)
+
+
+@needs_field
+def test_namespaces_are_removed_even_when_the_block_fails():
+    """A field's dcrt- namespaces exist inside its block and are gone after an error in it."""
+    with pytest.raises(RuntimeError):
+        with Field(2, tag="t" + str(np.random.default_rng().integers(10**6))) as net:
+            assert set(leftovers(net.tag)) == {net.hub, net.ns(0), net.ns(1)}
+            raise RuntimeError("boom")
+    assert leftovers(net.tag) == []
+
+
+@needs_field
+def test_a_ring_in_namespaces_behind_delayed_links_gives_the_centralized_estimate():
+    """3 agents in namespaces, 10 ms +-20 % links over UDP: every converged step equals the centralized estimate."""
+    sim = simulate(get_scenario("multi", n_assemblies=3, steps=5), seed=1)
+    central = estimate_log(sim.log, EstimatorConfig(window=5))
+    result = run_field(sim.log, LaunchConfig(**PACE, transport="udp"), FieldConfig(delay=0.01, jitter=0.2))
+    stats = result.estimate.stats
+    assert not result.timed_out and stats["mode"] == "field"
+    converged = [k for k, c in enumerate(stats["converged_per_step"]) if c]
+    assert len(converged) >= 3
+    for same, dp, dy in _gaps(central, result.estimate, converged):
+        assert same and dp < POS_TOL and dy < YAW_TOL
+    assert (stats["status"] == "ok") == all(stats["converged_per_step"])
+
+
+@pytest.mark.slow
+@needs_field
+@pytest.mark.parametrize("transport", ["udp", "zmq"])
+def test_under_loss_and_delay_every_converged_step_is_exact(transport):
+    """4 agents, 30 ms +-20 % links, 20 % packet loss: converged steps equal the centralized estimate."""
+    sim = simulate(get_scenario("multi", n_assemblies=4, steps=10), seed=1)
+    central = estimate_log(sim.log, EstimatorConfig(window=5))
+    result = run_field(sim.log, LaunchConfig(**PACE, transport=transport), FieldConfig(delay=0.03, loss=0.2))
+    stats = result.estimate.stats
+    converged = [k for k, c in enumerate(stats["converged_per_step"]) if c]
+    for same, dp, dy in _gaps(central, result.estimate, converged):
+        assert same and dp < POS_TOL and dy < YAW_TOL
+    assert (stats["status"] == "ok") == all(stats["converged_per_step"])
+
+
+@pytest.mark.slow
+@needs_field
+def test_a_restart_with_a_fresh_start_catches_up_within_ten_steps():
+    """A2 killed at step 4 and restarted 3 steps later with its own START, 50 ms links: exact again 10 steps on."""
+    sim = simulate(get_scenario("multi", n_assemblies=4, steps=24), seed=1)
+    central = estimate_log(sim.log, EstimatorConfig(window=5))
+    result = run_field(sim.log, LaunchConfig(**PACE, transport="udp", crashes=(CrashPlan("A2", 4, 3),)),
+                       FieldConfig(delay=0.05, fresh_restart=True, start_margin=1.0))
+    again = [run for run in result.records["A2"][1:] if run]
+    assert again, "the restarted agent reported no step"
+    back = again[0][0]["step"]
+    assert back < 4 + 3 + 10, f"restarted agent began at step {back}"  # (process start-up under load included)
+    late = range(back + 10, len(sim.log.steps)) if back + 10 < len(sim.log.steps) else range(len(sim.log.steps) - 1, len(sim.log.steps))
+    for same, dp, dy in _gaps(central, result.estimate, late):
+        assert same and dp < POS_TOL and dy < YAW_TOL
