@@ -11,7 +11,6 @@ import time
 
 from decentral.errors import InputError
 from sims.cli import feedback
-from sims.runners.run_status import add_strict, report_status
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -53,7 +52,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--transport", choices=("zmq", "udp"), default=DEFAULT_TRANSPORT,
                         help="udp: signed datagrams, a lost packet is a lost frame; zmq: ZeroMQ over TCP, a lost "
                              "packet stalls the frames behind it (default: %(default)s); the same for every agent")
-    add_strict(parser)
+    feedback.add_strict(parser)
     parser.add_argument("--stream", metavar="FILE",
                         help="append each finished step to FILE as one JSON line at once (survives a kill)")
 
@@ -167,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
     feedback.summary(f"{args.name}: {len(result.steps)} steps, {sum(stats['converged_per_step'])} converged, "
                      f"{stats['messages']['total']} frames sent, {sum(stats['rejected'].values())} refused, "
                      f"status {stats['status']}")
-    return report_status(stats, len(part.steps), args.strict)
+    return feedback.report_status(stats, len(part.steps), args.strict)
 
 
 def _start_time(text: str, where: str) -> float:

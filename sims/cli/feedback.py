@@ -19,15 +19,19 @@ The library (``decentral/``) never prints: long-running library functions take a
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import os
 import sys
 from dataclasses import dataclass
-from typing import Iterable, Iterator, TypeVar
+from typing import Iterable, Iterator, Mapping, TypeVar
 
 from tqdm import tqdm
 
-__all__ = ["Progress", "configure", "configured", "is_quiet", "progress", "track", "summary", "warn"]
+from sims.runners.run_status import EXIT_DEGRADED, status_warning
+
+__all__ = ["Progress", "configure", "configured", "is_quiet", "progress", "track", "summary", "warn", "add_strict",
+           "report_status"]
 
 T = TypeVar("T")
 
@@ -173,3 +177,22 @@ def summary(line: str) -> None:
 def warn(message: str) -> None:
     """Print a one-line warning on stderr (shown even in quiet mode)."""
     tqdm.write(_prefix() + "warning: " + message, file=sys.stderr)
+
+
+# ------------------------------------------------------------- a run's status (sims.runners.run_status)
+def add_strict(parser: argparse.ArgumentParser) -> None:
+    """Add ``--strict`` to a command's parser (``agent``, ``launch``)."""
+    parser.add_argument("--strict", action="store_true",
+                        help=f"exit with status {EXIT_DEGRADED} when stats.status is not 'ok' (some step did not "
+                             "converge, or never ran); the estimate is written either way")
+
+
+def report_status(stats: Mapping, steps: int, strict: bool) -> int:
+    """Warn on stderr (one line) when ``stats['status']`` is not ``ok``; return the exit status ``--strict`` asks
+    for (:data:`EXIT_DEGRADED`, else 0)."""
+    line = status_warning(stats["status"], stats.get("status_counts", {}), steps)
+    if line is None:
+        return 0
+    warn(line + (f" (exit status {EXIT_DEGRADED})" if strict else "; --strict makes this exit "
+                          f"{EXIT_DEGRADED}"))
+    return EXIT_DEGRADED if strict else 0

@@ -6,7 +6,6 @@ import argparse
 
 from decentral.errors import InputError
 from sims.cli import feedback
-from sims.runners.run_status import add_strict, report_status
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -34,7 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="never start NAME's agent (a peer that never comes up; repeatable)")
     parser.add_argument("--transport", choices=("zmq", "udp"), default=None,
                         help="the agents' transport (default: decentral agent's, see its --help)")
-    add_strict(parser)
+    feedback.add_strict(parser)
     parser.add_argument("--workdir", default=None,
                         help="keep keys, peers file, parts and per-agent streams here (default: a temporary folder)")
 
@@ -70,4 +69,4 @@ def run(args: argparse.Namespace) -> int:
     feedback.summary(f"{len(result.estimate.steps)} steps ({placed} placing someone), {stats['processes']} processes, "
                      f"{stats['messages']['total']} frames, {stats['bytes']['total']} bytes, "
                      f"{sum(stats['rejected'].values())} refused, status {stats['status']} -> {args.output}")
-    return report_status(stats, len(result.estimate.steps), args.strict)
+    return feedback.report_status(stats, len(result.estimate.steps), args.strict)

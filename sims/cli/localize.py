@@ -207,9 +207,8 @@ def _report(estimate, args: argparse.Namespace, n_assemblies: int) -> int:
     feedback.summary(f"{steps} steps, {stats['rounds_total']} rounds, {total['sent']} messages "
                      f"({total['bytes_sent'] / 1e6:.2f} MB), converged {n_converged}/{steps} steps, "
                      f"{coverage} -> {args.output}")
-    from sims.runners.run_status import report_status
 
-    strict = report_status(stats, steps, args.strict)  # one line: how many steps did not converge, and why
+    strict = feedback.report_status(stats, steps, args.strict)  # one line: how many steps did not converge, and why
     if possible and not placed:
         feedback.warn(f"placed no assembly: {total['dropped']} of {total['sent']} messages were dropped "
                       f"(--loss {args.loss:g}) and no estimate reached the reference "

@@ -25,10 +25,9 @@ The commands print :func:`status_warning` as one warning line when a run is not 
 
 from __future__ import annotations
 
-import argparse
 from typing import Iterable, Mapping, Sequence
 
-__all__ = ["STATUSES", "EXIT_DEGRADED", "run_status", "status_warning", "placed_steps", "add_strict", "report_status"]
+__all__ = ["STATUSES", "EXIT_DEGRADED", "run_status", "status_warning", "placed_steps"]
 
 #: the values ``stats.status`` takes
 STATUSES = ("ok", "degraded", "timeout")
@@ -111,24 +110,3 @@ _OWN = ("unconverged", "provisional", "unanswered", "not_run")
 def placed_steps(steps: Iterable) -> list[bool]:
     """Per :class:`decentral.observations.EstimateStep`: whether it places at least one assembly."""
     return [bool(step.poses) for step in steps]
-
-
-# ---------------------------------------------------------------------------- the commands' side
-def add_strict(parser: argparse.ArgumentParser) -> None:
-    """Add ``--strict`` to a command's parser (``agent``, ``launch``)."""
-    parser.add_argument("--strict", action="store_true",
-                        help=f"exit with status {EXIT_DEGRADED} when stats.status is not 'ok' (some step did not "
-                             "converge, or never ran); the estimate is written either way")
-
-
-def report_status(stats: Mapping, steps: int, strict: bool) -> int:
-    """Warn on stderr (one line) when ``stats['status']`` is not ``ok``; return the exit status ``--strict`` asks
-    for (:data:`EXIT_DEGRADED`, else 0)."""
-    from sims.cli import feedback
-
-    line = status_warning(stats["status"], stats.get("status_counts", {}), steps)
-    if line is None:
-        return 0
-    feedback.warn(line + (f" (exit status {EXIT_DEGRADED})" if strict else "; --strict makes this exit "
-                          f"{EXIT_DEGRADED}"))
-    return EXIT_DEGRADED if strict else 0
