@@ -15,7 +15,6 @@ Run: ``python benchmarks/console_libraries.py --python nicegui=... --python vise
 from __future__ import annotations
 
 import os
-import socket
 import subprocess
 import sys
 import time
@@ -23,6 +22,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import machine, parser, save  # noqa: E402
+from _console import CHROMIUM_ARGS, cpu_seconds, free_port, wait_port  # noqa: E402
 
 HERE = Path(__file__).resolve().parent / "console_libs"
 LIBS = ("nicegui", "viser", "panel")
@@ -33,39 +33,10 @@ SEQ_JS = {
     "panel": "(() => { try { return window.Bokeh.documents[0].get_model_by_name('src').data.seq[0]; }"
              " catch (e) { return null; } })()",
 }
-CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
-                 "--no-first-run"]
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def cpu_seconds(pid: int) -> float:
-    """User + system CPU seconds of process ``pid`` and its children that were waited for."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
 def site_packages_kb(python: str) -> int:
     out = subprocess.run([python, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
                          capture_output=True, text=True, check=True).stdout.strip()
     return int(subprocess.run(["du", "-sk", out], capture_output=True, text=True, check=True).stdout.split()[0])
-
-
-def wait_port(port: int, proc: subprocess.Popen, timeout: float) -> None:
-    end = time.time() + timeout
-    while time.time() < end:
-        if proc.poll() is not None:
-            raise RuntimeError(f"server exited with {proc.returncode}")
-        try:
-            with socket.create_connection(("127.0.0.1", port), timeout=0.5):
-                return
-        except OSError:
-            time.sleep(0.2)
-    raise RuntimeError("server did not listen in time")
 
 
 def measure(lib: str, python: str, robots: int, hz: float, seconds: float, chromium: str) -> dict:

@@ -16,7 +16,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import socket
 import subprocess
 import sys
 import tempfile
@@ -26,37 +25,18 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import machine, parser, save  # noqa: E402
-
-CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
-                 "--no-first-run"]
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def cpu_seconds(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
+from _console import CHROMIUM_ARGS, cpu_seconds, free_port, wait_port  # noqa: E402
 
 def start_console(args: list[str]) -> tuple[subprocess.Popen, int]:
     port = free_port()
     proc = subprocess.Popen([sys.executable, "-m", "sims.cli.main", "console", *args, "--port", str(port)],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    end = time.time() + 120
-    while time.time() < end:
-        if proc.poll() is not None:
-            raise RuntimeError(f"console exited: {proc.stderr.read()[-500:]}")
-        try:
-            with socket.create_connection(("127.0.0.1", port), timeout=0.5):
-                return proc, port
-        except OSError:
-            time.sleep(0.2)
-    proc.kill()
-    raise RuntimeError("console did not listen")
+    try:
+        wait_port(port, proc, 120)
+    except RuntimeError as err:
+        proc.kill()
+        raise RuntimeError(f"console: {err}: {proc.stderr.read()[-500:]}") from None
+    return proc, port
 
 
 def swarm_rate(robots: int, seconds: float, chromium: str, auto: bool) -> dict:
