@@ -13,14 +13,27 @@ meets in a :class:`protocols.network.SimulatedNetwork` of the same seed.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Mapping
 
 import numpy as np
 
 from decentral.errors import InputError
 from protocols.link_config import LinkConfig, link_root, link_stream
+from protocols.message_base import Message
 
-__all__ = ["ReceiveFaults", "check_faults"]
+__all__ = ["Held", "ReceiveFaults", "check_faults"]
+
+
+@dataclass(frozen=True, slots=True)
+class Held:
+    """An admitted copy waiting for its injected delay to pass (queued as ``(arrival, order, Held)``)."""
+
+    arrival: float
+    message: Message
+    sent_at: float
+    size: int
+    duplicate: bool
 
 
 def check_faults(cfg: LinkConfig, where: str) -> None:

@@ -59,7 +59,6 @@ from __future__ import annotations
 import heapq
 import math
 import time
-from dataclasses import dataclass
 from typing import Mapping
 
 import numpy as np
@@ -72,7 +71,7 @@ from protocols.auth import Gate, Opened, Rejected, Signer, new_private_key, publ
 from protocols.messages import Message
 from protocols.link_config import LinkConfig
 from protocols.peers import Peer, check_address
-from protocols.receive_faults import ReceiveFaults
+from protocols.receive_faults import Held, ReceiveFaults
 from protocols.transport import Delivery, Ledger, Transport, TransportStats
 
 __all__ = ["ZmqTransport", "open_loopback"]
@@ -88,17 +87,6 @@ DEFAULT_POLL_BUDGET = 0.005
 _MAX_UNREAD = 100_000
 
 
-@dataclass(frozen=True, slots=True)
-class _Held:
-    """An admitted copy waiting for its injected delay to pass (queued as ``(arrival, order, _Held)``)."""
-
-    arrival: float
-    message: Message
-    sent_at: float
-    size: int
-    duplicate: bool
-
-
 class _Endpoint:
     """One local agent: its bound inbound socket, its signer, its gate, and copies held back by delay."""
 
@@ -107,7 +95,7 @@ class _Endpoint:
         self.socket = socket
         self.signer = signer
         self.gate = gate
-        self.held: list[tuple[float, int, _Held]] = []
+        self.held: list[tuple[float, int, Held]] = []
         self.admitted: list[tuple[Opened, Message, int]] = []  # checked, waiting for a poll to apply faults
         self.address = socket.getsockopt_string(zmq.LAST_ENDPOINT)
 
@@ -438,9 +426,9 @@ class ZmqTransport(Transport):
         for arrival, duplicate in arrivals:
             if duplicate:
                 self._ledger.count(a, b, kind, ("duplicated", 1), ("in_flight", 1))
-            self._hold(ep, _Held(arrival, message, env.sent_at, size, duplicate))
+            self._hold(ep, Held(arrival, message, env.sent_at, size, duplicate))
 
-    def _hold(self, ep: _Endpoint, item: _Held) -> None:
+    def _hold(self, ep: _Endpoint, item: Held) -> None:
         self._order += 1  # ties in arrival time leave in admission order
         heapq.heappush(ep.held, (item.arrival, self._order, item))
 
