@@ -14,19 +14,17 @@ timeouts, newest-value-wins). Here a lost datagram is just a lost frame; the fra
   seconds is lost (counted ``incomplete``). Frames above ``max_frame_bytes`` are refused.
 - **Faults and books**: receive-side faults (``drop``, ``duplicate``, ``latency``, ``jitter``) are drawn
   per link as :class:`~protocols.zmq_transport.ZmqTransport` and the simulated network draw them
-  (:func:`protocols.network.link_stream`, six draws per admitted copy); the counting convention is
+  (:mod:`protocols.receive_faults`, six draws per admitted copy); the counting convention is
   :mod:`protocols.transport`'s, split between the sending and the receiving process.
 """
 
 from __future__ import annotations
 
 import heapq
-import math
 import os
 import select
 import socket
 import time
-from dataclasses import dataclass
 from typing import Mapping
 
 import numpy as np
@@ -36,9 +34,10 @@ from decentral.errors import InputError, ProtocolError
 from protocols.admission import SuspectBudget
 from protocols.auth import Gate, Rejected, Signer, public_key_bytes
 from protocols.datagrams import Reassembler, split_frame
+from protocols.link_config import LinkConfig
 from protocols.messages import Message
-from protocols.network import LinkConfig, link_root, link_stream
 from protocols.peers import Peer, check_address
+from protocols.receive_faults import Held, ReceiveFaults
 from protocols.transport import Delivery, Ledger, Transport, TransportStats
 
 __all__ = ["UdpTransport", "udp_endpoint"]
@@ -63,15 +62,6 @@ def udp_endpoint(address: str) -> tuple[str, int]:
         raise InputError(f"{address!r} has no UDP form (use tcp://HOST:PORT)", field="address")
     host, _, port = address[len("tcp://"):].rpartition(":")
     return host.strip("[]"), int(port)
-
-
-@dataclass(frozen=True, slots=True)
-class _Held:
-    arrival: float
-    message: Message
-    sent_at: float
-    size: int
-    duplicate: bool
 
 
 class UdpTransport(Transport):
@@ -115,14 +105,7 @@ class UdpTransport(Transport):
                  max_age: float | None = None, suspect_rate: float = 200.0):
         if not keys:
             raise InputError("needs at least one local agent", field="keys")
-        if faults.corrupt > 0 or math.isfinite(faults.bandwidth):
-            raise InputError("a real transport injects only drop, duplicate, latency and jitter", field="faults")
-        self._random = faults.drop > 0 or faults.duplicate > 0 or faults.jitter > 0
-        if rng is None and self._random:
-            raise InputError("random faults need an rng", field="rng")
-        self._faults = faults
-        self._root = link_root(rng) if rng is not None else None
-        self._rngs: dict[tuple[str, str], np.random.Generator] = {}
+        self._faults = ReceiveFaults(faults, {}, rng)
         self._peers = dict(peers)
         self._mtu, self._max_frame, self._max_batch = int(mtu), int(max_frame_bytes), int(max_batch)
         self._ledger = Ledger()
@@ -321,22 +304,16 @@ class UdpTransport(Transport):
                 budget.flag(source)
             return
         budget.trust(source)
-        a, kind, size, cfg = env.sender, message.KIND, len(frame), self._faults
-        if self._random:  # the simulated network's six draws per copy, in its order
-            gen = self._rngs.get((a, b))
-            if gen is None:
-                gen = self._rngs[(a, b)] = link_stream(self._root, a, b)
-            u_drop, _, u_dup, u_jit, u_jit2, _ = gen.random(6)
-        else:
-            u_drop, u_dup, u_jit, u_jit2 = 1.0, 1.0, 0.0, 0.0
-        if u_drop < cfg.drop:
+        a, kind, size = env.sender, message.KIND, len(frame)
+        arrivals = self._faults.arrivals(a, b, now)  # the simulated network's six draws per copy, in its order
+        if not arrivals:
             self._ledger.drop(self._ledger.keys(a, b, kind), size, "loss", ("in_flight", -1))
             return
-        self._hold(b, _Held(now + cfg.latency + u_jit * cfg.jitter, message, env.sent_at, size, False))
-        if u_dup < cfg.duplicate:
-            self._ledger.count(a, b, kind, ("duplicated", 1), ("in_flight", 1))
-            self._hold(b, _Held(now + cfg.latency + u_jit2 * cfg.jitter, message, env.sent_at, size, True))
+        for arrival, duplicate in arrivals:
+            if duplicate:
+                self._ledger.count(a, b, kind, ("duplicated", 1), ("in_flight", 1))
+            self._hold(b, Held(arrival, message, env.sent_at, size, duplicate))
 
-    def _hold(self, b: str, item: _Held) -> None:
+    def _hold(self, b: str, item: Held) -> None:
         self._order += 1
         heapq.heappush(self._held[b], (item.arrival, self._order, item))

@@ -22,13 +22,9 @@ it counted as ``rate``); :meth:`poll` spends at most ``poll_budget`` seconds rea
 for frames that pass (a flood of refused frames never wakes it). Frames still queued when the
 transport closes are counted as ``unread``. ZeroMQ fair-queues the inbound connections, so a
 flood on one connection delays the others' frames by at most its share of each read.
-Loss, duplication and delay can be injected *at the receiving side*, after a frame is admitted,
-with the behaviour of a :class:`protocols.network.LinkConfig` (``drop``, ``duplicate``,
-``latency``, ``jitter``), each link's random stream derived and drawn as the simulated network
-derives and draws it (:func:`protocols.network.link_stream`, six draws per copy in its order): every
-process given the same ``rng`` seed draws the same fates for the same link, and the ``k``-th frame
-admitted on a link meets the fate the ``k``-th copy sent on that link meets in a
-:class:`~protocols.network.SimulatedNetwork` of the same seed.
+Loss, duplication and delay can be injected *at the receiving side*, after a frame is admitted
+(:mod:`protocols.receive_faults`): the ``k``-th frame admitted on a link meets the fate the ``k``-th
+copy sent on that link meets in a :class:`~protocols.network.SimulatedNetwork` of the same seed.
 
 Counting follows :mod:`protocols.transport`: the sending process counts ``sent``/``bytes_sent``
 (the envelope's size: framing included) and one copy in flight per receiving link; the receiving
@@ -63,7 +59,6 @@ from __future__ import annotations
 import heapq
 import math
 import time
-from dataclasses import dataclass
 from typing import Mapping
 
 import numpy as np
@@ -74,8 +69,9 @@ from decentral.errors import InputError, ProtocolError
 from protocols.admission import SuspectBudget
 from protocols.auth import Gate, Opened, Rejected, Signer, new_private_key, public_key_bytes
 from protocols.messages import Message
-from protocols.network import LinkConfig, link_root, link_stream
+from protocols.link_config import LinkConfig
 from protocols.peers import Peer, check_address
+from protocols.receive_faults import Held, ReceiveFaults
 from protocols.transport import Delivery, Ledger, Transport, TransportStats
 
 __all__ = ["ZmqTransport", "open_loopback"]
@@ -91,17 +87,6 @@ DEFAULT_POLL_BUDGET = 0.005
 _MAX_UNREAD = 100_000
 
 
-@dataclass(frozen=True, slots=True)
-class _Held:
-    """An admitted copy waiting for its injected delay to pass (queued as ``(arrival, order, _Held)``)."""
-
-    arrival: float
-    message: Message
-    sent_at: float
-    size: int
-    duplicate: bool
-
-
 class _Endpoint:
     """One local agent: its bound inbound socket, its signer, its gate, and copies held back by delay."""
 
@@ -110,15 +95,9 @@ class _Endpoint:
         self.socket = socket
         self.signer = signer
         self.gate = gate
-        self.held: list[tuple[float, int, _Held]] = []
+        self.held: list[tuple[float, int, Held]] = []
         self.admitted: list[tuple[Opened, Message, int]] = []  # checked, waiting for a poll to apply faults
         self.address = socket.getsockopt_string(zmq.LAST_ENDPOINT)
-
-
-def _check_faults(cfg: LinkConfig, where: str) -> None:
-    if cfg.corrupt > 0 or math.isfinite(cfg.bandwidth):
-        raise InputError("a real transport injects only drop, duplicate, latency and jitter (not corrupt or "
-                         "bandwidth)", field=where)
 
 
 class ZmqTransport(Transport):
@@ -192,15 +171,7 @@ class ZmqTransport(Transport):
         stray = set(bind or {}) - set(keys)
         if stray:
             raise InputError(f"bind names agents that are not local: {sorted(stray)}", field="bind")
-        self._links = dict(links or {})
-        _check_faults(faults, "faults")
-        for pair, cfg in self._links.items():
-            _check_faults(cfg, f"links.{pair[0]}->{pair[1]}")
-        self._faults = faults
-        if rng is None and any(self._random(cfg) for cfg in (faults, *self._links.values())):
-            raise InputError("random faults need an rng", field="rng")
-        self._root = link_root(rng) if rng is not None else None
-        self._rngs: dict[tuple[str, str], np.random.Generator] = {}
+        self._faults = ReceiveFaults(faults, links or {}, rng)
         self._hwm, self._max_batch = int(hwm), int(max_batch)
         self._poll_budget = float(poll_budget)
         self._budget = SuspectBudget(rate=suspect_rate)
@@ -394,10 +365,6 @@ class ZmqTransport(Transport):
         if self._closed:
             raise ProtocolError("the transport is closed")
 
-    @staticmethod
-    def _random(cfg: LinkConfig) -> bool:
-        return cfg.drop > 0 or cfg.duplicate > 0 or cfg.jitter > 0
-
     def _read(self, ep: _Endpoint, deadline: float, now: float, most: int | None) -> None:
         """Read and check frames for ``ep`` until none is queued, ``deadline`` (perf_counter) or ``most`` frames."""
         n = 0
@@ -452,30 +419,18 @@ class ZmqTransport(Transport):
     def _deliver(self, ep: _Endpoint, env: Opened, message: Message, size: int, now: float) -> None:
         """Apply the link's faults to an admitted frame and hold its copies until their arrival time."""
         a, b, kind = env.sender, ep.name, message.KIND
-        cfg = self._links.get((a, b), self._faults)
-        # the simulated network's six draws per copy, in its order (drop, corrupt, duplicate, jitter, jitter of
-        # the duplicate, corrupt position): the k-th copy on a link meets the fate it meets in a simulation
-        if self._random(cfg):
-            u_drop, _, u_dup, u_jit, u_jit2, _ = self._link_rng(a, b).random(6)
-        else:
-            u_drop, u_dup, u_jit, u_jit2 = 1.0, 1.0, 0.0, 0.0
-        if u_drop < cfg.drop:
+        arrivals = self._faults.arrivals(a, b, now)
+        if not arrivals:
             self._ledger.drop(self._ledger.keys(a, b, kind), size, "loss", ("in_flight", -1))
             return
-        self._hold(ep, _Held(now + cfg.latency + u_jit * cfg.jitter, message, env.sent_at, size, False))
-        if u_dup < cfg.duplicate:
-            self._ledger.count(a, b, kind, ("duplicated", 1), ("in_flight", 1))
-            self._hold(ep, _Held(now + cfg.latency + u_jit2 * cfg.jitter, message, env.sent_at, size, True))
+        for arrival, duplicate in arrivals:
+            if duplicate:
+                self._ledger.count(a, b, kind, ("duplicated", 1), ("in_flight", 1))
+            self._hold(ep, Held(arrival, message, env.sent_at, size, duplicate))
 
-    def _hold(self, ep: _Endpoint, item: _Held) -> None:
+    def _hold(self, ep: _Endpoint, item: Held) -> None:
         self._order += 1  # ties in arrival time leave in admission order
         heapq.heappush(ep.held, (item.arrival, self._order, item))
-
-    def _link_rng(self, a: str, b: str) -> np.random.Generator:
-        gen = self._rngs.get((a, b))
-        if gen is None:
-            gen = self._rngs[(a, b)] = link_stream(self._root, a, b)
-        return gen
 
 
 def open_loopback(
