@@ -14,9 +14,15 @@ at most the budget's checks per second, plus a read and a parse per frame.
 from __future__ import annotations
 
 import time
-from typing import Callable, Hashable
+from typing import TYPE_CHECKING, Callable, Hashable
 
-__all__ = ["SuspectBudget"]
+from protocols.auth import Rejected
+
+if TYPE_CHECKING:
+    from protocols.auth import Gate, Opened
+    from protocols.message_base import Message
+
+__all__ = ["SuspectBudget", "admit"]
 
 
 class SuspectBudget:
@@ -77,3 +83,30 @@ class SuspectBudget:
             return False
         self._tokens -= cost
         return True
+
+
+def admit(gate: "Gate", budget: SuspectBudget, frame: bytes, source: Hashable,
+          now: float | None) -> tuple["Opened", "Message"]:
+    """Check one inbound ``frame`` from ``source`` (a connection or an address), cheapest checks first.
+
+    The gate's screen (envelope, sender, replay window, clock at ``now``) runs before any signature
+    check; a suspect source then spends the shared budget, and past it the frame is refused as
+    ``rate`` unverified; the signature and the rest come last. A refusal other than ``rate`` makes
+    the source suspect; a frame that passes trusts it again.
+
+    Raises
+    ------
+    protocols.auth.Rejected
+        With the reason of the first failing check.
+    """
+    try:
+        env = gate.screen(frame, now)
+        if budget.suspect(source) and not budget.take(len(frame)):
+            raise Rejected("rate", "a sender that sent refused frames, past the budget of checks")
+        message = gate.verify(env)
+    except Rejected as err:
+        if err.reason != "rate":
+            budget.flag(source)
+        raise
+    budget.trust(source)
+    return env, message

@@ -31,7 +31,7 @@ import numpy as np
 from nacl.signing import SigningKey
 
 from decentral.errors import InputError, ProtocolError
-from protocols.admission import SuspectBudget
+from protocols.admission import SuspectBudget, admit
 from protocols.auth import Gate, Rejected, Signer, public_key_bytes
 from protocols.datagrams import Reassembler, split_frame
 from protocols.link_config import LinkConfig
@@ -292,18 +292,12 @@ class UdpTransport(Transport):
         """Check one whole frame from ``source``, cheapest checks first (the envelope, the sender, the
         replay window and the clock before the signature, as :class:`protocols.zmq_transport.ZmqTransport`
         does per connection); count a refusal by reason, else hold it for its arrival time."""
-        gate, budget = self._gates[b], self._budget
         try:
-            env = gate.screen(frame, time.time() if self._max_age is not None else None)
-            if budget.suspect(source) and not budget.take(len(frame)):
-                raise Rejected("rate", "a source that sent refused frames, past the budget of checks")
-            message = gate.verify(env)
+            env, message = admit(self._gates[b], self._budget, frame, source,
+                                 time.time() if self._max_age is not None else None)
         except Rejected as err:
             self._ledger.reject(err.reason)
-            if err.reason != "rate":
-                budget.flag(source)
             return
-        budget.trust(source)
         a, kind, size = env.sender, message.KIND, len(frame)
         arrivals = self._faults.arrivals(a, b, now)  # the simulated network's six draws per copy, in its order
         if not arrivals:

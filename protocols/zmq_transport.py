@@ -66,7 +66,7 @@ import zmq
 from nacl.signing import SigningKey
 
 from decentral.errors import InputError, ProtocolError
-from protocols.admission import SuspectBudget
+from protocols.admission import SuspectBudget, admit
 from protocols.auth import Gate, Opened, Rejected, Signer, new_private_key, public_key_bytes
 from protocols.messages import Message
 from protocols.link_config import LinkConfig
@@ -385,18 +385,11 @@ class ZmqTransport(Transport):
     def _admit(self, ep: _Endpoint, frame: bytes, conn: int, now: float) -> None:
         """Check one inbound frame from connection ``conn``, cheapest checks first; count a refusal by
         reason, else queue it for the next poll."""
-        budget = self._budget
         try:
-            env = ep.gate.screen(frame, now)
-            if budget.suspect(conn) and not budget.take(len(frame)):
-                raise Rejected("rate", "a connection that sent refused frames, past the budget of checks")
-            message = ep.gate.verify(env)
+            env, message = admit(ep.gate, self._budget, frame, conn, now)
         except Rejected as err:
             self._ledger.reject(err.reason)
-            if err.reason != "rate":
-                budget.flag(conn)
             return
-        budget.trust(conn)
         self._admitted += 1
         ep.admitted.append((env, message, len(frame)))
 
