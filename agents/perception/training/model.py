@@ -64,14 +64,7 @@ class CircleNet(nn.Module):
             self.head[-1].bias[1] = 2.5  # log radius of ~12 input px
 
     def forward(self, x):
-        c4 = self.stem(x)
-        c8 = self.s8(c4)
-        c16 = self.s16(c8)
-        c32 = self.s32(c16)
-        y = self.lat[3](c32)
-        for lat, c in ((self.lat[2], c16), (self.lat[1], c8), (self.lat[0], c4)):
-            y = F.interpolate(y, scale_factor=2.0, mode="nearest") + lat(c)
-        out = self.head(y)
+        out = self.logits(x)
         return torch.cat([torch.sigmoid(out[:, :1]), out[:, 1:]], dim=1)
 
     def logits(self, x):
