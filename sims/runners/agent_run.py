@@ -297,7 +297,8 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
             # the peers started earlier (a restart given a fresh START): run on their clock from the step under way
             adopted.append((now, pace.start, peers_start))
             pace = dataclasses.replace(pace, start=peers_start)
-            told, start_clock = peers_start, StartClock(pace.round_period)  # small skews are measured from here on
+            # one record of how far this agent's start moved: the skew report (stats['clock']) says so too
+            start_clock.moved = max(start_clock.moved, told - peers_start)
             clocks.reset()
             listen_until = now
             while k + 1 < n and pace.due(part, k + 1) <= now:
