@@ -200,6 +200,7 @@ def _flooder(work: str, rate: float, seconds: float, out: str) -> None:
     import zmq
 
     from protocols.peers import load_peers
+    from protocols.testing.attacker import record_peak_rss
 
     workdir = Path(work)
     deadline = time.monotonic() + 120
@@ -230,13 +231,7 @@ def _flooder(work: str, rate: float, seconds: float, out: str) -> None:
                 pass
         if now >= next_sample:
             next_sample = now + 0.2
-            for pid in pids:
-                try:
-                    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-                        if line.startswith("VmRSS:"):
-                            peak[pid] = max(peak.get(pid, 0), int(line.split()[1]) * 1024)
-                except OSError:
-                    pass
+            record_peak_rss(pids, peak)
         time.sleep(0.005)
     push.close(linger=0)
     ctx.term()

@@ -24,6 +24,7 @@ from __future__ import annotations
 import socket as pysocket
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -32,7 +33,7 @@ import zmq
 from protocols.auth import ENVELOPE_MAGIC, ENVELOPE_VERSION, parse, private_key_from_bytes, seal
 from protocols.messages import BROADCAST, Heartbeat
 
-__all__ = ["ATTACKS", "FloodReport", "flood", "Tap", "raw_tcp_garbage", "as_expected"]
+__all__ = ["ATTACKS", "FloodReport", "flood", "Tap", "raw_tcp_garbage", "as_expected", "record_peak_rss"]
 
 #: attack -> the reason the receiver must refuse it with
 ATTACKS: Mapping[str, str] = {
@@ -281,3 +282,14 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     raise SystemExit(main())
+
+
+def record_peak_rss(pids: Sequence[int], peak: dict) -> None:
+    """Raise ``peak[pid]`` to each live process's resident memory now (bytes, from ``/proc/PID/status``)."""
+    for pid in pids:
+        try:
+            for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+                if line.startswith("VmRSS:"):
+                    peak[pid] = max(peak.get(pid, 0), int(line.split()[1]) * 1024)
+        except OSError:
+            pass  # the process is gone

@@ -31,16 +31,6 @@ def _wait_for_agents(work: Path, n: int, timeout: float = 120.0) -> None:
         time.sleep(0.05)
 
 
-def _peak_rss(pids, peak: dict) -> None:
-    for pid in pids:
-        try:
-            for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-                if line.startswith("VmRSS:"):
-                    peak[pid] = max(peak.get(pid, 0), int(line.split()[1]) * 1024)
-        except OSError:
-            pass
-
-
 def _flood(work: str, kind: str, rate: float, seconds: float, out: str) -> None:
     """Send forged frames naming A1 (wrong key) at A2: ``small`` at ``rate`` per second, or ``big`` (16 MiB
     each) as fast as one connection takes them; sample every agent's resident memory meanwhile."""
@@ -49,6 +39,7 @@ def _flood(work: str, kind: str, rate: float, seconds: float, out: str) -> None:
     from protocols.auth import new_private_key, seal
     from protocols.messages import BROADCAST, Heartbeat
     from protocols.peers import load_peers
+    from protocols.testing.attacker import record_peak_rss
 
     workdir = Path(work)
     _wait_for_agents(workdir, 5)
@@ -78,7 +69,7 @@ def _flood(work: str, kind: str, rate: float, seconds: float, out: str) -> None:
                 break
         if now >= next_sample:
             next_sample = now + 0.1
-            _peak_rss(pids, peak)
+            record_peak_rss(pids, peak)
         time.sleep(0.002)
     push.close(linger=0)
     ctx.term()
