@@ -40,6 +40,8 @@ not heard from for two windows are not waited for.
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 
 from agents.agent_config import AgentConfig, OwnStep
@@ -51,6 +53,7 @@ from decentral.pair_forms import own_detections, pair_forms
 from protocols.admm_messages import ConfigAnnounce, ConfigRequest, FactorShare, FormAck, FormBundle
 from protocols.messages import AdmmDual, AdmmPrimal, Message
 from protocols.config_gossip import ConfigGossip
+from protocols.lag import LagMeter
 from protocols.delta_messages import DeltaBundle, JointPoses
 from protocols.pose_gossip import PoseGossip, pose_row
 from protocols.admm_values import AdmmInbox
@@ -93,6 +96,9 @@ class AssemblyAgent(AssemblyResults):
         # the ADMM rounds: iteration counters, the last values sent, waiting counts and the convergence flag
         self._rounds = AdmmRounds(config.name, self._index[config.name], config.admm, patience=config.patience,
                                   window=config.window, share_timeout=config.share_timeout, counters=self.counters)
+        # how late messages arrive (rounds): the waits below grow with it (Liu et al.'s window, over a slow radio)
+        self._lag = LagMeter()
+        self._patience = config.patience
         self._start = WindowStart()  # the joint solution the current window started at, if any
         self._hold = 0  # the ADMM of this window starts at this round (after the forms are shared)
         self._hop: int | None = 0 if config.name == config.reference else None
@@ -127,6 +133,29 @@ class AssemblyAgent(AssemblyResults):
         self._round = max(self._round, int(round_index))
         self._sharing.round = self._round
 
+    @property
+    def waits(self) -> dict[str, int]:
+        """The waits in rounds now in force (``patience``, ``share_timeout``) and the measured one-way lag."""
+        return {"patience": self._patience, "share_timeout": self._sharing.share_timeout,
+                "lag": self._lag.one_way()}
+
+    def _scale_waits(self) -> None:
+        """Scale the waits to the measured lag (:mod:`protocols.lag`), never below the configured ones: a
+        neighbour is silent after a round trip, and a window's forms may take a trip per tree level each way
+        (once around a broadcast), plus the patience of the last one. Before any message arrived, the wait
+        for the forms runs from the first one heard."""
+        cfg = self.config
+        self._patience = max(cfg.patience, self._lag.round_trip())
+        depth = max(1, self._sharing.depth, self._sharing.tree.graph_depth)
+        # a typical trip up (or down) the tree slower than the configured wait: broadcast (one trip, more messages)
+        self._sharing.slow_tree = depth * self._lag.typical() > cfg.share_timeout
+        hops = depth if cfg.aggregation == "tree" and not self._sharing.slow_tree else 1
+        share_timeout = max(cfg.share_timeout, 2 * hops * self._lag.one_way() + self._patience)
+        if not self._lag.heard:  # nothing arrived yet (a cold start over slow links): no wait can be judged yet
+            share_timeout = max(share_timeout, self._round + cfg.share_timeout)
+        self._rounds.patience, self._rounds.share_timeout = self._patience, share_timeout
+        self._sharing.share_timeout = share_timeout
+
     def on_step(self, own: OwnStep, round_index: int | None = None) -> None:
         """Take the assembly's own observations of a new step (at round ``round_index``) and slide the window."""
         if round_index is not None:
@@ -136,7 +165,7 @@ class AssemblyAgent(AssemblyResults):
         self._start = WindowStart()
         if cfg.share_forms == "every" or (cfg.share_forms == "first" and first):
             self._parent, self._hop = self._sharing.tree.position(self._round, self._step)
-            self._sharing.open(own.step, self._parent, self._hop, cfg.patience)
+            self._sharing.open(own.step, self._parent, self._hop, self._patience)
         self._step, self._t = own.step, own.t
         self._sharing.step = own.step
         self._outbox += self._configs.set_own(own.config, own.step, self._round, self.observers)
@@ -177,6 +206,7 @@ class AssemblyAgent(AssemblyResults):
             self.counters["ignored"] += 1  # (a real transport refuses such frames before; the agent never trusts it)
             return
         sharing = self._sharing
+        self._lag.observe(self._round - message.round)
         if self._step is not None:
             sharing.heard(sender, self._step)
         if isinstance(message, ConfigAnnounce):
@@ -207,6 +237,20 @@ class AssemblyAgent(AssemblyResults):
                 self.counters["ignored"] += 1
         else:
             self.counters["ignored"] += 1
+
+    @property
+    def windows_independent(self) -> bool:
+        """Each window starts from its own shared forms (``share_forms="every"``): an unfinished one can go on
+        beside the next (:meth:`fork`); a plain consensus-ADMM carries its iterates from window to window."""
+        return self.config.share_forms == "every"
+
+    def fork(self) -> "AssemblyAgent":
+        """An independent copy of this agent as it is now (its window, forms, ADMM state and outbox), sharing
+        only the configuration and the counters: the runtime keeps an unfinished window going with it in the
+        background (:class:`agents.runtime.LocalAgent`) while this agent takes the next sensor step."""
+        twin = copy.deepcopy(self, {id(self.config): self.config, id(self.counters): self.counters})
+        twin._sharing._send = twin._outbox.append  # (a bound method is copied as is: it would fill this outbox)
+        return twin
 
     def outbox(self) -> list[Message]:
         """Messages queued since the last call (and forget them)."""
@@ -257,6 +301,7 @@ class AssemblyAgent(AssemblyResults):
         if self._step is None:
             return
         self._round = self._sharing.round = round_index
+        self._scale_waits()
         self._parent, self._hop = self._sharing.tree.position(self._round, self._step)
         if self._phase == 0 and self._sharing.share is None:
             self._sharing.repair_down(lambda name: self._inbox.heard_in(name, self._step))
@@ -268,7 +313,7 @@ class AssemblyAgent(AssemblyResults):
             return
         if self._dirty:
             self._rebuild()  # (a configuration that arrived may add a pair the joint solution lacks)
-        if self._exact() and self._round - self._busy_seen > self.config.patience:
+        if self._exact() and self._round - self._busy_seen > self._patience:
             # every live agent's forms and this agent's pairs as they described them: the joint solution is the
             # ADMM's fixed point, and every agent holding the set has it too; no round would change it (unless a
             # neighbour without the set has sent values lately: under loss they come every few rounds)
@@ -295,7 +340,7 @@ class AssemblyAgent(AssemblyResults):
         if self._dirty:
             self._rebuild()
         self._request_unknown()
-        if sharing.own is None and (not self._unresolved() or sharing.share.waited >= cfg.patience):
+        if sharing.own is None and (not self._unresolved() or sharing.share.waited >= self._patience):
             # one form per pair and step, and per odometry link: a window adds only its newest step's forms
             problems = [part for _, parts in sorted(self._shared.items()) for part in parts] \
                 + self._consensus.odometry_links()
@@ -343,7 +388,7 @@ class AssemblyAgent(AssemblyResults):
         if partial:
             # values from a partial solution would pull the neighbours that have the whole set off the exact
             # fixed point (100-250 rounds per window at 50 % loss): stay silent while the rest may still come
-            self._hold = self._round + self.config.share_timeout
+            self._hold = self._round + self._sharing.share_timeout
         joint = sharing.joint(share)
         self.excluded, self.suspects = tuple(share.excluded), tuple(share.suspects)
         if joint is None:

@@ -22,6 +22,15 @@ only to answer a neighbour whose window is not done yet (ADMM values without the
 two of the last four rounds), so a late neighbour is never left waiting for values, and two quiet agents
 exchange nothing. An answer that moves it off its own convergence test makes it busy again.
 
+**A window that outlives its step** (:attr:`WindowRule.background`): when the next sensor step comes
+before an agent's window is done, the step is answered provisionally (the joint solution of the forms
+held) and the unfinished window keeps going in the background (a fork of the agent,
+:meth:`agents.assembly.AssemblyAgent.fork`) beside the new one, until the step after: the messages of
+its window (forms, solutions, ADMM values) go to it, and only those of its window leave it. If it
+converges in that time, its answer replaces the provisional one (:class:`Revision`,
+:meth:`LocalAgent.take_revisions`), at most one sensor step late. The new window never sees ADMM values
+of an older one (they would overwrite a neighbour's newer values in its inbox).
+
 A simulation therefore predicts what processes do: the simulated runner starts the next step when
 every live agent is quiet and nothing is in flight, which is what processes do while they wait for
 the next sensor step (tested: running the whole budget changes no estimate and no message count).
@@ -31,15 +40,52 @@ is done (again, if an answer made it busy), or when the next step comes before t
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 from agents.assembly import AssemblyAgent, OwnStep
 from decentral.errors import InputError
 from decentral.observations import PlanarPose
+from protocols.admm_messages import ConfigAnnounce, FactorShare, FormAck, FormBundle
+from protocols.delta_messages import DeltaBundle, JointPoses
 from protocols.messages import AdmmDual, AdmmPrimal, Message
 from protocols.transport import Transport
 
-__all__ = ["WindowRule", "LocalAgent", "AgentHost"]
+__all__ = ["WindowRule", "Revision", "LocalAgent", "AgentHost", "window_of"]
+
+_BY_STEP = (FactorShare, FormBundle, FormAck, DeltaBundle, JointPoses)
+
+
+def window_of(message: Message) -> int | None:
+    """The window (newest log step) a message belongs to, or ``None`` for messages of no one window
+    (configurations, requests, heartbeats)."""
+    if isinstance(message, (AdmmPrimal, AdmmDual)):
+        return int(message.window)
+    if isinstance(message, _BY_STEP):
+        return int(message.step)
+    return None
+
+
+@dataclass(frozen=True)
+class Revision:
+    """A step answered provisionally whose window then converged in the background.
+
+    Attributes
+    ----------
+    step : int
+        The log step.
+    poses : dict
+        Assembly -> :class:`PlanarPose` relative to the agent, the converged answer.
+    unplaced : dict
+        Assembly -> why it is not placed.
+    rounds : int
+        Rounds the window took in all, from its step's arrival.
+    """
+
+    step: int
+    poses: dict
+    unplaced: dict
+    rounds: int
 
 
 @dataclass(frozen=True)
@@ -55,11 +101,16 @@ class WindowRule:
     budget : int
         Rounds between two sensor steps: at this count the window ends whatever the test says (a
         process at the log's pace has ``step period / round period`` of them).
+    background : bool
+        A window not done when the next sensor step comes keeps going beside the next one until the step
+        after, and revises its step's provisional answer if it converges (only where every window
+        shares its forms: a plain consensus-ADMM carries its iterates from window to window instead).
     """
 
     min_rounds: int = 2
     settle: int = 2
     budget: int = 300
+    background: bool = True
 
     def __post_init__(self) -> None:
         if not (self.budget >= 1 and self.settle >= 1 and self.min_rounds >= 0):
@@ -95,6 +146,11 @@ class LocalAgent:
         self.window_unplaced: dict[str, str] = {}  # assembly -> why it is not in window_estimate
         self._ticked = False
         self._heard: set[int] = set()  # rounds (of this window, after it was done) with values from a busy neighbour
+        #: the previous window, still at work beside this one (see the module docstring), or None
+        self.background: LocalAgent | None = None
+        self._next_background: LocalAgent | None = None  # the window end_window kept going, until the next step
+        self._revised = False  # (of a background window) its revision was taken
+        self._revisions: list[Revision] = []
 
     @property
     def name(self) -> str:
@@ -102,7 +158,13 @@ class LocalAgent:
 
     @property
     def quiet(self) -> bool:
-        """Done with its window and nobody to answer: it sends nothing of its own accord.
+        """Done with its window (and its background window, if any) and nobody to answer: it sends nothing of
+        its own accord (:attr:`idle`)."""
+        return self.idle and (self.background is None or self.background.idle)
+
+    @property
+    def idle(self) -> bool:
+        """Done with its own window and nobody to answer.
 
         A neighbour's values without the ``done`` block in one round after this agent was done may be its
         last ones (it finished in the same round); in two of the four rounds before this one, it is still
@@ -114,8 +176,9 @@ class LocalAgent:
         return self.done and len({r - 1, r - 2, r - 3, r - 4} & self._heard) < 2
 
     def on_step(self, own: OwnStep, round_index: int | None = None) -> None:
-        """A new sensor step at round ``round_index``: the previous window ends here."""
+        """A new sensor step at round ``round_index``: the previous window ends here (:meth:`end_window`)."""
         self.end_window()
+        self.background, self._next_background = self._next_background, None
         self.agent.on_step(own, round_index)
         self.step = own.step
         self.rounds = self.streak = 0
@@ -125,9 +188,32 @@ class LocalAgent:
         self.window_estimate = {}
         self.window_unplaced = {}
 
+    def _fork(self) -> "LocalAgent":
+        """This window as it is now, to go on in the background until the step after the next."""
+        twin = LocalAgent(self.agent.fork(), dataclasses.replace(self.rule, background=False,
+                                                                  budget=2 * self.rule.budget))
+        twin.step, twin.rounds, twin.streak = self.step, self.rounds, self.streak
+        twin._heard = set(self._heard)
+        return twin
+
+    def take_revisions(self) -> list[Revision]:
+        """Steps answered provisionally whose window has since converged in the background (and forget them)."""
+        out, self._revisions = self._revisions, []
+        return out
+
     def receive(self, messages, round_index: int | None = None) -> None:
         """Handle messages arrived by round ``round_index``; ADMM values of a neighbour still at work wake a
-        quiet agent."""
+        quiet agent. Messages of the background window's step (and configurations) go to it too; ADMM values of
+        an older window than this one's never reach this one."""
+        messages = list(messages)
+        bg = self.background
+        if bg is not None:
+            bg.receive([m for m in messages if window_of(m) == bg.step or isinstance(m, ConfigAnnounce)],
+                       round_index)
+            messages = [m for m in messages if not (isinstance(m, (AdmmPrimal, AdmmDual)) and m.window < self.step)]
+        self._receive(messages, round_index)
+
+    def _receive(self, messages, round_index: int | None) -> None:
         if round_index is not None:
             self.agent.advance(round_index)
         for message in messages:
@@ -138,12 +224,20 @@ class LocalAgent:
 
     def half_round(self, round_index: int, phase: int) -> list[Message]:
         """Run phase ``phase`` of round ``round_index`` if there is work; return the messages to send."""
-        if self.step is not None and not self.quiet:
+        if self.step is not None and not self.idle:
             self._ticked = True
             self.agent.tick(round_index, phase)
         if phase == 1 and self.step is not None:
             self._end_of_round()
-        return self.agent.outbox()
+        out = self.agent.outbox()
+        bg = self.background
+        if bg is not None:
+            out += [m for m in bg.half_round(round_index, phase) if window_of(m) == bg.step]
+            if bg.done and bg.converged and not bg._revised:
+                bg._revised = True
+                self._revisions.append(Revision(bg.step, dict(bg.window_estimate), dict(bg.window_unplaced),
+                                                bg.rounds))
+        return out
 
     def _end_of_round(self) -> None:
         self.rounds += 1
@@ -165,11 +259,15 @@ class LocalAgent:
             self._finish(converged=False)
 
     def end_window(self) -> None:
-        """The next sensor step is due: a window its rule has not ended yet ends here, unconverged."""
+        """The next sensor step is due: a window its rule has not ended yet ends here, unconverged. (A window that
+        ended unconverged, here or by its budget, goes on in the background from the next step, where
+        :attr:`WindowRule.background` allows; the background window of the step before ends for good then.)"""
         if self.step is not None and not self.done:
             self._finish(converged=False)
 
     def _finish(self, converged: bool) -> None:
+        if not converged and self.rule.background and self.agent.windows_independent:
+            self._next_background = self._fork()  # it goes on from here once the next step has come
         if not converged:
             self.agent.settle_provisional()  # an answer from the forms that arrived, if the sharing has not ended
         self.done = True

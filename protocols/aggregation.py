@@ -313,6 +313,7 @@ class NeighbourTree:
         self.index = {name: i for i, name in enumerate(self.names)}
         self.me, self.root, self.fresh_rounds = me, root, fresh_rounds
         self.entries: dict[str, tuple[int, int, int, int | None]] = {}
+        self.graph_depth = 0  # the tree's depth in the last whole view graph learnt (0: none yet)
 
     def heard(self, neighbour: str, hop: int, parent: int, round_index: int, step: int | None) -> None:
         """``neighbour`` says it is ``hop`` hops from the root, below ``parent`` (heard at this round and step)."""
@@ -346,6 +347,7 @@ class NeighbourTree:
         Assemblies no longer adjacent leave the table (with no ADMM values to refresh it, a stale entry
         would make a former neighbour wait for a child that never reports)."""
         hops, parents = tree_from_edges(edges, len(self.names), self.root)
+        self.graph_depth = max(hops.values(), default=0)
         self.entries = {}
         for a, b in edges:
             other = b if a == self.me else a if b == self.me else None

@@ -55,6 +55,12 @@ class Message:
         for name in payload_names(type(self)):
             set_field(self, name, freeze(getattr(self, name), name))
 
+    def __copy__(self) -> "Message":
+        return self  # a value: frozen, its payload frozen (read-only arrays, mapping proxies)
+
+    def __deepcopy__(self, memo) -> "Message":
+        return self
+
     # ------------------------------------------------------------------ encoding
     @property
     def is_broadcast(self) -> bool:

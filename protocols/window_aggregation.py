@@ -20,8 +20,9 @@ How the forms travel:
   reference's down bundle names the round at which every agent starts the ADMM, so agents near the
   reference do not spend rounds waiting for the far ones. Per window and agent without loss: one
   bundle up, and per child one acknowledgement and one bundle down.
-* **broadcast** (the cold start, a restarted agent, a side of a partition without the reference, or
-  ``aggregation="broadcast"``): ``admm.factors`` to everyone, with the list of agents whose forms it
+* **broadcast** (the cold start, a restarted agent, a side of a partition without the reference, links
+  so slow that a trip up and down the tree would outlast the share timeout (:attr:`WindowAggregation.slow_tree`),
+  or ``aggregation="broadcast"``): ``admm.factors`` to everyone, with the list of agents whose forms it
   has; agents missing from that list answer directly. Messages per agent grow with the number of
   agents.
 
@@ -111,6 +112,9 @@ class WindowAggregation:
         self._delta_sender = DeltaSender()  # per parent, the forms already sent up to it
         self._edges_sent: set = set()  # the view graph in the last solution sent down (the reference)
         self.alive: dict[int, int] = {}  # agent index -> last step at which it (or its records) was heard
+        #: set by the agent when a trip up and down the tree takes longer than its share timeout at the measured
+        #: lag: its windows are then shared by broadcast (one trip), whatever ``aggregation`` says
+        self.slow_tree = False
 
     # ------------------------------------------------------------------ windows
     def heard(self, sender: int, step: int) -> None:
@@ -147,7 +151,8 @@ class WindowAggregation:
         agg = share.agg
         keys, flat = pack_forms(forms)
         self.own = OwnForms(share.step, keys, flat, pin)
-        tree = self.aggregation == "tree" and (agg.parent is not None or agg.root and bool(agg.children))
+        tree = (self.aggregation == "tree" and not self.slow_tree
+                and (agg.parent is not None or agg.root and bool(agg.children)))
         share.mode = "tree" if tree else "broadcast"
         self.counters["tree_windows" if tree else "broadcast_windows"] += 1
         # own forms go through the same packing as everyone else's, so all agents sum identical numbers

@@ -31,7 +31,19 @@ __all__ = ["NEVER", "OwnForms", "WindowShare", "DownState"]
 
 #: a round long before any other (nothing sent or asked yet)
 NEVER = -(10**9)
-_UNSOLVED = object()  # a window whose joint solution has not been computed yet
+
+
+class _Unsolved:
+    """The joint solution of a window not solved yet: one instance, kept by copies (an agent's window is forked)."""
+
+    def __copy__(self):
+        return self
+
+    def __deepcopy__(self, memo):
+        return self
+
+
+_UNSOLVED = _Unsolved()
 
 
 @dataclass(frozen=True)

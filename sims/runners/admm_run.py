@@ -68,6 +68,9 @@ class AdmmRunConfig:
     aggregation : {"tree", "broadcast"}
         How the forms travel once agents know their route to the reference: up and down a spanning
         tree of the view graph (default) or broadcast by every agent (the cold start's way).
+    background : bool
+        A window not done when the next step comes goes on beside it until the step after and revises its
+        step's provisional answer if it converges (:attr:`agents.runtime.WindowRule.background`).
     fast_forward : bool
         Start the next step as soon as every live agent is quiet and nothing is in flight (default:
         nothing would happen before it); ``False`` runs every step's whole round budget, as processes at
@@ -90,6 +93,7 @@ class AdmmRunConfig:
     announce_every: int = 5
     share_forms: str = "every"
     aggregation: str = "tree"
+    background: bool = True
     fast_forward: bool = True
 
     def __post_init__(self) -> None:
@@ -160,7 +164,8 @@ def _agent_config(log: ObservationLog, name: str, reference: str, config: AdmmRu
 
 def _rule(config: AdmmRunConfig) -> WindowRule:
     """Each agent's local window rule (the same one a process runs, with the budget ``max_rounds``)."""
-    return WindowRule(min_rounds=config.min_rounds, settle=config.settle, budget=config.max_rounds)
+    return WindowRule(min_rounds=config.min_rounds, settle=config.settle, budget=config.max_rounds,
+                      background=config.background)
 
 
 def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunConfig = AdmmRunConfig(),
@@ -238,6 +243,18 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
     tick_seconds = 0.0
     excluded: set[str] = set()
     suspects: set[str] = set()
+    agent_converged: list[dict[str, bool]] = []  # per step: live agent -> its window converged (or was revised)
+    revised: list[dict] = []  # the reference's revised steps (stats["revised"])
+
+    def take_revisions() -> None:
+        """Windows that converged in the background replace their steps' provisional answers."""
+        for n, h in hosts.items():
+            for rev in h.agent.take_revisions():
+                agent_converged[rev.step][n] = True
+                per_agent[rev.step][n] = rev.poses
+                if n == reference:
+                    est_steps[rev.step] = EstimateStep(log.steps[rev.step].t, rev.poses, rev.unplaced)
+                    revised.append({"step": rev.step, "rounds": rev.rounds, "at_step": len(est_steps)})
     for k in range(len(log.steps)):
         t = now()
         per_step.append({})
@@ -264,6 +281,7 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
                 tick_seconds += time.perf_counter() - t0
             r += 1
             rounds_global += 1
+            take_revisions()
             live = [n for n in names if not net.is_down(n, now())]
             if (config.fast_forward and all(hosts[n].agent.quiet for n in live)
                     and not any(net.pending(n) for n in live)):
@@ -272,7 +290,7 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
         for n in live:
             hosts[n].agent.end_window()
         rounds.append(r)
-        converged.append(bool(live) and all(hosts[n].agent.converged for n in live))
+        agent_converged.append({n: hosts[n].agent.converged for n in live})
         per_agent.append({n: hosts[n].agent.window_estimate for n in live})
         ref_poses = hosts[reference].agent.window_estimate if reference in live else {}
         if reference in live:  # members whose data the others contradicted (decentral.consistency)
@@ -283,13 +301,15 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
         est_steps.append(EstimateStep(log.steps[k].t, ref_poses, why))
         if progress is not None:
             progress(k + 1, len(log.steps), rounds=int(sum(rounds)), messages=sent_total,
-                     unconverged=converged.count(False))
+                     unconverged=sum(1 for c in agent_converged if not (c and all(c.values()))))
+    converged = [bool(c) and all(c.values()) for c in agent_converged]
     agents = {n: h.agent.agent for n, h in hosts.items()}
     transport = net.stats().as_dict()
     seconds = time.perf_counter() - start
     total_rounds = int(sum(rounds))
     unplaced = count_reasons(step.unplaced for step in est_steps)
     status, status_counts = run_status(converged, placed_steps(est_steps), unplaced)
+    status_counts["revised"] = len(revised)
     stats = {
         "estimator": "consensus-admm",
         "mode": "admm",
@@ -301,6 +321,9 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
         "rounds_total": total_rounds,
         "converged_per_step": converged,
         "all_converged": bool(all(converged)),
+        # steps answered provisionally whose window then converged in the background (agents.runtime): the
+        # reference's revisions, with the rounds the window took and the step under way when it converged
+        "revised": revised,
         "agents": {
             n: {
                 "converged": agents[n].converged,

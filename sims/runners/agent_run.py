@@ -17,9 +17,11 @@ the simulated runner drives, here for one agent, on wall-clock timers:
 
 Each finished step is appended at once as one JSON line to ``stream`` (if given): ``{"step", "t",
 "poses", "unplaced", "converged", "rounds", "window_seconds", "counts", "heard", "latency_ms",
-"lagged", "counters"}`` with the transport's cumulative counts, the frame latencies of the window
+"lagged", "counters", "closed_at"}`` with the transport's cumulative counts, the frame latencies of the window
 (median, p90, max, ms) and the agent's protocol counters, so that a process killed with SIGKILL has
-still reported every step it finished.
+still reported every step it finished. A step answered provisionally whose window then converged in
+the background (:mod:`agents.runtime`) is written again, converged, with ``revised_after_s`` (seconds
+after its first record): a later line of a step replaces the earlier one.
 
 - **a late start**: a process that starts after its START first asks its peers for the run's clock
   (:class:`PeerClock`) and follows the START two of them agree on, from the step under way.
@@ -267,10 +269,28 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
                   "suspects": list(getattr(local.agent, "suspects", ())), "clock": start_clock.report(),
                   "counters": {k: int(v) for k, v in local.agent.counters.items()}}  # (to trace a wrong window)
         latencies.clear()
+        record["closed_at"] = clock()
         records.append(record)
+        write(record)
+
+    def write(record: dict) -> None:
         if stream is not None:
             stream.write(json.dumps(record) + "\n")
             stream.flush()
+
+    def revise() -> None:
+        """Windows that converged in the background replace their steps' provisional records (and are streamed
+        again: a later record of a step replaces the earlier one)."""
+        for rev in local.take_revisions():
+            at = next((i for i, r in enumerate(records) if r["step"] == rev.step), None)
+            if at is None:
+                continue
+            now_ = clock()
+            poses = {a: {"p": [float(x) for x in pose.p], "theta": float(pose.theta)}
+                     for a, pose in sorted(rev.poses.items())}
+            records[at] = dict(records[at], poses=poses, unplaced=dict(rev.unplaced), converged=True,
+                               rounds=rev.rounds, revised_after_s=round(now_ - records[at]["closed_at"], 4))
+            write(records[at])
 
     adopted = []  # (wall time, the START given, the peers' START adopted)
     # started after its START (a restart, a late start): first listen until two peers tell their clock (at most
@@ -326,6 +346,7 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
             nxt = done_half + 1
             if nxt <= h:
                 host.half_round(now, nxt // 2, nxt % 2)
+                revise()
                 done_half = nxt
                 if took is None and local.done:
                     took = clock() - began  # wall time of the window, by the agent's own rule
@@ -347,6 +368,7 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
     unplaced = count_reasons(step.unplaced for step in steps)
     status, status_counts = run_status([r["converged"] for r in records], placed_steps(steps), unplaced,
                                        not_run=n - len(records))
+    status_counts["revised"] = sum(1 for r in records if "revised_after_s" in r)
     stats = {
         "unplaced": unplaced,
         "status": status,
@@ -364,6 +386,8 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
         "dropped": final["dropped"],
         "rounds_per_step": [r["rounds"] for r in records],
         "converged_per_step": [r["converged"] for r in records],
+        # steps answered provisionally whose window converged in the background, and how long after the answer
+        "revised": [{"step": r["step"], "after_s": r["revised_after_s"]} for r in records if "revised_after_s" in r],
         "missing": sorted(a for a in names if a != name and a not in heard),
         "round_period": pace.round_period,
         "lagged": lagged,  # times the process fell more than 20 half rounds behind and jumped

@@ -440,6 +440,7 @@ def _compose(log, reference, records, config, incarnations, timed_out, failures)
     ran = sorted(by_step)
     status, status_counts = run_status([bool(by_step[k]["converged"]) for k in ran], [bool(steps[k].poses) for k in ran],
                                        unplaced, not_run=len(log.steps) - len(ran), timed_out=timed_out)
+    status_counts["revised"] = sum(1 for k in ran if "revised_after_s" in by_step[k])
     heard = set()
     for run in records[reference]:
         if run:
@@ -461,6 +462,9 @@ def _compose(log, reference, records, config, incarnations, timed_out, failures)
         "steps_reported": len(set(rec["step"] for run in records[reference] for rec in run if "step" in rec)),
         "converged_per_step": [bool(by_step[k]["converged"]) if k in by_step else False for k in range(len(log.steps))],
         "rounds_per_step": [int(by_step[k]["rounds"]) if k in by_step else 0 for k in range(len(log.steps))],
+        # the reference's steps answered provisionally whose window converged in the background (agents.runtime)
+        "revised": [{"step": k, "after_s": by_step[k]["revised_after_s"]} for k in ran
+                    if "revised_after_s" in by_step[k]],
         "missing": sorted(n for n in log.assemblies if n != reference and n not in heard),
         # members whose data the others contradicted, left out of the reference's joint solution
         "excluded": sorted({a for run in records[reference] for rec in run for a in rec.get("excluded", ())}),

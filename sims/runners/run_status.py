@@ -16,6 +16,9 @@ the same verdict, computed here from what each step's window did:
   agent held, or its last iterate (placing at least one assembly);
 - ``unanswered``: of those, steps that placed no assembly at all;
 - ``not_run``: steps the agent never ran (it was down, started late, or the run was cut short);
+- ``revised`` (where the runner reports it): steps answered provisionally when the next sensor step
+  came whose window then converged in the background (:mod:`agents.runtime`): counted as converged,
+  at most one sensor step late;
 - one entry per reason of an assembly-step left unplaced (:data:`decentral.unplaced.REASONS`,
   e.g. ``no_consensus``), as in ``stats.unplaced``.
 
@@ -95,6 +98,8 @@ def status_warning(status: str, counts: Mapping[str, int], steps: int) -> str | 
     if counts.get("unconverged"):
         parts.append(f"{counts['unconverged']} of {steps} steps did not converge ({counts.get('provisional', 0)} "
                      f"provisional: the joint solution of the forms held; {counts.get('unanswered', 0)} placed no one)")
+    if counts.get("revised"):
+        parts.append(f"{counts['revised']} revised one step late (converged in the background)")
     if counts.get("not_run"):
         parts.append(f"{counts['not_run']} of {steps} steps never ran (agent down, late or cut short)")
     reasons = {k: v for k, v in counts.items() if k not in _OWN and v}
@@ -104,7 +109,7 @@ def status_warning(status: str, counts: Mapping[str, int], steps: int) -> str | 
     return f"status {status}: " + ("; ".join(parts) if parts else "cut short")
 
 
-_OWN = ("unconverged", "provisional", "unanswered", "not_run")
+_OWN = ("unconverged", "provisional", "unanswered", "not_run", "revised")
 
 
 def placed_steps(steps: Iterable) -> list[bool]:

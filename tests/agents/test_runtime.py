@@ -21,6 +21,7 @@ class _Stub:
         self.window_done = False
         self.ticks = []
         self.handled = []
+        self.windows_independent = False  # (the background window has its own tests)
 
     def on_step(self, own, round_index=None):
         pass

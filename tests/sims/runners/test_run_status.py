@@ -42,9 +42,10 @@ def test_warning_line_is_one_line_naming_the_counts():
 
 
 def test_admm_run_that_cannot_converge_is_degraded_warns_and_fails_strict(sim6, tmp_path, capsys):
-    """--max-rounds 3: no window can converge; status degraded, one warning line, exit 4 with --strict only."""
+    """--max-rounds 1: no window can converge, not even in the background (2 rounds); status degraded, one warning
+    line, exit 4 with --strict only."""
     out = tmp_path / "e.json"
-    argv = ["localize", str(sim6 / "log.json"), "-o", str(out), "--mode", "admm", "--max-rounds", "3"]
+    argv = ["localize", str(sim6 / "log.json"), "-o", str(out), "--mode", "admm", "--max-rounds", "1"]
     assert main(argv) == 0
     err = capsys.readouterr().err
     stats = json.loads(out.read_text())["stats"]
@@ -89,9 +90,12 @@ def test_study_row_records_a_degraded_run(tmp_path):
 
 
 def test_simulated_latency_beyond_the_round_budget_degrades_the_run(sim6, tmp_path):
-    """200 ms links with 8 rounds of 25 ms per step (what processes at that pace get): no window converges."""
+    """200 ms links with 8 rounds of 25 ms per step (what processes at that pace get): no window converges before
+    its next step; those that converge in the background are counted as revised, the others make it degraded."""
     out = tmp_path / "e.json"
     assert main(["-q", "localize", str(sim6 / "log.json"), "-o", str(out), "--mode", "admm", "--latency", "0.16",
                  "--jitter", "0.08", "--round-period", "0.025", "--max-rounds", "8"]) == 0
     stats = json.loads(out.read_text())["stats"]
-    assert stats["status"] == "degraded" and stats["status_counts"]["unconverged"] == 6
+    counts = stats["status_counts"]
+    assert counts["unconverged"] + counts["revised"] == 6 and counts["unconverged"] >= 1
+    assert stats["status"] == "degraded" and len(stats["revised"]) == counts["revised"]
