@@ -336,7 +336,7 @@ class AssemblyAgent(AssemblyResults):
 
     def _bootstrap_phase(self) -> None:
         """Share the window's cost forms (up and down the tree, or by broadcast); then solve and seed."""
-        sharing, cfg = self._sharing, self.config
+        sharing = self._sharing
         if self._dirty:
             self._rebuild()
         self._request_unknown()
