@@ -230,7 +230,7 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
             latencies.extend(d.latency for d in arrivals)
             for d in arrivals:
                 if d.message.round > 0:  # (a round-0 heartbeat asks for the clock: it tells no start)
-                    start_clock.heard(d.message.sender, d.message.round, now, told - start_clock.moved)
+                    start_clock.heard(d.message.sender, d.message.round, d.sent_at, told - start_clock.moved)
                 # a peer that (re)started asks for the run's clock with a round-0 heartbeat: answer with this round
                 m = d.message
                 if (isinstance(m, Heartbeat) and m.round == 0 and current is not None

@@ -1,15 +1,21 @@
 r"""Agents told different start times: found from the peers' round numbers, reported, and followed.
 
 Every process of a run counts its rounds from its ``--start`` (:class:`sims.runners.agent_run.Pace`), and
-every message carries the sender's round. A frame of round ``r`` from a peer that started at
-``S_p`` was sent at ``s >= S_p + r * T`` (``T`` the round period) and arrives at ``a >= s``, so
+every message carries the sender's round and, in its signed envelope, the sender's wall time ``s``
+when it left. A frame of round ``r`` from a peer that started at ``S_p`` was sent at ``s >= S_p + r * T``
+(``T`` the round period; the sender may have taken a while between its round and the send), so
 
-.. math:: S - S_p \;\ge\; r\,T - (a - S)
+.. math:: S - S_p \;\ge\; r\,T - (s - S)
 
 where ``S`` is this agent's start: each frame gives a lower bound on how long before this agent the
-peer started, and the largest bound over the frames heard (the least delayed frame) is the estimate,
-within a round period plus the smallest latency. Agents told the same start see bounds in
-``(-T - latency, 0]``; a peer that started 1 s earlier shows +1 s, one that started 1 s later -1 s.
+peer started, and the largest bound over the frames heard is the estimate, within a round period.
+Agents told the same start see bounds in ``(-T, 0]``; a peer that started 1 s earlier shows +1 s, one
+that started 1 s later -1 s. The send time, not the arrival, is what counts: a frame read late (slow
+links, or this process kept off the CPU) says nothing about the sender's start. (With the arrival
+time, a stalled receiver's frames read 0.4 s after its clock was taken looked like a peer 0.4 s
+ahead, and the agents of a busy 8-ring followed one another 0.8-2.3 s into the future.) The clocks
+are assumed synchronized to well within the tolerance below, as the transport's replay window
+assumes (``--clock-tolerance``).
 
 :class:`StartClock` keeps these offsets. An offset beyond :meth:`StartClock.tolerance` (five
 round periods, at least 0.25 s: a stalled process sees its peers' frames late) is reported (``stats["clock"]`` and a warning line of ``decentral
@@ -68,14 +74,14 @@ class StartClock:
         """Length of an epoch (s) over which the bounds are maximized: 20 rounds, at least 1 s."""
         return max(20.0 * self.round_period, 1.0)
 
-    def heard(self, sender: str, round_index: int, now: float, start: float) -> None:
-        """A frame of ``sender``'s round ``round_index`` arrived at wall time ``now``; this agent's rounds count
-        from ``start`` (as moved)."""
-        epoch = int(now // self.epoch_seconds)
+    def heard(self, sender: str, round_index: int, sent_at: float, start: float) -> None:
+        """A frame of ``sender``'s round ``round_index`` sent at wall time ``sent_at`` (the sender's clock) arrived;
+        this agent's rounds count from ``start`` (as moved)."""
+        epoch = int(sent_at // self.epoch_seconds)
         if epoch != self._epoch:
             self._close()
             self._epoch = epoch
-        bound = round_index * self.round_period - (now - start) + self.moved  # relative to the start as told
+        bound = round_index * self.round_period - (sent_at - start) + self.moved  # relative to the start as told
         if sender not in self._frames or bound > self.ahead[sender]:
             self.ahead[sender] = bound
         self._frames[sender] = self._frames.get(sender, 0) + 1

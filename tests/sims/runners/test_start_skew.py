@@ -7,10 +7,20 @@ import pytest
 from sims.runners.start_clock import StartClock
 
 
-def _frames(clock: StartClock, peer: str, peer_start: float, start: float, times, latency: float = 0.004) -> None:
-    """Frames ``peer`` sends at ``times`` (its rounds from ``peer_start``) arriving ``latency`` later."""
-    for s in times:
-        clock.heard(peer, int((s - peer_start) // clock.round_period), s + latency, start - clock.moved)
+def _frames(clock: StartClock, peer: str, peer_start: float, start: float, times, stall: float = 0.0) -> None:
+    """Frames ``peer`` sends at ``times`` (its rounds from ``peer_start``; every other one taken ``stall`` s before
+    the send, a sender kept off the CPU between its round and the send)."""
+    for i, s in enumerate(times):
+        clock.heard(peer, int((s - stall * (i % 2) - peer_start) // clock.round_period), s, start - clock.moved)
+
+
+def test_frames_read_late_do_not_look_like_a_peer_ahead():
+    """Peers told the same start, some of whose frames leave 0.4 s after their round was taken: no skew, nothing
+    followed. (How late a frame is read does not enter: the bound uses the sender's send time.)"""
+    clock = StartClock(round_period=0.025)
+    for peer, stall in (("A1", 0.0), ("A2", 0.4)):
+        _frames(clock, peer, 100.0, 100.0, [100.0 + 0.025 * i + 0.01 for i in range(200)], stall=stall)
+    assert clock.follow() == 0.0 and clock.skewed() == {}
 
 
 def test_agents_told_the_same_start_see_no_skew_and_move_nothing():
