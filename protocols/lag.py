@@ -21,9 +21,8 @@ Examples
 
 from __future__ import annotations
 
+import math
 from collections import deque
-
-import numpy as np
 
 __all__ = ["LagMeter"]
 
@@ -36,24 +35,23 @@ class LagMeter:
     keep : int
         How many recent lags are kept (older ones are forgotten: a link that got faster is trusted again).
     quantile : float
-        The lag that counts: this quantile of the kept ones (a high one, so that jitter is covered).
+        The lag that counts: this quantile (nearest rank) of the kept ones (a high one, so that jitter is
+        covered).
     """
 
     def __init__(self, keep: int = 64, quantile: float = 0.9):
         self._lags: deque[int] = deque(maxlen=int(keep))
         self.quantile = float(quantile)
-        self._cached: int | None = 0
+        self._cached: dict[float, int] = {}
 
     def observe(self, lag: int) -> None:
         """A message sent ``lag`` rounds ago arrived (negative lags, from a peer a little ahead, count as 0)."""
         self._lags.append(max(0, int(lag)))
-        self._cached = None
+        self._cached = {}
 
     def one_way(self) -> int:
         """The :attr:`quantile` of the recent lags (0 before any message arrived)."""
-        if self._cached is None:
-            self._cached = self._at(self.quantile)
-        return self._cached
+        return self._at(self.quantile)
 
     @property
     def heard(self) -> bool:
@@ -65,7 +63,10 @@ class LagMeter:
         return self._at(0.5)
 
     def _at(self, q: float) -> int:
-        return int(np.ceil(np.quantile(np.fromiter(self._lags, float), q))) if self._lags else 0
+        if q not in self._cached:  # (asked every half round, changed only by arrivals)
+            ranked = sorted(self._lags)  # (the nearest-rank quantile)
+            self._cached[q] = ranked[max(0, math.ceil(q * len(ranked)) - 1)] if ranked else 0
+        return self._cached[q]
 
     def round_trip(self) -> int:
         """Rounds to wait for an answer: two one-way lags plus two rounds for the peer to act on it."""
