@@ -155,6 +155,7 @@ class AssemblyAgent(AssemblyResults):
             share_timeout = max(share_timeout, self._round + cfg.share_timeout)
         self._rounds.patience, self._rounds.share_timeout = self._patience, share_timeout
         self._sharing.share_timeout = share_timeout
+        self._sharing.resend_after = max(3, self._lag.round_trip())
 
     def on_step(self, own: OwnStep, round_index: int | None = None) -> None:
         """Take the assembly's own observations of a new step (at round ``round_index``) and slide the window."""

@@ -115,6 +115,10 @@ class WindowAggregation:
         #: set by the agent when a trip up and down the tree takes longer than its share timeout at the measured
         #: lag: its windows are then shared by broadcast (one trip), whatever ``aggregation`` says
         self.slow_tree = False
+        #: rounds before what was not answered is sent again (a broadcast, a bundle up, a request for the down
+        #: bundle): 3, or a round trip at the measured lag when the agent sets it (resending sooner only queues
+        #: copies behind the first on a slow link)
+        self.resend_after = 3
 
     # ------------------------------------------------------------------ windows
     def heard(self, sender: int, step: int) -> None:
@@ -173,7 +177,7 @@ class WindowAggregation:
             # without the set pulls its seeded neighbours off the fixed point (200+ rounds per window at 50 % loss)
             limit = self.share_timeout * (1 if agg.root else 2) + (agg.hop or 0)
         else:
-            if self.own is not None and self.round - share.sent >= 3:
+            if self.own is not None and self.round - share.sent >= self.resend_after:
                 self._send(self._factor_share(BROADCAST))
                 share.sent = self.round
             limit = self.share_timeout
@@ -227,7 +231,7 @@ class WindowAggregation:
             return
         if agg.up_due(self.round):
             self._send_up(agg.take_up(self.round))
-        elif agg.resend_due(self.round, 3, max(self.depth, agg.hop) + 3):
+        elif agg.resend_due(self.round, self.resend_after, max(self.depth, agg.hop) + self.resend_after):
             # (a parent that stays silent is dropped at the window's timeout; switching to the broadcast after
             # a few unanswered resends instead cost 180-300 rounds per window at 50 % loss: it fired on loss alone)
             self.counters["retransmits"] += 1
@@ -320,9 +324,10 @@ class WindowAggregation:
 
     def ask_down(self) -> None:
         """After a timeout without every agent's forms, keep asking the parent for the down bundle (every
-        3 rounds, at most 10 times this window): a late complete set re-seeds the window exactly."""
+        :attr:`resend_after` rounds, at most 10 times this window): a late complete set re-seeds the window
+        exactly."""
         late = self.late
-        if (late is None or late.step != self.step or late.asked >= 10 or self.round - late.last < 3
+        if (late is None or late.step != self.step or late.asked >= 10 or self.round - late.last < self.resend_after
                 or late.agg.parent is None):
             return
         late.asked += 1
