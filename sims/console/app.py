@@ -8,11 +8,12 @@ at (the selected robot, which estimates to show).
 
 from __future__ import annotations
 
+import asyncio
 import math
-import threading
 import time
+import traceback
 
-from nicegui import app, ui
+from nicegui import app, background_tasks, ui
 
 from sims.console.scene import svg
 from sims.console.views import error_series, launch_rows, launch_series, swarm_frame
@@ -25,42 +26,88 @@ VIEW_WIDTH = 640
 
 
 class SwarmRunner:
-    """Steps an :class:`OperatorSwarm` on the wall clock (one step per ``dt``) while it runs.
+    """Steps an :class:`OperatorSwarm` on the wall clock and pushes each step to the pages that show it.
 
-    Every page calls :meth:`advance` from its timer; the lock makes sure that several pages step the
-    swarm once, not once each. ``rate`` is simulated seconds per wall second.
+    One task (:meth:`run`, started with the server) steps the swarm on a fixed schedule, one step every
+    ``dt / rate`` wall seconds counted from one start, so the timer's jitter does not add up and the
+    steps are evenly spaced; right after a step it calls every open page's draw function, so a page
+    shows each step once, when it happens, instead of sampling the swarm with a timer of its own
+    (which, at the step's own rate, shows two steps in one browser frame and misses one now and then).
+    Pages are drawn at most about ``display_hz`` times a second: when the swarm steps faster, a skipped
+    step is carried by the next one drawn. The swarm steps only while a page is open and ``running``.
+
+    Parameters
+    ----------
+    op : sims.console.operator.OperatorSwarm
+    rate : float
+        Simulated seconds per wall second.
+    display_hz : float
+        Most pushes of the top view per second (default 20, above the swarm's 10 steps per second at
+        the default ``dt`` of 0.1 s, so every step is shown).
     """
 
-    def __init__(self, op, rate: float = 1.0):
+    def __init__(self, op, rate: float = 1.0, display_hz: float = 20.0):
+        if not rate > 0 or not display_hz > 0:
+            raise ValueError(f"rate and display_hz must be positive, got {rate}, {display_hz}")
         self.op = op
         self.rate = rate
+        self.display_hz = display_hz
         self.running = True
-        self.lock = threading.Lock()
-        self._last = time.monotonic()
+        self.late = 0  # times the schedule was reset because a step came more than two periods late
+        self._pages: list = []
+        self._last_push = -math.inf
 
-    def advance(self) -> bool:
-        """Step once if a step is due; return whether it stepped."""
-        with self.lock:
-            now = time.monotonic()
-            if not self.running:
-                self._last = now
-                return False
-            if now - self._last < self.op.config.dt / self.rate * 0.95:
-                return False
-            self._last = now if now - self._last > 2 * self.op.config.dt / self.rate else self._last + \
-                self.op.config.dt / self.rate
-            self.op.tick()
-            return True
+    def subscribe(self, draw) -> None:
+        """Call ``draw()`` after every step shown (until :meth:`unsubscribe`)."""
+        self._pages.append(draw)
+
+    def unsubscribe(self, draw) -> None:
+        if draw in self._pages:
+            self._pages.remove(draw)
+
+    def _push(self, force: bool = False) -> None:
+        now = time.monotonic()
+        if not force and now - self._last_push < 0.75 / self.display_hz:
+            return  # the next push carries this step
+        self._last_push = now
+        for draw in list(self._pages):
+            draw()
 
     def step(self) -> None:
-        with self.lock:
-            self.op.tick()
+        """One step now (the *step* button while paused), shown at once."""
+        self.op.tick()
+        self._push(force=True)
+
+    async def run(self) -> None:
+        """Step while running and watched, one step per ``dt / rate`` wall seconds, forever."""
+        period = self.op.config.dt / self.rate
+        due = time.monotonic()
+        while True:
+            due += period
+            await asyncio.sleep(max(due - time.monotonic(), 0.0))
+            if not self.running or not self._pages:
+                due = time.monotonic()
+                continue
+            try:
+                self.op.tick()
+            except Exception:  # noqa: BLE001 - a failing step pauses the swarm and says why, the page lives on
+                self.running = False
+                traceback.print_exc()
+                continue
+            if time.monotonic() - due > 2 * period:  # the machine could not keep up: no burst of catch-up steps
+                self.late += 1
+                due = time.monotonic()
+            self._push()
 
 
 def _swarm_page(runner: SwarmRunner) -> None:
     op = runner.op
-    # last_k: the step drawn (-2 after a change of what to show: redraw even while paused)
+    # last_k: the step drawn; what to show changes redraw at once (even while paused)
     state = {"selected": op.names[0], "mode": "by", "links": "selected", "last_k": -1, "seen": ""}
+
+    def show(**what) -> None:
+        state.update(what)
+        draw()
     ui.page_title("decentral console: swarm")
     with ui.row().classes("w-full no-wrap items-start"):
         view = ui.html(svg(swarm_frame(op, state["selected"]), VIEW_WIDTH), sanitize=False).props(
@@ -69,7 +116,7 @@ def _swarm_page(runner: SwarmRunner) -> None:
             ui.label("Kanovsky's operator loop").classes("text-lg")
             status = ui.label().props('data-testid="status"')
             select = ui.select(list(op.names), value=state["selected"], label="robot",
-                               on_change=lambda e: state.update(selected=e.value, last_k=-2)).props('data-testid="robot"')
+                               on_change=lambda e: show(selected=e.value)).props('data-testid="robot"')
 
             def cmd(what: str) -> None:
                 try:
@@ -80,8 +127,7 @@ def _swarm_page(runner: SwarmRunner) -> None:
                         op.command(state["selected"], what)
                 except Exception as err:  # noqa: BLE001 - a bad command is a notification, not a crash
                     ui.notify(str(err), type="warning")
-                state["last_k"] = -2
-                # paused: commands wait for "step", so several robots can act at one instant
+                draw()  # paused: commands wait for "step", so several robots can act at one instant
 
             with ui.grid(columns=3).classes("gap-1"):
                 ui.label()
@@ -106,9 +152,9 @@ def _swarm_page(runner: SwarmRunner) -> None:
                 ui.button("all read", on_click=lambda: everyone("read")).props('data-testid="all-read" flat')
             seen = ui.label().props('data-testid="seen"')
             ui.toggle({"by": "estimates by robot", "of": "estimates of robot", "all": "all"}, value="by",
-                      on_change=lambda e: state.update(mode=e.value, last_k=-2)).props('data-testid="mode"')
+                      on_change=lambda e: show(mode=e.value)).props('data-testid="mode"')
             ui.toggle({"selected": "its links", "all": "all links", "none": "no links"}, value="selected",
-                      on_change=lambda e: state.update(links=e.value, last_k=-2))
+                      on_change=lambda e: show(links=e.value))
             with ui.row().classes("gap-1 items-center"):
                 ui.switch("run", value=runner.running, on_change=lambda e: setattr(runner, "running", e.value)
                           ).props('data-testid="run"')
@@ -137,15 +183,18 @@ def _swarm_page(runner: SwarmRunner) -> None:
     ui.keyboard(on_key=on_key, ignore=["input", "select", "textarea"])
     last_chart = [0.0]
 
+    def draw() -> None:
+        """The top view and the status line as they are now: one batched update of three elements."""
+        state["last_k"] = op.k
+        view.set_content(svg(swarm_frame(op, state["selected"], state["mode"], state["links"]), VIEW_WIDTH))
+        status.set_text(f"step {op.k}, t = {op.t:.1f} s | {op.sent_copies} messages, "
+                        f"{op.sent_bytes / 1e3:.1f} kB | stale reports discarded {op.stale_discarded} | "
+                        f"unread by {state['selected']}: {len(op.inbox[state['selected']])}")
+        seen.set_text(state["seen"])
+
     def refresh() -> None:
-        runner.advance()
-        if op.k != state["last_k"]:
-            state["last_k"] = op.k
-            view.set_content(svg(swarm_frame(op, state["selected"], state["mode"], state["links"]), VIEW_WIDTH))
-            status.set_text(f"step {op.k}, t = {op.t:.1f} s | {op.sent_copies} messages, "
-                            f"{op.sent_bytes / 1e3:.1f} kB | stale reports discarded {op.stale_discarded} | "
-                            f"unread by {state['selected']}: {len(op.inbox[state['selected']])}")
-            seen.set_text(state["seen"])
+        if op.k != state["last_k"]:  # a step the runner's display rate skipped, then paused
+            draw()
         now = time.monotonic()
         if now - last_chart[0] > 1.0 and op.history:
             last_chart[0] = now
@@ -162,7 +211,9 @@ def _swarm_page(runner: SwarmRunner) -> None:
             chart.options["series"] = series
             chart.update()
 
-    ui.timer(min(0.1, op.config.dt / 2), refresh)
+    runner.subscribe(draw)
+    ui.context.client.on_delete(lambda: runner.unsubscribe(draw))
+    ui.timer(0.25, refresh)
 
 
 def _replay_page(replay) -> None:
@@ -269,6 +320,9 @@ def serve(source: dict, host: str = "127.0.0.1", port: int = 8765, title: str = 
     @app.get("/healthz")
     def healthz():
         return {"ok": True, "kind": kind}
+
+    if kind == "swarm":
+        app.on_startup(lambda: background_tasks.create(source["runner"].run(), name="swarm steps"))
 
     ui.run(host=host, port=port, title=title, reload=False, show=False, show_welcome_message=False,
            favicon="🛰", uvicorn_logging_level="warning")
