@@ -33,8 +33,10 @@ class SwarmRunner:
     steps are evenly spaced; right after a step it calls every open page's draw function, so a page
     shows each step once, when it happens, instead of sampling the swarm with a timer of its own
     (which, at the step's own rate, shows two steps in one browser frame and misses one now and then).
-    Pages are drawn at most about ``display_hz`` times a second: when the swarm steps faster, a skipped
-    step is carried by the next one drawn. The swarm steps only while a page is open and ``running``.
+    Pages are drawn at most ``display_hz`` times a second: a step that comes sooner after the last push
+    is pushed when the display period ends (with whatever step is newest then), so a step made late and
+    its catch-up step still show one by one, and when the swarm steps faster than ``display_hz`` the
+    steps in between are skipped. The swarm steps only while a page is open and ``running``.
 
     Parameters
     ----------
@@ -54,8 +56,10 @@ class SwarmRunner:
         self.display_hz = display_hz
         self.running = True
         self.late = 0  # times the schedule was reset because a step came more than two periods late
+        self.pushes = 0  # steps pushed to the open pages
         self._pages: list = []
         self._last_push = -math.inf
+        self._deferred = False  # a push is scheduled for the end of the display period
 
     def subscribe(self, draw) -> None:
         """Call ``draw()`` after every step shown (until :meth:`unsubscribe`)."""
@@ -67,11 +71,26 @@ class SwarmRunner:
 
     def _push(self, force: bool = False) -> None:
         now = time.monotonic()
-        if not force and now - self._last_push < 0.75 / self.display_hz:
-            return  # the next push carries this step
+        wait = self._last_push + 1.0 / self.display_hz - now
+        if not force and wait > 0.25 / self.display_hz:
+            # too soon after the last push (a late step caught up at once): push when the display period
+            # is over, with the newest step then, so steps made back to back still show one by one
+            if not self._deferred:
+                self._deferred = True
+                asyncio.get_running_loop().call_later(wait, self._push_deferred)
+            return
         self._last_push = now
+        self.pushes += 1
         for draw in list(self._pages):
-            draw()
+            try:
+                draw()
+            except Exception:  # noqa: BLE001 - a page that cannot be drawn (its client went away) is dropped
+                self.unsubscribe(draw)
+                traceback.print_exc()
+
+    def _push_deferred(self) -> None:
+        self._deferred = False
+        self._push(force=True)
 
     def step(self) -> None:
         """One step now (the *step* button while paused), shown at once."""
@@ -319,7 +338,12 @@ def serve(source: dict, host: str = "127.0.0.1", port: int = 8765, title: str = 
 
     @app.get("/healthz")
     def healthz():
-        return {"ok": True, "kind": kind}
+        """Liveness, and for the swarm the runner's counts (steps, pushes to the pages, schedule resets)."""
+        if kind != "swarm":
+            return {"ok": True, "kind": kind}
+        runner = source["runner"]
+        return {"ok": True, "kind": kind, "step": runner.op.k, "pushes": runner.pushes, "late": runner.late,
+                "pages": len(runner._pages)}
 
     if kind == "swarm":
         app.on_startup(lambda: background_tasks.create(source["runner"].run(), name="swarm steps"))
