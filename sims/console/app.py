@@ -60,6 +60,7 @@ class SwarmRunner:
         self._pages: list = []
         self._last_push = -math.inf
         self._deferred = False  # a push is scheduled for the end of the display period
+        self._pushed_k = None  # the step last pushed
 
     def subscribe(self, draw) -> None:
         """Call ``draw()`` after every step shown (until :meth:`unsubscribe`)."""
@@ -72,14 +73,14 @@ class SwarmRunner:
     def _push(self, force: bool = False) -> None:
         now = time.monotonic()
         wait = self._last_push + 1.0 / self.display_hz - now
-        if not force and wait > 0.25 / self.display_hz:
+        if not force and wait > 0:
             # too soon after the last push (a late step caught up at once): push when the display period
             # is over, with the newest step then, so steps made back to back still show one by one
             if not self._deferred:
                 self._deferred = True
                 asyncio.get_running_loop().call_later(wait, self._push_deferred)
             return
-        self._last_push = now
+        self._last_push, self._pushed_k = now, self.op.k
         self.pushes += 1
         for draw in list(self._pages):
             try:
@@ -90,7 +91,8 @@ class SwarmRunner:
 
     def _push_deferred(self) -> None:
         self._deferred = False
-        self._push(force=True)
+        if self.op.k != self._pushed_k:  # unless a push in the meantime showed the newest step already
+            self._push()
 
     def step(self) -> None:
         """One step now (the *step* button while paused), shown at once."""
