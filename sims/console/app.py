@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+import threading
 import time
 import traceback
 
@@ -30,13 +31,14 @@ class SwarmRunner:
 
     One task (:meth:`run`, started with the server) steps the swarm on a fixed schedule, one step every
     ``dt / rate`` wall seconds counted from one start, so the timer's jitter does not add up and the
-    steps are evenly spaced; right after a step it calls every open page's draw function, so a page
+    steps are evenly spaced (a step made late, on a busy machine, is followed at once by the steps due
+    meanwhile, up to :attr:`MAX_LAG_S` behind; beyond, the schedule starts again); right after a step it calls every open page's draw function, so a page
     shows each step once, when it happens, instead of sampling the swarm with a timer of its own
     (which, at the step's own rate, shows two steps in one browser frame and misses one now and then).
-    Pages are drawn at most ``display_hz`` times a second: a step that comes sooner after the last push
-    is pushed when the display period ends (with whatever step is newest then), so a step made late and
-    its catch-up step still show one by one, and when the swarm steps faster than ``display_hz`` the
-    steps in between are skipped. The swarm steps only while a page is open and ``running``.
+    Pages are drawn at most ``display_hz`` times a second on average (pushes go in slots one display
+    period apart): a step that comes before its slot is pushed at the slot (with whatever step is
+    newest then), so a step made late and its catch-up step still show one by one, and when the swarm
+    steps faster than ``display_hz`` the steps in between are skipped. The swarm steps only while a page is open and ``running``.
 
     Parameters
     ----------
@@ -48,6 +50,9 @@ class SwarmRunner:
         the default ``dt`` of 0.1 s, so every step is shown).
     """
 
+    #: a schedule this far behind [s] starts again from now; less is caught up with steps back to back
+    MAX_LAG_S = 0.5
+
     def __init__(self, op, rate: float = 1.0, display_hz: float = 20.0):
         if not rate > 0 or not display_hz > 0:
             raise ValueError(f"rate and display_hz must be positive, got {rate}, {display_hz}")
@@ -55,10 +60,12 @@ class SwarmRunner:
         self.rate = rate
         self.display_hz = display_hz
         self.running = True
-        self.late = 0  # times the schedule was reset because a step came more than two periods late
+        # held while the swarm steps (in a worker thread) and while a page reads or commands it
+        self.lock = threading.RLock()
+        self.late = 0  # times the schedule was reset because a step came more than MAX_LAG_S late
         self.pushes = 0  # steps pushed to the open pages
         self._pages: list = []
-        self._last_push = -math.inf
+        self._next_slot = -math.inf  # earliest time of the next push
         self._deferred = False  # a push is scheduled for the end of the display period
         self._pushed_k = None  # the step last pushed
 
@@ -71,16 +78,18 @@ class SwarmRunner:
             self._pages.remove(draw)
 
     def _push(self, force: bool = False) -> None:
-        now = time.monotonic()
-        wait = self._last_push + 1.0 / self.display_hz - now
-        if not force and wait > 0:
-            # too soon after the last push (a late step caught up at once): push when the display period
-            # is over, with the newest step then, so steps made back to back still show one by one
+        now, period = time.monotonic(), 1.0 / self.display_hz
+        if not force and now < self._next_slot:
+            # too soon (a late step caught up at once): push at the next slot, with the newest step then,
+            # so steps made back to back still show one by one
             if not self._deferred:
                 self._deferred = True
-                asyncio.get_running_loop().call_later(wait, self._push_deferred)
+                asyncio.get_running_loop().call_later(self._next_slot - now, self._push_deferred)
             return
-        self._last_push, self._pushed_k = now, self.op.k
+        # slots one display period apart: a push that came late does not delay the next one, and no two
+        # pushes are less than half a period apart
+        self._next_slot = max(self._next_slot + period, now + 0.5 * period)
+        self._pushed_k = self.op.k
         self.pushes += 1
         for draw in list(self._pages):
             try:
@@ -94,9 +103,13 @@ class SwarmRunner:
         if self.op.k != self._pushed_k:  # unless a push in the meantime showed the newest step already
             self._push()
 
+    def _tick(self) -> None:
+        with self.lock:
+            self.op.tick()
+
     def step(self) -> None:
         """One step now (the *step* button while paused), shown at once."""
-        self.op.tick()
+        self._tick()
         self._push(force=True)
 
     async def run(self) -> None:
@@ -110,13 +123,14 @@ class SwarmRunner:
                 due = time.monotonic()
                 continue
             try:
-                self.op.tick()
+                # in a worker thread: the server goes on sending the last step to the pages meanwhile
+                await asyncio.to_thread(self._tick)
             except Exception:  # noqa: BLE001 - a failing step pauses the swarm and says why, the page lives on
                 self.running = False
                 traceback.print_exc()
                 continue
-            if time.monotonic() - due > 2 * period:  # the machine could not keep up: no burst of catch-up steps
-                self.late += 1
+            if time.monotonic() - due > max(self.MAX_LAG_S, 2 * period):
+                self.late += 1  # the machine could not keep up for a while: no long burst of catch-up steps
                 due = time.monotonic()
             self._push()
 
@@ -131,8 +145,9 @@ def _swarm_page(runner: SwarmRunner) -> None:
         draw()
     ui.page_title("decentral console: swarm")
     with ui.row().classes("w-full no-wrap items-start"):
-        view = ui.html(svg(swarm_frame(op, state["selected"]), VIEW_WIDTH), sanitize=False).props(
-            'data-testid="topview-host"')
+        with runner.lock:
+            first = svg(swarm_frame(op, state["selected"]), VIEW_WIDTH)
+        view = ui.html(first, sanitize=False).props('data-testid="topview-host"')
         with ui.column().classes("gap-1").style("min-width: 360px"):
             ui.label("Kanovsky's operator loop").classes("text-lg")
             status = ui.label().props('data-testid="status"')
@@ -141,11 +156,12 @@ def _swarm_page(runner: SwarmRunner) -> None:
 
             def cmd(what: str) -> None:
                 try:
-                    if what == "picture":
-                        state["seen"] = f"{state['selected']} sees: " + (", ".join(op.picture(state["selected"]))
-                                                                        or "nobody")
-                    else:
-                        op.command(state["selected"], what)
+                    with runner.lock:
+                        if what == "picture":
+                            state["seen"] = f"{state['selected']} sees: " + (
+                                ", ".join(op.picture(state["selected"])) or "nobody")
+                        else:
+                            op.command(state["selected"], what)
                 except Exception as err:  # noqa: BLE001 - a bad command is a notification, not a crash
                     ui.notify(str(err), type="warning")
                 draw()  # paused: commands wait for "step", so several robots can act at one instant
@@ -166,9 +182,14 @@ def _swarm_page(runner: SwarmRunner) -> None:
                 ui.button("read & localize", on_click=lambda: cmd("read")).props('data-testid="read"').tooltip("l")
             with ui.row().classes("gap-1"):
                 def everyone(what: str) -> None:
-                    for n in op.names:
-                        op.command(n, what)
-                ui.button("everyone: picture + report + read", on_click=op.loop_all).props(
+                    with runner.lock:
+                        for n in op.names:
+                            op.command(n, what)
+
+                def loop_all() -> None:
+                    with runner.lock:
+                        op.loop_all()
+                ui.button("everyone: picture + report + read", on_click=loop_all).props(
                     'data-testid="loop-all" flat')
                 ui.button("all read", on_click=lambda: everyone("read")).props('data-testid="all-read" flat')
             seen = ui.label().props('data-testid="seen"')
@@ -206,11 +227,14 @@ def _swarm_page(runner: SwarmRunner) -> None:
 
     def draw() -> None:
         """The top view and the status line as they are now: one batched update of three elements."""
-        state["last_k"] = op.k
-        view.set_content(svg(swarm_frame(op, state["selected"], state["mode"], state["links"]), VIEW_WIDTH))
-        status.set_text(f"step {op.k}, t = {op.t:.1f} s | {op.sent_copies} messages, "
-                        f"{op.sent_bytes / 1e3:.1f} kB | stale reports discarded {op.stale_discarded} | "
-                        f"unread by {state['selected']}: {len(op.inbox[state['selected']])}")
+        with runner.lock:
+            state["last_k"] = op.k
+            picture = svg(swarm_frame(op, state["selected"], state["mode"], state["links"]), VIEW_WIDTH)
+            line = (f"step {op.k}, t = {op.t:.1f} s | {op.sent_copies} messages, "
+                    f"{op.sent_bytes / 1e3:.1f} kB | stale reports discarded {op.stale_discarded} | "
+                    f"unread by {state['selected']}: {len(op.inbox[state['selected']])}")
+        view.set_content(picture)
+        status.set_text(line)
         seen.set_text(state["seen"])
 
     def refresh() -> None:
@@ -219,8 +243,9 @@ def _swarm_page(runner: SwarmRunner) -> None:
         now = time.monotonic()
         if now - last_chart[0] > 1.0 and op.history:
             last_chart[0] = now
-            hist = list(op.history)
-            lines = error_series(op, state["selected"])
+            with runner.lock:
+                hist = list(op.history)
+                lines = error_series(op, state["selected"])
             series = [{"name": name, "type": "line", "showSymbol": False, "data": pts, "connectNulls": False,
                        "lineStyle": {"width": 3 if name in (state["selected"], "median") else 1},
                        **({"lineStyle": {"width": 3, "type": "dashed", "color": "#000"}} if name == "median" else {})}
