@@ -64,9 +64,10 @@ def _renderer_seconds() -> float:
     for d in os.listdir("/proc"):
         if d.isdigit():
             try:
-                children.setdefault(int(Path(f"/proc/{d}/stat").read_text().rsplit(")", 1)[1].split()[1]), []).append(int(d))
+                parent = int(Path(f"/proc/{d}/stat").read_text().rsplit(")", 1)[1].split()[1])
             except OSError:
                 continue
+            children.setdefault(parent, []).append(int(d))
     total, todo = 0.0, [os.getpid()]
     while todo:
         pid = todo.pop()

@@ -32,9 +32,12 @@ class SwarmRunner:
     One task (:meth:`run`, started with the server) steps the swarm on a fixed schedule, one step every
     ``dt / rate`` wall seconds counted from one start, so the timer's jitter does not add up and the
     steps are evenly spaced (a step made late, on a busy machine, is followed at once by the steps due
-    meanwhile, up to :attr:`MAX_LAG_S` behind; beyond, the schedule starts again); right after a step it calls every open page's draw function, so a page
-    shows each step once, when it happens, instead of sampling the swarm with a timer of its own
-    (which, at the step's own rate, shows two steps in one browser frame and misses one now and then).
+    meanwhile, up to :attr:`MAX_LAG_S` behind; beyond, the schedule starts again). A step runs in a
+    worker thread under :attr:`lock` (pages read and command the swarm under the same lock), so the
+    server goes on sending the last step while it computes the next. Right after a step every open
+    page's draw function is called, so a page shows each step once, when it happens, instead of
+    sampling the swarm with a timer of its own (which, at the step's own rate, shows two steps in one
+    browser frame and misses one now and then).
     Pages are drawn at most ``display_hz`` times a second on average (pushes go in slots one display
     period apart): a step that comes before its slot is pushed at the slot (with whatever step is
     newest then), so a step made late and its catch-up step still show one by one, and when the swarm
