@@ -241,8 +241,13 @@ def _swarm_page(runner: SwarmRunner) -> None:
         seen.set_text(state["seen"])
 
     def refresh() -> None:
-        if op.k != state["last_k"]:  # a step the runner's display rate skipped, then paused
-            draw()
+        # a step not drawn yet (a push to this page failed): draw it, unless a step is running now (its
+        # push follows; waiting for the lock here would hold up the server)
+        if op.k != state["last_k"] and runner.lock.acquire(blocking=False):
+            try:
+                draw()
+            finally:
+                runner.lock.release()
         now = time.monotonic()
         if now - last_chart[0] > 1.0 and op.history:
             last_chart[0] = now
