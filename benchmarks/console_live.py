@@ -1,11 +1,18 @@
 """The console in a real browser: how often the swarm's page updates at 50 robots and what the server
 spends, and how far the agents' view lags behind their streams.
 
-*swarm*: ``decentral console --swarm --robots N`` (operator loop; ``--auto`` also measured: every
-robot pictures, reports and reads every step); headless Chromium reads the top view's step label on
-every animation frame for ``--seconds``: distinct steps seen per second are the page's updates. The
-server's CPU is its process's user + system time over the same window, per wall second (1.0 = one
-core). *launch*: ``--agents`` synthetic agents append a stream record each every ``--period`` seconds
+*swarm*: ``decentral console --swarm --robots N`` in three settings: the operator loop at the default
+step (``dt`` 0.1 s: the simulation makes 10 states a second, the most a page can show), the same at
+``--dt 0.05`` (20 states a second: what the page and the server keep up with beyond the default), and
+``--auto`` (every robot pictures, reports and reads every step). One headless Chromium page watches
+each for ``--repeats`` windows of ``--seconds``; every figure is the median over the windows. Along
+the way from the simulation to the screen it counts: steps the server made and pushes it sent (its
+``/healthz`` counts), top-view updates that reached the page's socket, and distinct steps the page
+showed (the top view's step label read on every animation frame: two updates in one browser frame
+count once). The reference, measured in the same window, is the server's own step rate: ``shown /
+stepped`` is the share of the simulation's states a person saw. The server's CPU is its process's user
++ system time per wall second (1.0 = one core); Chromium's renderer is measured the same way.
+*launch*: ``--agents`` synthetic agents append a stream record each every ``--period`` seconds
 (what ``decentral agent --stream`` writes, with the write time kept); ``decentral console --streams``
 follows the folder, and the page's table is read on every animation frame: the delay of a record is
 the time it first shows minus the time it was written (same clock).
@@ -39,37 +46,97 @@ def start_console(args: list[str]) -> tuple[subprocess.Popen, int]:
     return proc, port
 
 
-def swarm_rate(robots: int, seconds: float, chromium: str, auto: bool) -> dict:
+WATCH = """(ms) => new Promise(done => {
+    const shown = []; let last = null; let arrivals = 0; const t0 = performance.now();
+    const count = (msg) => { if (JSON.stringify(msg).includes('frame-label')) arrivals++; };
+    window.socket.on('update', count);
+    const tick = () => { const el = document.querySelector('#frame-label');
+        if (el && el.textContent !== last) { last = el.textContent; shown.push(last); }
+        const t = performance.now() - t0;
+        if (t < ms) requestAnimationFrame(tick);
+        else { window.socket.off('update', count); done({shown, arrivals, ms: t}); } };
+    requestAnimationFrame(tick); })"""
+
+
+def _renderer_seconds() -> float:
+    """CPU seconds of this process's Chromium renderers (descendants whose command line says so)."""
+    children: dict[int, list[int]] = {}
+    for d in os.listdir("/proc"):
+        if d.isdigit():
+            try:
+                parent = int(Path(f"/proc/{d}/stat").read_text().rsplit(")", 1)[1].split()[1])
+            except OSError:
+                continue
+            children.setdefault(parent, []).append(int(d))
+    total, todo = 0.0, [os.getpid()]
+    while todo:
+        pid = todo.pop()
+        todo += children.get(pid, [])
+        try:
+            if "--type=renderer" in Path(f"/proc/{pid}/cmdline").read_text():
+                total += cpu_seconds(pid)
+        except OSError:
+            continue
+    return total
+
+
+def _median(values: list) -> float | None:
+    values = sorted(v for v in values if v is not None)
+    if not values:
+        return None
+    mid = len(values) // 2
+    return values[mid] if len(values) % 2 else 0.5 * (values[mid - 1] + values[mid])
+
+
+def swarm_rate(robots: int, seconds: float, repeats: int, chromium: str, extra: list[str]) -> dict:
+    from urllib.request import urlopen
+
     from playwright.sync_api import sync_playwright
 
-    proc, port = start_console(["--swarm", "--robots", str(robots)] + (["--auto"] if auto else []))
+    proc, port = start_console(["--swarm", "--robots", str(robots), *extra])
+
+    def health() -> dict:
+        with urlopen(f"http://127.0.0.1:{port}/healthz", timeout=10) as r:
+            return json.loads(r.read())
+
+    windows, errors = [], []
     try:
         with sync_playwright() as pw:
             browser = pw.chromium.launch(executable_path=chromium, args=CHROMIUM_ARGS)
             page = browser.new_page(viewport={"width": 1100, "height": 1000})
-            errors = []
             page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+            page.on("pageerror", lambda e: errors.append(str(e)))
             page.goto(f"http://127.0.0.1:{port}/", timeout=60_000)
             page.wait_for_selector("#frame-label", timeout=60_000)
             time.sleep(2.0)  # past the first page's start-up
-            cpu0, w0 = cpu_seconds(proc.pid), time.time()
-            seen = page.evaluate("""(ms) => new Promise(done => {
-                const seen = new Set(); const t0 = performance.now();
-                const tick = () => { const el = document.querySelector('#frame-label');
-                    if (el) seen.add(el.textContent);
-                    if (performance.now() - t0 < ms) requestAnimationFrame(tick); else done(seen.size); };
-                requestAnimationFrame(tick); })""", seconds * 1000)
-            cpu1, w1 = cpu_seconds(proc.pid), time.time()
+            for _ in range(repeats):
+                h0, cpu0, ren0, w0 = health(), cpu_seconds(proc.pid), _renderer_seconds(), time.time()
+                got = page.evaluate(WATCH, seconds * 1000)
+                h1, cpu1, ren1, w1 = health(), cpu_seconds(proc.pid), _renderer_seconds(), time.time()
+                span, wall = got["ms"] / 1000, w1 - w0
+                # the first label is the step on screen when the window opened; the updates are the changes
+                shown = len(got["shown"]) - 1
+                stepped = h1["step"] - h0["step"]
+                windows.append({
+                    "shown_per_s": shown / span, "arrivals_per_s": got["arrivals"] / span,
+                    "pushes_per_s": (h1["pushes"] - h0["pushes"]) / wall, "steps_per_s": stepped / wall,
+                    "shown_over_stepped": shown / stepped if stepped else None,
+                    "late_resets": h1["late"] - h0["late"],
+                    "server_cores": (cpu1 - cpu0) / wall,
+                    "server_cpu_ms_per_step": 1e3 * (cpu1 - cpu0) / stepped if stepped else None,
+                    "renderer_cores": (ren1 - ren0) / wall, "load": list(os.getloadavg())})
             browser.close()
     finally:
         proc.kill()
         proc.wait()
-    rate, cores = seen / (w1 - w0), (cpu1 - cpu0) / (w1 - w0)
-    # CPU per update is what the load cannot change much: cores needed at 10 Hz = 10 x this
-    return {"robots": robots, "auto": auto, "updates_per_s": rate, "server_cores": cores,
-            "server_cpu_s_per_update": cores / rate if rate > 0 else None,
-            "cores_needed_at_10hz": 10 * cores / rate if rate > 0 else None,
-            "console_errors": errors, "load": list(os.getloadavg())}
+    out = {"robots": robots, "options": extra, "repeats": repeats, "seconds": seconds}
+    for key in windows[0]:
+        if key != "load":
+            out[key] = _median([w[key] for w in windows])
+    out["cores_needed_at_10hz"] = 10 * out["server_cpu_ms_per_step"] / 1e3 if out["server_cpu_ms_per_step"] else None
+    out["console_errors"] = errors
+    out["windows"] = windows
+    return out
 
 
 def _writer(folder: Path, agents: int, period: float, steps: int, written: dict, stop: threading.Event) -> None:
@@ -140,17 +207,18 @@ def launch_delay(agents: int, period: float, steps: int, chromium: str) -> dict:
 def main() -> int:
     ap = parser(__doc__)
     ap.add_argument("--robots", type=int, default=50)
-    ap.add_argument("--seconds", type=float, default=8.0)
+    ap.add_argument("--seconds", type=float, default=8.0, help="length of one swarm window")
+    ap.add_argument("--repeats", type=int, default=3, help="swarm windows per setting (medians are reported)")
     ap.add_argument("--agents", type=int, default=8)
     ap.add_argument("--period", type=float, default=0.2, help="seconds between two records of an agent")
     ap.add_argument("--steps", type=int, default=40, help="records per agent in the launch measurement")
     ap.add_argument("--chromium", default="/usr/bin/chromium")
     args = ap.parse_args()
     result = {"benchmark": "console_live", "parameters": vars(args) | {"out": str(args.out)}, "machine": machine()}
-    result["swarm_operator"] = swarm_rate(args.robots, args.seconds, args.chromium, auto=False)
-    print(result["swarm_operator"], flush=True)
-    result["swarm_auto"] = swarm_rate(args.robots, args.seconds, args.chromium, auto=True)
-    print(result["swarm_auto"], flush=True)
+    settings = {"swarm_operator": [], "swarm_operator_dt005": ["--dt", "0.05"], "swarm_auto": ["--auto"]}
+    for key, extra in settings.items():
+        result[key] = swarm_rate(args.robots, args.seconds, args.repeats, args.chromium, extra)
+        print(key, {k: v for k, v in result[key].items() if k != "windows"}, flush=True)
     result["launch"] = launch_delay(args.agents, args.period, args.steps, args.chromium)
     print(result["launch"], flush=True)
     save(f"console_live_r{args.robots}_a{args.agents}", result, args.out)

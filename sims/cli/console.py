@@ -26,6 +26,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     sw.add_argument("--arena", type=float, default=None, help="side of the square arena [m] (default: 5, grown "
                                                              "with the number of robots)")
     sw.add_argument("--dt", type=float, default=0.1, help="step [s] (default: 0.1: ten steps per second)")
+    sw.add_argument("--display-hz", type=float, default=20.0,
+                    help="most top-view updates pushed to the page per second (default: 20; every step is shown "
+                         "while the swarm steps slower)")
     sw.add_argument("--seed", type=int, default=0, help="seed (default: 0)")
     sw.add_argument("--loss", type=float, default=0.0, help="probability that a radio copy is lost (default: 0)")
     sw.add_argument("--max-angle", type=float, default=50.0, help="camera half field of view [deg] (default: 50)")
@@ -78,6 +81,9 @@ def run(args: argparse.Namespace) -> int:
     if args.swarm:
         from sims.console.operator import OperatorSwarm
 
+        if not args.display_hz > 0:
+            raise InputError(f"must be positive, got {args.display_hz}", field="--display-hz")
+
         op = OperatorSwarm(swarm_config(args), args.seed, auto=args.auto)
         if args.mcap:
             from sims.console.mcap_export import write_swarm_mcap
@@ -122,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
         raise DecentralError(f"the console needs its optional libraries ({err.name} is missing): "
                              "pip install 'decentral[console]'") from None
     if args.swarm:
-        source["runner"] = SwarmRunner(op)
+        source["runner"] = SwarmRunner(op, display_hz=args.display_hz)
     _check_host(args.host)
     print(f"decentral console: http://{args.host}:{args.port}/ (Ctrl-C to stop)", file=sys.stderr, flush=True)
     serve(source, host=args.host, port=args.port)

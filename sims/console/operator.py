@@ -30,6 +30,7 @@ import numpy as np
 from decentral.errors import InputError
 from decentral.geometry import rot2, wrap_angle
 from protocols.messages import BROADCAST, OdometryReport, PoseEstimates, Tracks
+from sims.console.radio import BatchedRadio
 from sims.simulation.swarm.config import SwarmConfig
 from sims.simulation.swarm.robot import SHARE_MAX_STD, SwarmRobot
 from sims.simulation.swarm.sim import SwarmSim
@@ -129,6 +130,7 @@ class OperatorSwarm:
         self._delivered = deque(maxlen=LOSS_WINDOW)
         self.history: deque[TickRecord] = deque(maxlen=history)
         self._n = n
+        self._radio = BatchedRadio(self.sim.network, self.names)
         self.tick()  # step 0: robots at their start poses, nothing moved yet
 
     # ------------------------------------------------------------------ operator commands
@@ -249,14 +251,11 @@ class OperatorSwarm:
             self.inbox[name] = [m for m in self.inbox[name] if m.round > k]  # none, unless from the future
             robot.receive(use)
 
-    def _send(self, msg, now: float, sent: np.ndarray) -> None:
-        self.sim.network.send(msg, now)
-        i = self.index[msg.sender]
-        sent[i, :] += 1
-        sent[i, i] -= 1
+    def _send(self, msgs, now: float, sent: np.ndarray) -> None:
+        copies, size = self._radio.send(msgs, now, sent)
         # the radio's own totals need a full snapshot of its books (every link): keep ours as we go
-        self.sent_copies += self._n - 1
-        self.sent_bytes += (self._n - 1) * len(msg.to_bytes())
+        self.sent_copies += copies
+        self.sent_bytes += size
 
     def _report_estimates(self, robot: SwarmRobot, k: int, t: float) -> PoseEstimates:
         """What ``robot`` knows of the others from its own camera (and mutual views), in its frame now."""
@@ -292,6 +291,7 @@ class OperatorSwarm:
         odometry_now = self.auto or k % ODOMETRY_EVERY == 0 or bool(pictures or reports or reads)
         # phase A: odometry (always) and, for reporting robots, their latest picture's detections
         self.detections = {}
+        out = []
         for name, robot in robots.items():
             dets = sensing.detections[f"{name}/cam0"] if name in pictures else ()
             if name in pictures:
@@ -307,23 +307,26 @@ class OperatorSwarm:
                     if name in pictures:
                         self.last_picture[name] = msg
                     if name in reports and name in self.last_picture:
-                        self._send(self.last_picture[name], t, sent)
+                        out.append(self.last_picture[name])
                 elif odometry_now:
-                    self._send(msg, t, sent)
+                    out.append(msg)
+        self._send(out, t, sent)
         t_a = t + c.deadline * c.dt
+        arrived = self._radio.poll(t_a)
         for name, robot in robots.items():
-            self._route(name, robot, net.poll(name, t_a), name in reads, k, delivered)
+            self._route(name, robot, arrived[name], name in reads, k, delivered)
             robot.update()
         # phase B: estimates of reporting robots; reading robots fuse what they hold
         t_b = t + 0.5 * c.dt
+        out = []
         for name in sorted(reports):
             robot = robots[name]
-            msgs = robot.share() if self.auto else [self._report_estimates(robot, k, t)]
-            for msg in msgs:
-                self._send(msg, t_b, sent)
+            out += robot.share() if self.auto else [self._report_estimates(robot, k, t)]
+        self._send(out, t_b, sent)
         t_b_end = t_b + c.deadline * c.dt
+        arrived = self._radio.poll(t_b_end)
         for name, robot in robots.items():
-            self._route(name, robot, net.poll(name, t_b_end), name in reads, k, delivered)
+            self._route(name, robot, arrived[name], name in reads, k, delivered)
             robot.fuse()
         self._sent.append(sent)
         self._delivered.append(delivered)

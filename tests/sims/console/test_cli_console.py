@@ -63,3 +63,10 @@ def test_without_the_console_extra_the_page_says_what_to_install():
             "sys.exit(main(['console', '--swarm', '--robots', '3']))\n")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert out.returncode == 2 and "decentral[console]" in out.stderr and len(out.stderr.strip().splitlines()) == 1
+
+
+def test_display_rate_that_is_not_positive_is_one_line_and_exit_2(tmp_path):
+    """--display-hz 0 is refused in one line naming the option, exit status 2, before anything runs."""
+    out = _cli("--swarm", "--display-hz", "0", "--mcap", str(tmp_path / "x.mcap"))
+    assert out.returncode == 2 and "--display-hz" in out.stderr and "Traceback" not in out.stderr
+    assert len(out.stderr.strip().splitlines()) == 1 and not (tmp_path / "x.mcap").exists()
