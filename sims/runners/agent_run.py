@@ -350,8 +350,9 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
                 done_half = nxt
                 if took is None and local.done:
                     took = clock() - began  # wall time of the window, by the agent's own rule
-                if done_half < h:
-                    continue  # still behind: no waiting
+                if done_half < h and not (k >= n and now >= end):
+                    continue  # still behind: no waiting (unless the run is over: a process kept off the CPU for
+                    # good would otherwise run half rounds back to back past its end until it is killed)
         if k >= n and now >= end:
             break
         next_half = pace.start + (done_half + 1) * pace.round_period / 2
