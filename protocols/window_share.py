@@ -111,6 +111,7 @@ class WindowShare:
     solution: JointPoses | None = None
     solution_out: JointPoses | None = None
     joint: Any = _UNSOLVED
+    solved_for: tuple | None = None  # the records and pin the joint solution was computed from
     placeable: frozenset | None = None
     yaw_std: Any = None
     excluded: tuple = ()
@@ -119,8 +120,14 @@ class WindowShare:
 
     @property
     def solved(self) -> bool:
-        """Whether :meth:`solve` has run for this window."""
-        return self.joint is not _UNSOLVED
+        """Whether :meth:`solve` has run for this window's records as they are now (records that arrived since,
+        or a new pin, make the joint solution stale: a window answered provisionally and completed later must
+        not keep the partial set's solution)."""
+        return self.joint is not _UNSOLVED and self.solved_for == self._held()
+
+    def _held(self) -> tuple:
+        pin = () if self.pin is None else tuple(np.asarray(self.pin, float).tolist())
+        return tuple((i, len(self.records[i])) for i in sorted(self.records)), pin
 
     def solve(self, reference: str, first: int) -> bool:
         """Compute the joint solution of the forms held (:func:`decentral.admm.solve_joint`) with the gauge at
@@ -128,7 +135,7 @@ class WindowShare:
         gauge's value at this window (known at step 0, else from the reference's ``pin``). ``False`` when the
         solve failed: a set whose variables are tied by keys but not by factors (a step with neither
         odometry nor detections, forms missing); the ADMM then goes on from its own state."""
-        self.joint = None
+        self.joint, self.solved_for, self.placeable = None, self._held(), None
         problems = self.problems()
         pin = self.pin
         if problems and (pin is not None and int(pin[0]) == first or first == 0):
