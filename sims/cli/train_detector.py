@@ -1,7 +1,7 @@
 """``decentral train-detector``: retrain the learned circle detector on rendered scenes and/or labelled frames.
 
-Renders the training shards that are not yet in ``OUT/shards`` (varied scenes and ``table1`` runs by
-seed, :mod:`sims.lab.experiments.detector_data`; the held-out varied scenes are refused), adds shards of
+Renders the training shards that are not yet in ``OUT/shards`` (varied scenes, harder scenes and
+``table1`` runs by seed, :mod:`sims.lab.experiments.detector_data`; the held-out varied scenes are refused), adds shards of
 the user's own labelled frames (``--labels``, see
 :func:`agents.perception.training.data.shard_from_labels`), then trains both networks on the CPU
 (``python -m agents.perception.training train``; PyTorch from the ``train`` extra) and writes
@@ -31,9 +31,11 @@ def _range(text: str) -> range:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("out", metavar="OUT", type=Path, help="output folder (shards in OUT/shards, models in OUT)")
-    parser.add_argument("--varied", type=_range, default=range(2000, 2180), metavar="FIRST:STOP",
-                        help="varied scene seeds to render (default: 2000:2180)")
+    parser.add_argument("--varied", type=_range, default=range(2000, 2300), metavar="FIRST:STOP",
+                        help="varied scene seeds to render (default: 2000:2300)")
     parser.add_argument("--varied-frames", type=int, default=10, help="frames per varied scene (default: 10)")
+    parser.add_argument("--hard", type=_range, default=range(5000, 5200), metavar="FIRST:STOP",
+                        help="harder scene seeds to render (near, far, edge-cut, clumped spheres; default: 5000:5200)")
     parser.add_argument("--table1", type=_range, default=range(100, 109), metavar="FIRST:STOP",
                         help="table1 run seeds to render (default: 100:109)")
     parser.add_argument("--table1-steps", type=int, default=30, help="steps per table1 run (default: 30)")
@@ -42,6 +44,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--steps", type=int, default=900, help="proposal network steps (default: 900)")
     parser.add_argument("--refine-steps", type=int, default=2500, help="second-stage steps (default: 2500)")
     parser.add_argument("--seed", type=int, default=0, help="training seed (default: 0)")
+    parser.add_argument("--init", type=Path, default=None, metavar="FOLDER",
+                        help="fine-tune the networks in FOLDER (.pt of an earlier run, or .onnx, e.g. the shipped "
+                             "agents/perception/models) instead of starting from random weights")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -54,11 +59,13 @@ def run(args: argparse.Namespace) -> int:
     if args.varied_frames < 1 or args.table1_steps < 1:
         raise InputError("--varied-frames and --table1-steps must be positive", field="--varied-frames")
     render = ["--varied", f"{args.varied.start}:{args.varied.stop}", "--varied-frames", str(args.varied_frames),
+              "--hard", f"{args.hard.start}:{args.hard.stop}", "--hard-frames", str(args.varied_frames),
               "--table1", f"{args.table1.start}:{args.table1.stop}", "--table1-steps", str(args.table1_steps)]
     if render_main([str(shards), *render]) != 0:
         return 2
     for k, labels in enumerate(args.labels):
         write_shard(shards / f"labels-{k}.npz", shard_from_labels(labels))
+    init = [] if args.init is None else ["--init", str(args.init)]
     return train_main(["train", str(shards), "-o", str(args.out), "--steps", str(args.steps),
-                       "--refine-steps", str(args.refine_steps), "--seed", str(args.seed),
-                       "--validation", "varied-*9.npz", "table1-*8.npz", "--oversample", "table1-*=2"])
+                       "--refine-steps", str(args.refine_steps), "--seed", str(args.seed), *init,
+                       "--validation", "varied-*9.npz", "hard-*49.npz", "table1-*8.npz", "--oversample", "table1-*=2"])

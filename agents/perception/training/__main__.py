@@ -49,7 +49,8 @@ def main(argv=None) -> int:
     tr.add_argument("--eval-every", type=int, default=100)
     tr.add_argument("--warmup", type=int, default=100, help="learning-rate warm-up steps (default: 100)")
     tr.add_argument("--init", type=Path, default=None,
-                    help="start from OUT-like folder of an earlier run (its circles.pt / circle_refine.pt): fine-tuning")
+                    help="start from the networks in this folder (an earlier run's circles.pt / circle_refine.pt, else "
+                         "the .onnx files, e.g. agents/perception/models): fine-tuning")
     tr.add_argument("--validation", nargs="+", default=["varied-*9.npz", "table1-*9.npz"],
                     help="name patterns of the validation shards (default: seeds ending in 9)")
     tr.add_argument("--oversample", nargs="+", default=[], metavar="PATTERN=N",
@@ -91,9 +92,12 @@ def main(argv=None) -> int:
                                   lr=args.lr, seed=args.seed, eval_every=args.eval_every, warmup=args.warmup)
                 init = None
                 if args.init is not None:
-                    init = args.init / ("circles.pt" if network == "detector" else "circle_refine.pt")
+                    stem = "circles" if network == "detector" else "circle_refine"
+                    init = args.init / f"{stem}.pt"
                     if not init.is_file():
-                        raise InputError("no earlier weights to start from", source=str(init))
+                        init = args.init / f"{stem}.onnx"
+                    if not init.is_file():
+                        raise InputError(f"no earlier weights to start from ({stem}.pt or {stem}.onnx)", source=str(args.init))
                 train(network, data, val, args.out, cfg, extra=extra, progress=lambda s: print(s, flush=True), init=init)
     except InputError as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -24,7 +24,7 @@ from torch.nn import functional as F
 from agents.perception.training.data import Shards, detector_batch, refine_batch
 from agents.perception.training.model import CircleNet, RefineNet
 
-__all__ = ["TrainConfig", "export_onnx", "focal_loss", "train"]
+__all__ = ["TrainConfig", "export_onnx", "focal_loss", "load_onnx_weights", "train"]
 
 
 @dataclass(frozen=True)
@@ -80,6 +80,90 @@ def export_onnx(net: torch.nn.Module, path: str | os.PathLike, shape: tuple[int,
     os.replace(tmp, path)
 
 
+def load_onnx_weights(net: torch.nn.Module, path: str | os.PathLike, batches) -> float:
+    """Load an exported network's weights back into ``net`` (to fine-tune a shipped model).
+
+    The export folds each batch normalisation into the convolution before it (``W' = W g / s``,
+    ``b' = beta - g m / s``); the convolutions are matched in execution order by shape. Each
+    normalisation then gets the mean ``m`` and variance ``v`` of its folded convolution's output
+    over ``batches`` (inputs, (B, C, H, W)) as running statistics, ``gamma = sqrt(v + eps)`` and
+    ``beta = m + b'``: in evaluation mode the network computes exactly the exported function, and in
+    training mode (batch statistics) nearly so. Returns the largest absolute difference between the
+    network's and onnxruntime's outputs on the first batch.
+    """
+    import onnx
+    import onnxruntime as ort
+    from onnx import numpy_helper
+
+    model = onnx.load(str(path))
+    inits = {i.name: numpy_helper.to_array(i) for i in model.graph.initializer}
+    convs = [n for n in model.graph.node if n.op_type in ("Conv", "Gemm")]
+    order: list[torch.nn.Module] = []
+    hooks = [m.register_forward_hook(lambda m, i, o: order.append(m)) for m in net.modules()
+             if isinstance(m, (torch.nn.Conv2d, torch.nn.Linear))]
+    net.eval()
+    x0 = torch.from_numpy(batches[0])
+    with torch.no_grad():
+        net(x0[:1])
+    for h in hooks:
+        h.remove()
+    if len(order) != len(convs):
+        raise ValueError(f"{path}: {len(convs)} convolutions, the network has {len(order)}")
+    bn_after = {}
+    for seq in net.modules():
+        kids = list(seq.children()) if isinstance(seq, torch.nn.Sequential) else []
+        for a, b in zip(kids, kids[1:]):
+            if isinstance(b, torch.nn.BatchNorm2d):
+                bn_after[a] = b
+    bias = {}
+    with torch.no_grad():
+        for mod, node in zip(order, convs):
+            w = torch.from_numpy(inits[node.input[1]].copy())
+            if tuple(w.shape) != tuple(mod.weight.shape):
+                raise ValueError(f"{path}: weights of shape {tuple(w.shape)} where the network has {tuple(mod.weight.shape)}")
+            mod.weight.copy_(w)
+            b = torch.from_numpy(inits[node.input[2]].copy()) if len(node.input) > 2 else torch.zeros(w.shape[0])
+            if mod in bn_after:
+                bn = bn_after[mod]
+                bias[bn] = b
+                bn.running_mean.zero_()
+                bn.running_var.fill_(1.0 - bn.eps)
+                bn.weight.fill_(1.0)
+                bn.bias.copy_(b)
+            else:
+                mod.bias.copy_(b)
+    sums: dict = {bn: [0.0, 0.0, 0] for bn in bias}
+
+    def record(bn, inp, _out):
+        x = inp[0].double()
+        s = sums[bn]
+        s[0] = s[0] + x.sum(dim=(0, 2, 3))
+        s[1] = s[1] + (x * x).sum(dim=(0, 2, 3))
+        s[2] += x.numel() // x.shape[1]
+
+    hooks = [bn.register_forward_hook(record) for bn in bias]
+    with torch.no_grad():
+        for xb in batches:
+            net(torch.from_numpy(xb))
+    for h in hooks:
+        h.remove()
+    with torch.no_grad():
+        for bn, (s1, s2, n) in sums.items():
+            m = s1 / n
+            v = (s2 / n - m * m).clamp(min=1e-6)
+            bn.running_mean.copy_(m.float())
+            bn.running_var.copy_(v.float())
+            bn.weight.copy_(torch.sqrt(v + bn.eps).float())
+            bn.bias.copy_((m + bias[bn].double()).float())
+    sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    name = sess.get_inputs()[0].name
+    k = min(4, len(batches[0]))
+    ref = np.concatenate([sess.run(None, {name: batches[0][i:i + 1]})[0] for i in range(k)])
+    with torch.no_grad():
+        got = net(x0[:k]).numpy()
+    return float(np.abs(got - ref).max())
+
+
 def _plot(log: dict, path: Path) -> None:
     import matplotlib
 
@@ -109,8 +193,9 @@ def train(network: str, data: Shards, val: Shards, out: str | os.PathLike, confi
           *, name: str | None = None, progress=print, extra: dict | None = None, init: str | os.PathLike | None = None) -> dict:
     """Train ``network`` ("detector" or "refine") and write ``out/<name>.onnx`` and ``out/<name>_training.{json,png}``.
 
-    ``init`` (a ``.pt`` state dict written by an earlier run) starts from those weights (fine-tuning,
-    e.g. on a user's own labelled frames). Returns the training log (also the JSON file):
+    ``init`` (a ``.pt`` state dict written by an earlier run, or an exported ``.onnx`` network such
+    as the shipped one: :func:`load_onnx_weights`) starts from those weights (fine-tuning, e.g. on a
+    user's own labelled frames). Returns the training log (also the JSON file):
     configuration, per-step training loss, validation losses, best step, wall and CPU seconds.
     """
     if network not in ("detector", "refine"):
@@ -141,7 +226,12 @@ def train(network: str, data: Shards, val: Shards, out: str | os.PathLike, confi
 
         def batch(idx):
             return refine_batch(data, usable[idx], rng)
-    if init is not None:
+    if init is not None and str(init).endswith(".onnx"):
+        stats = [batch(rng.permutation(n_train)[:config.batch])[0] for _ in range(8)]
+        diff = load_onnx_weights(net, init, stats)
+        if progress:
+            progress(f"{network}: weights of {init} (largest difference from onnxruntime {diff:.2g})")
+    elif init is not None:
         net.load_state_dict(torch.load(init, weights_only=True))
     opt = torch.optim.AdamW(net.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     log = {"network": network, "config": asdict(config), "init": None if init is None else str(init), "train_items": int(n_train),

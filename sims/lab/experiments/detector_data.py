@@ -6,6 +6,9 @@ Two sources, both with exact truth and reproducible from their seeds:
   spheres coloured close to the floor, highlights, occlusion, smear), scene seeds from
   :data:`TRAIN_VARIED_SEEDS` upwards. The held-out scenes (:data:`~sims.lab.experiments.varied_scenes.HELD_OUT_SEEDS`)
   are refused.
+- ``hard``: :func:`sims.lab.experiments.hard_scenes.hard_sequence` scenes (near and large spheres,
+  spheres cut by the frame's edge, clumps of spheres hiding one another, rescaled, tinted and
+  patched floors, dim to harsh light), seeds from :data:`TRAIN_HARD_SEEDS` upwards.
 - ``table1``: the 3-D renderer's ``table1`` scenario (tower assemblies on a table), simulation and
   render seeds from :data:`TRAIN_TABLE1_SEEDS` upwards (the experiments and benchmarks use seeds
   0-9).
@@ -35,10 +38,12 @@ from agents.perception.training.data import shard_from_frames, write_shard
 from decentral.errors import InputError
 from sims.lab.experiments.varied_scenes import HELD_OUT_SEEDS, sequence
 
-__all__ = ["TRAIN_TABLE1_SEEDS", "TRAIN_VARIED_SEEDS", "table1_shard", "varied_shard"]
+__all__ = ["TRAIN_HARD_SEEDS", "TRAIN_TABLE1_SEEDS", "TRAIN_VARIED_SEEDS", "hard_shard", "table1_shard", "varied_shard"]
 
 #: first scene seed of the varied training scenes (0-31 tuned the hand-made detectors, 1000-1007 held out)
 TRAIN_VARIED_SEEDS = 2000
+#: first seed of the harder training scenes (:mod:`sims.lab.experiments.hard_scenes`; its own generator)
+TRAIN_HARD_SEEDS = 5000
 #: first seed of the table1 training runs (the experiments and benchmarks use 0-9)
 TRAIN_TABLE1_SEEDS = 100
 
@@ -50,6 +55,14 @@ def varied_shard(seed: int, frames: int, **kw) -> dict[str, np.ndarray]:
     seq = sequence(seed, frames)
     return shard_from_frames(((f.image, [(s.u, s.v, s.r, vis) for s, vis in zip(f.spheres, f.visible)])
                               for f in seq), **kw)
+
+
+def hard_shard(seed: int, frames: int, **kw) -> dict[str, np.ndarray]:
+    """A shard of ``frames`` frames of harder scene ``seed`` (:func:`~sims.lab.experiments.hard_scenes.hard_sequence`)."""
+    from sims.lab.experiments.hard_scenes import hard_sequence
+
+    return shard_from_frames(((f.image, [(s.u, s.v, s.r, vis) for s, vis in zip(f.spheres, f.visible)])
+                              for f in hard_sequence(seed, frames)), **kw)
 
 
 def table1_shard(seed: int, steps: int, *, scenario: str = "table1", **kw) -> dict[str, np.ndarray]:
@@ -76,6 +89,8 @@ def main(argv=None) -> int:
     ap.add_argument("outdir")
     ap.add_argument("--varied", type=_range, default=range(0), help="varied scene seeds FIRST:STOP")
     ap.add_argument("--varied-frames", type=int, default=10, help="frames per varied scene (default 10)")
+    ap.add_argument("--hard", type=_range, default=range(0), help="harder scene seeds FIRST:STOP")
+    ap.add_argument("--hard-frames", type=int, default=10, help="frames per harder scene (default 10)")
     ap.add_argument("--table1", type=_range, default=range(0), help="table1 run seeds FIRST:STOP")
     ap.add_argument("--table1-steps", type=int, default=30, help="steps per table1 run (default 30)")
     ap.add_argument("--stride", type=int, default=1, help="render every STRIDE-th seed of the ranges ...")
@@ -83,7 +98,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     out = Path(args.outdir)
     out.mkdir(parents=True, exist_ok=True)
-    jobs = [("varied", s) for s in args.varied] + [("table1", s) for s in args.table1]
+    jobs = [("varied", s) for s in args.varied] + [("hard", s) for s in args.hard] + [("table1", s) for s in args.table1]
     for i, (kind, seed) in enumerate(jobs):
         if i % args.stride != args.offset:
             continue
@@ -91,7 +106,12 @@ def main(argv=None) -> int:
         if path.exists():
             continue
         try:
-            arrays = varied_shard(seed, args.varied_frames) if kind == "varied" else table1_shard(seed, args.table1_steps)
+            if kind == "varied":
+                arrays = varied_shard(seed, args.varied_frames)
+            elif kind == "hard":
+                arrays = hard_shard(seed, args.hard_frames)
+            else:
+                arrays = table1_shard(seed, args.table1_steps)
         except InputError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2

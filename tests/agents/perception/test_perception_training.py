@@ -146,12 +146,48 @@ def test_only_the_training_modules_import_torch():
 
 @pytest.mark.slow
 def test_train_detector_command_renders_and_trains(tmp_path):
-    """`decentral train-detector` renders shards, trains both networks for a few steps and writes both ONNX files."""
+    """`decentral train-detector` renders shards, fine-tunes both shipped networks for a few steps and writes both ONNX files."""
     pytest.importorskip("torch", reason="training needs PyTorch (the `train` extra)")
+    from agents.perception.learned import MODEL_DIR
     from sims.cli.main import main
 
     out = tmp_path / "det"
     assert main(["train-detector", str(out), "--varied", "2008:2010", "--varied-frames", "1", "--table1", "100:100",
-                 "--steps", "2", "--refine-steps", "2"]) == 0
+                 "--hard", "5049:5050", "--steps", "2", "--refine-steps", "2", "--init", str(MODEL_DIR)]) == 0
     assert (out / "circles.onnx").is_file() and (out / "circle_refine.onnx").is_file()
-    assert sorted(p.name for p in (out / "shards").glob("*.npz")) == ["varied-2008.npz", "varied-2009.npz"]
+    assert json.loads((out / "circles_training.json").read_text())["init"].endswith("circles.onnx")
+    assert sorted(p.name for p in (out / "shards").glob("*.npz")) == ["hard-5049.npz", "varied-2008.npz",
+                                                                        "varied-2009.npz"]
+
+
+def test_hard_scenes_are_reproducible_and_cut_spheres_at_the_frame_edge():
+    """The harder training scenes repeat from their seed, and some of their spheres are cut by the frame's edge."""
+    from sims.lab.experiments.hard_scenes import hard_sequence
+
+    a, b = hard_sequence(5003, 2, width=256, height=192, radius=(6.0, 28.0)), hard_sequence(5003, 2, width=256,
+                                                                                             height=192, radius=(6.0, 28.0))
+    assert all(np.array_equal(x.image, y.image) for x, y in zip(a, b))
+    cut = 0
+    for seed in range(5000, 5006):
+        for f in hard_sequence(seed, 1, width=256, height=192, radius=(6.0, 28.0)):
+            assert f.image.shape == (192, 256, 3) and len(f.spheres) == len(f.visible)
+            assert ((f.visible >= 0) & (f.visible <= 1)).all()
+            cut += sum(min(s.u, s.v, 255 - s.u, 191 - s.v) < 0.5 * s.r for s in f.spheres)
+    assert cut > 0
+
+
+def test_shipped_networks_load_back_into_torch_for_fine_tuning(tmp_path):
+    """The shipped ONNX networks, loaded back into the torch networks, give onnxruntime's outputs (eval mode)."""
+    pytest.importorskip("torch", reason="training needs PyTorch (the `train` extra)")
+    pytest.importorskip("onnxruntime")
+    from agents.perception.learned import MODEL_DIR
+    from agents.perception.training.data import detector_batch, to_input
+    from agents.perception.training.model import CircleNet, RefineNet
+    from agents.perception.training.train import load_onnx_weights
+
+    data = load_shards(_shards(tmp_path))
+    frames = detector_batch(data, np.arange(len(data.images)), None)[0]
+    # the tiny frames are 256 x 192 already: the network's input size
+    assert load_onnx_weights(CircleNet(), MODEL_DIR / "circles.onnx", [frames]) < 1e-4
+    windows = to_input(np.random.default_rng(0).integers(0, 255, (8, 32, 32, 3)))
+    assert load_onnx_weights(RefineNet(), MODEL_DIR / "circle_refine.onnx", [windows]) < 1e-4

@@ -1,0 +1,168 @@
+"""Harder varied scenes for training the learned circle detector.
+
+:func:`sequence` of :mod:`sims.lab.experiments.varied_scenes` draws spheres of 15-90 px spread over
+the frame on one of six floors. A robot's camera also sees nodes close to it (large, often cut by
+the frame's edge), nodes far away (12-24 px), nodes of an assembly in a clump that hide one another, floors that are neither of
+those six (a rug on tiles, a coarse or fine version of a texture, a tinted one) and light that is
+dim, harsh or uneven. :func:`hard_sequence` draws such scenes with the same renderer
+(:func:`~sims.lab.experiments.varied_scenes.render`) and the same exact truth, from one seed. Its
+draws are its own: the varied scenes, held-out ones included, are unchanged by it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import cv2
+import numpy as np
+
+from sims.lab.experiments.varied_scenes import Frame, Look, Sphere, Strut, render
+from sims.simulation.render.surfaces import SURFACES, lighting_gradient, surface
+from sims.simulation.render.textures import TAG_IDS
+
+__all__ = ["hard_floor", "hard_sequence"]
+
+
+def hard_floor(rng: np.random.Generator, height: int, width: int) -> np.ndarray:
+    """A floor (H, W, 3) float32 in [0, 1]: one of the surfaces, rescaled, tinted, sometimes patched with another.
+
+    The texture is drawn at 0.5-2 times the frame's size and resized to it (coarser or finer
+    grain, tiles and planks), its channels scaled by up to 25 % each (tinted floors), and with
+    probability 0.4 a second surface shows through a smooth blob-shaped mask (a rug, a stain, a
+    patch of another floor).
+    """
+    kinds = list(SURFACES)
+
+    def one() -> np.ndarray:
+        zoom = float(np.exp(rng.uniform(np.log(0.5), np.log(2.0))))
+        hh, ww = max(int(height / zoom), 16), max(int(width / zoom), 16)
+        tex = surface(kinds[int(rng.integers(0, len(kinds)))], rng, hh, ww)
+        tex = cv2.resize(tex, (width, height), interpolation=cv2.INTER_LINEAR if zoom > 1 else cv2.INTER_AREA)
+        return tex * rng.uniform(0.75, 1.25, 3).astype(np.float32)[None, None, :]
+
+    floor = one()
+    if rng.random() < 0.4:
+        other = one()
+        blob = cv2.resize(rng.standard_normal((4, 5)).astype(np.float32), (width, height),
+                          interpolation=cv2.INTER_CUBIC)
+        mask = (blob > rng.uniform(-0.3, 0.8)).astype(np.float32)
+        mask = cv2.GaussianBlur(mask, (0, 0), rng.uniform(0.6, 4.0))[:, :, None]
+        floor = floor * (1 - mask) + other * mask
+    return np.clip(floor, 0.0, 1.0).astype(np.float32)
+
+
+def _look(rng: np.random.Generator) -> Look:
+    """Lighting and camera from dim to harsh: wider ranges than the varied scenes' own."""
+    az = rng.uniform(0, 2 * np.pi)
+    elev = rng.uniform(0.25, 1.3)
+    light = (np.cos(elev) * np.cos(az), np.cos(elev) * np.sin(az), np.sin(elev))
+    return Look(light=light, ambient=float(rng.uniform(0.15, 0.6)), noise=float(rng.uniform(1.0, 9.0)),
+                blur=float(rng.uniform(0.0, 1.5)), gain=float(rng.uniform(0.55, 1.35)),
+                jpeg=int(rng.choice([0, 0, 50, 70, 85])), shadow=float(rng.uniform(0.05, 0.45)))
+
+
+def _colour(rng: np.random.Generator, floor_mean: np.ndarray) -> tuple[float, float, float]:
+    if rng.random() < 0.4:  # close to the floor's colour
+        c = floor_mean + rng.uniform(-0.07, 0.07, 3)
+    else:
+        c = rng.uniform(0.08, 0.92, 3)
+    return tuple(float(x) for x in np.clip(c, 0.04, 0.96))
+
+
+def _place(rng: np.random.Generator, r: float, width: int, height: int, mode: str,
+           anchor: np.ndarray) -> np.ndarray:
+    """A centre for a sphere of radius ``r``: anywhere, cut by an edge, or beside ``anchor`` (a clump)."""
+    if mode == "edge":  # its centre within 0.5 r outside to 0.7 r inside one edge
+        u, v = rng.uniform(0, width), rng.uniform(0, height)
+        side = int(rng.integers(0, 4))
+        d = rng.uniform(-0.5, 0.7) * r
+        if side == 0:
+            u = d
+        elif side == 1:
+            u = width - 1 - d
+        elif side == 2:
+            v = d
+        else:
+            v = height - 1 - d
+        return np.array([u, v])
+    if mode == "clump":  # overlapping or touching a neighbour of the clump
+        ang = rng.uniform(0, 2 * np.pi)
+        dist = rng.uniform(0.5, 1.3) * (r + rng.uniform(15, 80))
+        return anchor + dist * np.array([np.cos(ang), np.sin(ang)])
+    return rng.uniform([r, r], [width - r, height - r])
+
+
+def hard_sequence(seed: int, frames: int = 10, *, width: int = 1024, height: int = 768,
+                  radius: tuple[float, float] = (12.0, 110.0)) -> list[Frame]:
+    """A harder sequence of ``frames`` frames from ``seed`` (see the module's text).
+
+    Per scene: a floor of :func:`hard_floor`, a lighting gradient of strength 0.2-0.7, wide
+    lighting and camera ranges, 3-14 spheres, 0-4 struts. Each sphere is one of: *near* (radius
+    log-uniform in the upper half of ``radius``), *far* (radius from the smallest to twice that), *edge* (centre within half a radius outside to
+    0.7 r inside a frame edge), *clump* (beside the scene's clump centre, overlapping its
+    neighbours), or *free* (log-uniform radius anywhere). Per frame: smooth motion, sizes changing by
+    up to 15 %, turning tags, smear now and then; spheres may drift out of the frame by up to one
+    radius.
+    """
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 7]))
+    floor_rng, noise_rng, motion_rng = (np.random.default_rng(s) for s in np.random.SeedSequence([seed, 7]).spawn(3))
+    floor = hard_floor(floor_rng, height, width)
+    gradient = lighting_gradient(floor_rng, height, width, strength=float(rng.uniform(0.2, 0.7)))
+    look = _look(rng)
+    floor_mean = floor.reshape(-1, 3).mean(axis=0)
+    n = int(rng.integers(3, 15))
+    ids = rng.choice(TAG_IDS, size=n, replace=False)
+    clump = rng.uniform([0.2 * width, 0.2 * height], [0.8 * width, 0.8 * height])
+    lo, hi = np.log(radius[0]), np.log(radius[1])
+    movers = []
+    for i in range(n):
+        mode = str(rng.choice(["near", "far", "edge", "clump", "free"], p=[0.15, 0.25, 0.2, 0.25, 0.15]))
+        if mode == "far":  # small: a node far away
+            r = float(np.exp(rng.uniform(lo, np.log(2.0 * radius[0]))))
+        elif mode in ("near", "edge") and rng.random() < 0.7:
+            r = float(np.exp(rng.uniform(0.5 * (lo + hi), hi)))
+        else:
+            r = float(np.exp(rng.uniform(lo, hi)))
+        u, v = _place(rng, r, width, height, mode, clump)
+        polar, az = rng.uniform(0.0, 1.3), rng.uniform(0, 2 * np.pi)
+        normal = (np.sin(polar) * np.cos(az), np.sin(polar) * np.sin(az), np.cos(polar))
+        sp = Sphere(int(ids[i]), float(u), float(v), r, _colour(rng, floor_mean), tag=bool(rng.random() < 0.9),
+                    tag_normal=normal, tag_spin=float(rng.uniform(-np.pi, np.pi)),
+                    tag_half_angle=float(rng.uniform(0.3, 0.5)), paper=bool(rng.random() < 0.6),
+                    specular=float(rng.uniform(0.0, 0.8)))
+        axis = rng.standard_normal(3)
+        movers.append([sp, rng.normal(0.0, 3.0 if mode != "clump" else 1.5, 2), r, float(rng.uniform(0, 2 * np.pi)),
+                       axis / np.linalg.norm(axis), float(rng.uniform(0.0, 0.08))])
+    struts = []
+    for _ in range(int(rng.integers(0, 5))):
+        p0 = rng.uniform([0, 0], [width, height])
+        p1 = p0 + rng.normal(0, 220, 2)
+        grey = rng.uniform(0.1, 0.85)
+        struts.append((Strut(tuple(p0), tuple(p1), float(rng.uniform(4, 20)), (grey, grey, grey * rng.uniform(0.9, 1.1))),
+                       rng.normal(0, 1.5, 2)))
+    out = []
+    for k in range(frames):
+        jerk = motion_rng.random() < 0.15
+        shutter = motion_rng.uniform(0.1, 0.9) if jerk else motion_rng.uniform(0.05, 0.4)
+        shake = tuple(motion_rng.normal(0, 4.0, 2)) if motion_rng.random() < 0.08 else (0.0, 0.0)
+        drawn = []
+        for m in movers:
+            sp, vel, base_r, phase, axis, rate = m
+            vel = 0.9 * vel + motion_rng.normal(0.0, 1.0, 2)
+            step = vel * (2.5 if jerk else 1.0)
+            r = float(np.clip(base_r * (1.0 + 0.15 * np.sin(0.07 * k + phase)), radius[0], radius[1]))
+            u, v = sp.u + step[0], sp.v + step[1]
+            if not -r < u < width + r:
+                vel[0] = -vel[0]
+            if not -r < v < height + r:
+                vel[1] = -vel[1]
+            c, s = np.cos(rate), np.sin(rate)
+            t = np.asarray(sp.tag_normal)
+            t = t * c + np.cross(axis, t) * s + axis * np.dot(axis, t) * (1 - c)
+            sp = replace(sp, u=float(u), v=float(v), r=r, tag_normal=tuple(t), velocity=tuple(step * shutter))
+            m[0], m[1] = sp, vel
+            drawn.append(sp)
+        struts = [(Strut(tuple(np.asarray(st.p0) + vel), tuple(np.asarray(st.p1) + vel), st.width, st.colour), vel)
+                  for st, vel in struts]
+        out.append(render(tuple(drawn), tuple(s for s, _ in struts), look, floor, gradient, noise_rng, shake=shake))
+    return out
