@@ -35,13 +35,21 @@ import numpy as np
 
 from decentral.admm import LocalProblem, solve_joint
 
-__all__ = ["CLASSES", "THRESHOLD", "Attribution", "attribute", "class_excess", "data_of"]
+__all__ = ["CLASSES", "MARGIN", "MIN_COUNT", "THRESHOLD", "Attribution", "attribute", "class_excess", "data_of"]
 
 #: the classes of a member's data
 CLASSES = ("detections", "odometry", "layout")
 #: excess residual per measurement above which a class is inconsistent with the rest (see
 #: :func:`class_excess`); honest 4-6 assembly logs reach 4.5 (seeds 1-20, every window), see docs/robustness.md
 THRESHOLD = 6.0
+#: fewest scalar measurements a class needs to be tested (4 odometry links, 5-6 detections): the excess of a class
+#: of one or two links scatters too widely (an honest 6-assembly log gave 6.5 on the first window's links)
+MIN_COUNT = 16
+#: margin, in standard deviations, by which one explanation must leave less residual than another (:func:`attribute`);
+#: the layout-or-observer comparison on honest data reached 5.5 (seeds 1-20, 5 assemblies, 211 observer/target pairs)
+MARGIN = 6.0
+#: variance of a whitened residual relative to the weighting model (the margin's standard deviation)
+_SPREAD = 3.0
 
 
 def _residual(problems: Sequence[LocalProblem], poses: dict) -> float:
@@ -69,7 +77,7 @@ def data_of(problems: Sequence[LocalProblem], member: Hashable, kind: str) -> li
 
 
 def class_excess(problems: Sequence[LocalProblem], gauge: tuple, value=None, *, members=None,
-                 solve: Callable = solve_joint) -> dict:
+                 min_count: int = MIN_COUNT, solve: Callable = solve_joint) -> dict:
     r"""Per ``(member, class)`` with data, the excess residual per measurement :math:`e_h` of the module docstring.
 
     Parameters
@@ -82,13 +90,16 @@ def class_excess(problems: Sequence[LocalProblem], gauge: tuple, value=None, *, 
         The gauge's value.
     members : iterable, optional
         The members to test (default: every member but the gauge's).
+    min_count : int
+        Classes with fewer scalar measurements are not tested.
     solve : callable
         ``solve(problems, gauge, value)`` with a ``poses`` attribute.
 
     Returns
     -------
     dict
-        ``(member, class)`` -> ``e_h`` (float); classes whose removal leaves the rest untied are left out.
+        ``(member, class)`` -> ``e_h`` (float); classes with fewer than ``min_count`` measurements, or whose
+        removal leaves the rest untied, are left out.
     """
     problems = list(problems)
     total = _residual(problems, solve(problems, gauge, value).poses)
@@ -99,7 +110,7 @@ def class_excess(problems: Sequence[LocalProblem], gauge: tuple, value=None, *, 
         for kind in CLASSES:
             idx = set(data_of(problems, member, kind))
             m = sum(int(problems[i].count) for i in idx)
-            if not idx or m <= 0:
+            if not idx or m < max(min_count, 1):
                 continue
             rest = [p for i, p in enumerate(problems) if i not in idx]
             try:
@@ -164,18 +175,44 @@ def attribute(problems: Sequence[LocalProblem], gauge: tuple, value=None, *, thr
     candidates = sorted((h for h, e in excess.items() if e > threshold), key=lambda h: -excess[h])
     if not candidates:
         return Attribution(None, (), (), excess)
-    explaining = []
+    explaining, left = [], {}
     for member, kind in candidates:
         idx = set(data_of(problems, member, kind))
         rest = [p for i, p in enumerate(problems) if i not in idx]
         try:
             after = class_excess(rest, gauge, value, solve=solve)
+            left[(member, kind)] = (_residual(rest, solve(rest, gauge, value).poses),
+                                    sum(int(problems[i].count) for i in idx), sum(int(p.count) for p in rest))
         except np.linalg.LinAlgError:
             continue
         if all(e <= threshold for e in after.values()):
             explaining.append((member, kind))
     members = sorted({m for m, _ in explaining}, key=repr)
+    if len(members) > 1:
+        members = _clearest(explaining, left)
     if len(members) == 1:
-        return Attribution(members[0], tuple(k for _, k in explaining), (), excess)
+        return Attribution(members[0], tuple(k for m, k in explaining if m == members[0]), (), excess)
     suspects = members or sorted({m for m, _ in candidates}, key=repr)
     return Attribution(None, (), tuple(suspects), excess)
+
+
+def _clearest(explaining: list, left: dict) -> list:
+    r"""The members among several explanations, or the one whose explanation leaves clearly less residual.
+
+    Removing class :math:`h` leaves :math:`T_h` on the rest; the removed measurements :math:`m_h` would
+    have added about :math:`c\, m_h` had they been honest (:math:`c`: the best explanation's rest, per
+    measurement), so :math:`A_h = T_h + c\, m_h` compares explanations that remove different amounts of
+    data. A layout stretched under two observers, one of which sees it much better: removing the
+    better observer's views leaves the other observer's (inconsistent) views of the liar, removing the
+    liar's layout leaves nothing inconsistent, so the liar's :math:`A` is lower by many standard
+    deviations (:math:`\sqrt{2 \cdot 3\,(m_h + m_{h'})}`); when the observer lies instead, the two
+    explanations leave the same residual and both members stay suspects.
+    """
+    best = min(explaining, key=lambda h: left[h][0] / max(left[h][2], 1))
+    c = left[best][0] / max(left[best][2], 1)
+    score = {h: left[h][0] + c * left[h][1] for h in explaining}
+    best = min(explaining, key=lambda h: score[h])
+    others = [h for h in explaining if h[0] != best[0]]
+    if all(score[h] - score[best] > MARGIN * np.sqrt(2 * _SPREAD * (left[h][1] + left[best][1])) for h in others):
+        return [best[0]]
+    return sorted({m for m, _ in explaining}, key=repr)
