@@ -42,8 +42,9 @@ CLASSES = ("detections", "odometry", "layout")
 #: excess residual per measurement above which a class is inconsistent with the rest (see
 #: :func:`class_excess`); honest 4-6 assembly logs reach 4.5 (seeds 1-20, every window), see docs/robustness.md
 THRESHOLD = 6.0
-#: fewest scalar measurements a class needs to be tested (4 odometry links, 5-6 detections): the excess of a class
-#: of one or two links scatters too widely (an honest 6-assembly log gave 6.5 on the first window's links)
+#: fewest scalar measurements an odometry class needs to be tested (4 links): the excess of one or two links
+#: scatters too widely (an honest 6-assembly log gave 6.5 on the first window's links). Views are tested from
+#: their first step (a layout lie must be named in the first window for that step to be exact)
 MIN_COUNT = 16
 #: margin, in standard deviations, by which one explanation must leave less residual than another (:func:`attribute`);
 #: the layout-or-observer comparison on honest data reached 5.5 (seeds 1-20, 5 assemblies, 211 observer/target pairs)
@@ -91,15 +92,15 @@ def class_excess(problems: Sequence[LocalProblem], gauge: tuple, value=None, *, 
     members : iterable, optional
         The members to test (default: every member but the gauge's).
     min_count : int
-        Classes with fewer scalar measurements are not tested.
+        Odometry classes with fewer scalar measurements are not tested.
     solve : callable
         ``solve(problems, gauge, value)`` with a ``poses`` attribute.
 
     Returns
     -------
     dict
-        ``(member, class)`` -> ``e_h`` (float); classes with fewer than ``min_count`` measurements, or whose
-        removal leaves the rest untied, are left out.
+        ``(member, class)`` -> ``e_h`` (float); odometry classes with fewer than ``min_count`` measurements,
+        and classes whose removal leaves the rest untied, are left out.
     """
     problems = list(problems)
     total = _residual(problems, solve(problems, gauge, value).poses)
@@ -110,7 +111,7 @@ def class_excess(problems: Sequence[LocalProblem], gauge: tuple, value=None, *, 
         for kind in CLASSES:
             idx = set(data_of(problems, member, kind))
             m = sum(int(problems[i].count) for i in idx)
-            if not idx or m < max(min_count, 1):
+            if not idx or m < (max(min_count, 1) if kind == "odometry" else 1):
                 continue
             rest = [p for i, p in enumerate(problems) if i not in idx]
             try:
