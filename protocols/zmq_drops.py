@@ -36,8 +36,14 @@ _FAILED = tuple(getattr(zmq, name) for name in ("EVENT_HANDSHAKE_FAILED_NO_DETAI
 
 
 def _dropped_by_receiver(dup: int) -> bool:
-    """Whether the TCP connection on ``dup`` (a duplicate descriptor, closed here) still had unread bytes or no end of stream."""
-    sock = pysocket.socket(fileno=dup)
+    """Whether the TCP connection on ``dup`` (a duplicate descriptor, closed here) still had unread bytes or no end of
+    stream. A descriptor that is no socket (libzmq's was closed and its number reused before it was duplicated):
+    the connection was gone before it could be looked at, counted as dropped (module docstring)."""
+    try:
+        sock = pysocket.socket(fileno=dup)
+    except OSError:
+        os.close(dup)
+        return True
     try:
         sock.setblocking(False)
         try:
@@ -109,28 +115,34 @@ class DropWatch:
                 event = recv_monitor_message(monitor)
             except zmq.ZMQError:
                 return
-            kind, fd = event["event"], event["value"]
-            if kind == zmq.EVENT_MONITOR_STOPPED:
+            if event["event"] == zmq.EVENT_MONITOR_STOPPED:
                 return
-            if kind == zmq.EVENT_ACCEPTED:
-                try:
-                    self._fds[fd] = os.dup(fd)
-                except OSError:  # closed already
-                    self._fds[fd] = -1
-            elif kind in _FAILED:
-                failed = True
-            elif kind == zmq.EVENT_DISCONNECTED:
-                dup = self._fds.pop(fd, -1)
-                if failed:  # not a ZeroMQ peer: refused by the handshake, not a frame
-                    failed = False
-                    if dup >= 0:
-                        os.close(dup)
-                    continue
-                if dup < 0:
-                    with self._lock:
-                        self.unseen += 1
-                        self.dropped += 1
-                    continue
-                if _dropped_by_receiver(dup):
-                    with self._lock:
-                        self.dropped += 1
+            try:
+                failed = self._handle(event["event"], event["value"], failed)
+            except OSError:  # a descriptor gone under us: that connection is not classified, the watch goes on
+                failed = False
+
+    def _handle(self, kind: int, fd: int, failed: bool) -> bool:
+        """Act on one monitor event; return whether a failed handshake awaits its disconnection."""
+        if kind == zmq.EVENT_ACCEPTED:
+            old = self._fds.pop(fd, -1)
+            if old >= 0:
+                os.close(old)
+            try:
+                self._fds[fd] = os.dup(fd)
+            except OSError:  # closed already
+                self._fds[fd] = -1
+        elif kind in _FAILED:
+            return True
+        elif kind == zmq.EVENT_DISCONNECTED:
+            dup = self._fds.pop(fd, -1)
+            if failed:  # not a ZeroMQ peer: refused by the handshake, not a frame
+                if dup >= 0:
+                    os.close(dup)
+                return False
+            if dup < 0 or _dropped_by_receiver(dup):
+                with self._lock:
+                    self.unseen += dup < 0
+                    self.dropped += 1
+            return False
+        return failed
