@@ -6,7 +6,9 @@ Two measurements, both on loopback:
   in this process, an attacker socket sending ``--frames`` frames of one kind; the receiver's CPU
   time (``time.process_time``) from the first frame until every frame is counted in its
   ``rejected``, divided by the frames. Kinds: random bytes, an unknown sender, a replayed genuine
-  frame, a forged small frame (a member's name, a wrong signature), a forged 1 MiB frame. The
+  frame, a forged small frame (a member's name, a wrong signature), a forged 1 MiB frame, a 5 MiB
+  frame over the size limit (10 of them: each drops its connection, counted ``oversize``, and the
+  attacker's socket, in this process, reconnects and sends the next; its CPU is included). The
   reasons the receiver gave are recorded (under a flood, frames past the rate budget are refused
   as ``rate`` before their signature is checked). A genuine small frame's cost is the reference.
 * **flood absorbed**: ``decentral launch`` of a 5-assembly log (``--rate 0.2 --round-period 0.05``)
@@ -65,6 +67,8 @@ def _frames(kind: str, n: int, rng, captured: bytes, member: str) -> list[bytes]
         return [b"\x00" + rng.bytes(200) for _ in range(n)]
     if kind == "replay":
         return [captured] * n
+    if kind == "oversize_5MiB":  # over the 4 MiB limit: libzmq drops the connection (counted ``oversize``)
+        return [b"\x00" * (5 * 2**20)] * n
     size = 2**20 if kind == "forged_1MiB" else 0
     sender = member if kind.startswith("forged") else "intruder"
     key = private_key_from_bytes(rng.bytes(32))
@@ -86,7 +90,7 @@ def cost_per_frame(n_frames: int, seed: int = 0) -> dict:
 
     rng = np.random.default_rng(seed)
     out = {}
-    kinds = ["genuine", "random", "unknown_sender", "replay", "forged_small", "forged_1MiB"]
+    kinds = ["genuine", "random", "unknown_sender", "replay", "forged_small", "forged_1MiB", "oversize_5MiB"]
     for kind in kinds:
         nets, table = open_loopback(["A0", "A1"])
         ctx = zmq.Context()
@@ -102,7 +106,7 @@ def cost_per_frame(n_frames: int, seed: int = 0) -> dict:
             while not got and time.monotonic() < deadline:
                 a1.wait(0.05)
                 got = a1.poll("A1", time.time())
-            n = n_frames if kind != "forged_1MiB" else max(20, n_frames // 50)
+            n = {"forged_1MiB": max(20, n_frames // 50), "oversize_5MiB": 10}.get(kind, n_frames)
             if kind == "genuine":
                 for i in range(n):
                     a0.send(Heartbeat(sender="A0", receiver="A1", round=i + 1, t=0.0), time.time())

@@ -26,6 +26,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from decentral.admm import LocalProblem, solve_joint
+from decentral.attribution import attribute
 
 #: per-window false-alarm probability of the chi-square test (Bonferroni-divided over the members tested)
 ALPHA = 1e-3
@@ -327,4 +328,13 @@ def screen_members(problems: Sequence[LocalProblem], gauge: tuple, value=None, *
         excluded.append(liar)
         kept, poses = rests[liar], solved[liar]
         tests = member_tests(kept, poses, dispersion=dispersion)
+    if not excluded and len(members) >= 2 and limit >= 1:
+        # the omnibus test is blind to a lie in one class of a member's data (a view turned, odometry scaled, a
+        # layout stretched) that its other data dilute: test each class against the rest
+        found = attribute(kept, gauge, value, solve=solve)
+        if found.liar is not None:
+            excluded, suspects = [found.liar], ()
+            kept = [prob for prob in kept if all(k[0] != found.liar for k in prob.keys)]
+        elif found.suspects and not suspects:
+            suspects = found.suspects
     return Screening(tuple(excluded), kept, first_total, left, first_tests, suspects)

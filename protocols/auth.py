@@ -110,7 +110,7 @@ KEY_SIZE = 32
 #: four are the envelope checks; ``stale`` is a frame sent too long ago (or too far ahead) by the sender's
 #: clock, ``rate`` a frame from a connection that sent refused frames, past the budget for checking them,
 #: ``unread`` a frame still queued when the receiver closed
-REJECT_REASONS = ("bad_signature", "replay", "unknown_sender", "malformed", "stale", "rate", "unread")
+REJECT_REASONS = ("bad_signature", "replay", "unknown_sender", "malformed", "stale", "rate", "unread", "oversize")
 _PREFIX = struct.Struct("<4sBB")  # magic, version, L
 _FIELDS = struct.Struct("<QQdI")  # epoch, seq, sent_at, N
 _MAX_NAME = 255

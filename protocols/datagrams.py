@@ -44,7 +44,7 @@ class Reassembler:
     Parameters
     ----------
     max_frame_bytes : int
-        A frame announcing more pieces than this allows is refused (``too_large``).
+        A frame announcing more pieces than this allows is refused (``oversize``).
     timeout : float
         Seconds a frame in progress waits for its missing pieces (then it is dropped by :meth:`expire`).
     per_source : int
@@ -62,7 +62,7 @@ class Reassembler:
         Raises
         ------
         Rejected
-            ``malformed`` (bad header) or ``too_large``.
+            ``malformed`` (bad header) or ``oversize``.
         """
         if len(datagram) < HEADER.size:
             raise Rejected("malformed", "datagram shorter than its header")
@@ -73,7 +73,7 @@ class Reassembler:
         if count == 1:
             return bytes(piece)
         if count * max(len(piece), 1) > 2 * self.max_frame_bytes:
-            raise Rejected("too_large", f"{count} pieces")
+            raise Rejected("oversize", f"{count} pieces")
         key = (source, fid)
         entry = self._open.get(key)
         if entry is None:
@@ -90,7 +90,7 @@ class Reassembler:
             entry[3] += len(piece)
             if entry[3] > self.max_frame_bytes:
                 del self._open[key]
-                raise Rejected("too_large", f"more than {self.max_frame_bytes} bytes")
+                raise Rejected("oversize", f"more than {self.max_frame_bytes} bytes")
         if len(entry[2]) < count:
             return None
         del self._open[key]

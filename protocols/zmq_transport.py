@@ -73,6 +73,7 @@ from protocols.link_config import LinkConfig
 from protocols.peers import Peer, check_address
 from protocols.receive_faults import Held, ReceiveFaults
 from protocols.transport import Delivery, Ledger, Transport, TransportStats
+from protocols.zmq_drops import DropWatch
 
 __all__ = ["ZmqTransport", "open_loopback"]
 
@@ -93,6 +94,7 @@ class _Endpoint:
     def __init__(self, name: str, socket: zmq.Socket, signer: Signer, gate: Gate):
         self.name = name
         self.socket = socket
+        self.drops = DropWatch(socket)  # connections libzmq dropped on a frame over MAXMSGSIZE
         self.signer = signer
         self.gate = gate
         self.held: list[tuple[float, int, Held]] = []
@@ -269,6 +271,7 @@ class ZmqTransport(Transport):
         return out
 
     def stats(self) -> TransportStats:
+        self._count_oversize()
         return self._ledger.snapshot()
 
     # ------------------------------------------------------------------ runtime helpers
@@ -330,6 +333,9 @@ class ZmqTransport(Transport):
         if self._closed:
             return
         self._count_unread()
+        for ep in self._local.values():
+            ep.drops.stop()
+        self._count_oversize()
         self._closed = True
         deadline = time.monotonic() + max(0.0, linger)
         outbound = set(self._out.values())
@@ -381,6 +387,7 @@ class ZmqTransport(Transport):
             except zmq.ZMQError:
                 conn = -1  # its connection is gone already: such frames are judged together
             self._admit(ep, frame.bytes, conn, now)
+        self._count_oversize()
 
     def _admit(self, ep: _Endpoint, frame: bytes, conn: int, now: float) -> None:
         """Check one inbound frame from connection ``conn``, cheapest checks first; count a refusal by
@@ -408,6 +415,12 @@ class ZmqTransport(Transport):
                 n += 1
         if n:
             self._ledger.reject("unread", n)
+
+    def _count_oversize(self) -> None:
+        """Count the connections libzmq dropped on a frame over the size limit as ``oversize`` refusals."""
+        n = sum(ep.drops.take() for ep in self._local.values())
+        if n:
+            self._ledger.reject("oversize", n)
 
     def _deliver(self, ep: _Endpoint, env: Opened, message: Message, size: int, now: float) -> None:
         """Apply the link's faults to an admitted frame and hold its copies until their arrival time."""

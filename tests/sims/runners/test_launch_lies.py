@@ -1,0 +1,40 @@
+"""A lying member as real processes: a layout stretched 1.5x in its own part of the log is named and never placed.
+
+``launch`` on an 8-step, 5-assembly log at the attack reports' pace (one second of wall time per step),
+so marked slow. The simulated-runtime versions are in tests/sims/runners/test_lies_simulated.py.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from sims.runners.launch import LaunchConfig, launch
+from sims.simulation.scenarios import get_scenario, simulate
+
+PACE = dict(rate=0.2, round_period=0.05, transport="zmq")
+
+
+def _stretched(parts: dict, liar: str) -> dict:
+    """The parts with ``liar``'s own configuration stretched 1.5x about its root (only its part: what it announces)."""
+    part = parts[liar]
+    steps = [dataclasses.replace(s, config={**s.config, liar: {i: 1.5 * np.asarray(c, float)
+                                                               for i, c in s.config[liar].items()}})
+             for s in part.steps]
+    return {**parts, liar: dataclasses.replace(part, steps=tuple(steps))}
+
+
+@pytest.mark.slow
+def test_a_stretched_layout_two_observers_check_is_named_and_never_placed(tmp_path, monkeypatch):
+    """A3 announces its layout stretched 1.5x (seed 3: seen by A2 and A1): the reference names A3 in `excluded`, no
+    one else, and never places A3."""
+    import sims.runners.launch as launch_module
+
+    sim = simulate(get_scenario("multi", n_assemblies=5, steps=8), seed=3)
+    real_split = launch_module.split_log
+    monkeypatch.setattr(launch_module, "split_log", lambda log: _stretched(real_split(log), "A3"))
+    est = launch(sim.log, LaunchConfig(**PACE), workdir=tmp_path).estimate
+    assert est.stats["excluded"] == ["A3"], est.stats.get("suspects")
+    assert not any("A3" in step.poses for step in est.steps)
