@@ -235,9 +235,9 @@ def screen_members(problems: Sequence[LocalProblem], gauge: tuple, value=None, *
 
     The forms are solved jointly and every member's statistic tested at level ``alpha / G``
     (Bonferroni over the ``G`` members with measurements: with honest data a window raises a false
-    alarm with probability at most about ``alpha``); a window whose every member passes costs that one
-    solve (the residual margin test, :func:`screen_by_margin`, runs only on a window that fails, before
-    the chi-square rounds: a lie far above the noise fails it too). When some member fails, each member ``a`` other
+    alarm with probability at most about ``alpha``). The residual margin test (:func:`screen_by_margin`,
+    one solve per member) runs only on a window that fails, before the chi-square rounds: a lie far
+    above the noise fails it too. When some member fails, each member ``a`` other
     than the gauge's is tried: the forms over any pose of ``a`` are removed, the rest solved, and
     every remaining member tested again (at ``alpha / (G - 1)``). The removals that bring every other
     member within bounds *explain* the inconsistency (in the manner of pairwise consistency
@@ -295,11 +295,10 @@ def screen_members(problems: Sequence[LocalProblem], gauge: tuple, value=None, *
     kept = list(problems)
     first = solve(kept, gauge, value).poses
     first_total, first_tests = residual(kept, first), member_tests(kept, first, dispersion=dispersion)
-    if _within(first_tests, alpha):  # consistent data (nearly every window): one solve, no leave-one-out
-        return Screening((), kept, first_total, {}, first_tests, ())
-    margin = screen_by_margin(problems, gauge, value, max_excluded=max_excluded, solve=solve)
-    if margin.excluded:  # a lie far above the noise: named by the residual margin
-        return margin
+    if not _within(first_tests, alpha):  # (a consistent window skips the leave-one-out margin test: N solves)
+        margin = screen_by_margin(problems, gauge, value, max_excluded=max_excluded, solve=solve)
+        if margin.excluded:  # a lie far above the noise: named by the residual margin
+            return margin
     members = sorted({k[0] for prob in kept for k in prob.keys} - {gauge[0]}, key=repr)
     limit = max(0, len(members) // 2) if max_excluded is None else int(max_excluded)
     excluded: list[Hashable] = []
