@@ -11,12 +11,11 @@ draws are its own: the varied scenes, held-out ones included, are unchanged by i
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import cv2
 import numpy as np
 
-from sims.lab.experiments.varied_scenes import Frame, Look, Sphere, Strut, render
+from sims.lab.experiments.varied_scenes import (Frame, animate, random_look, random_mover, random_struts,
+                                                random_tag_normal)
 from sims.simulation.render.surfaces import SURFACES, lighting_gradient, surface
 from sims.simulation.render.textures import TAG_IDS
 
@@ -49,16 +48,6 @@ def hard_floor(rng: np.random.Generator, height: int, width: int) -> np.ndarray:
         mask = cv2.GaussianBlur(mask, (0, 0), rng.uniform(0.6, 4.0))[:, :, None]
         floor = floor * (1 - mask) + other * mask
     return np.clip(floor, 0.0, 1.0).astype(np.float32)
-
-
-def _look(rng: np.random.Generator) -> Look:
-    """Lighting and camera from dim to harsh: wider ranges than the varied scenes' own."""
-    az = rng.uniform(0, 2 * np.pi)
-    elev = rng.uniform(0.25, 1.3)
-    light = (np.cos(elev) * np.cos(az), np.cos(elev) * np.sin(az), np.sin(elev))
-    return Look(light=light, ambient=float(rng.uniform(0.15, 0.6)), noise=float(rng.uniform(1.0, 9.0)),
-                blur=float(rng.uniform(0.0, 1.5)), gain=float(rng.uniform(0.55, 1.35)),
-                jpeg=int(rng.choice([0, 0, 50, 70, 85])), shadow=float(rng.uniform(0.05, 0.45)))
 
 
 def _colour(rng: np.random.Generator, floor_mean: np.ndarray) -> tuple[float, float, float]:
@@ -108,7 +97,8 @@ def hard_sequence(seed: int, frames: int = 10, *, width: int = 1024, height: int
     floor_rng, noise_rng, motion_rng = (np.random.default_rng(s) for s in np.random.SeedSequence([seed, 7]).spawn(3))
     floor = hard_floor(floor_rng, height, width)
     gradient = lighting_gradient(floor_rng, height, width, strength=float(rng.uniform(0.2, 0.7)))
-    look = _look(rng)
+    look = random_look(rng, elevation=(0.25, 1.3), ambient=(0.15, 0.6), noise=(1.0, 9.0), blur=(0.0, 1.5),
+                       gain=(0.55, 1.35), jpeg=(0, 0, 50, 70, 85), shadow=(0.05, 0.45))  # dim to harsh
     floor_mean = floor.reshape(-1, 3).mean(axis=0)
     n = int(rng.integers(3, 15))
     ids = rng.choice(TAG_IDS, size=n, replace=False)
@@ -124,45 +114,10 @@ def hard_sequence(seed: int, frames: int = 10, *, width: int = 1024, height: int
         else:
             r = float(np.exp(rng.uniform(lo, hi)))
         u, v = _place(rng, r, width, height, mode, clump)
-        polar, az = rng.uniform(0.0, 1.3), rng.uniform(0, 2 * np.pi)
-        normal = (np.sin(polar) * np.cos(az), np.sin(polar) * np.sin(az), np.cos(polar))
-        sp = Sphere(int(ids[i]), float(u), float(v), r, _colour(rng, floor_mean), tag=bool(rng.random() < 0.9),
-                    tag_normal=normal, tag_spin=float(rng.uniform(-np.pi, np.pi)),
-                    tag_half_angle=float(rng.uniform(0.3, 0.5)), paper=bool(rng.random() < 0.6),
-                    specular=float(rng.uniform(0.0, 0.8)))
-        axis = rng.standard_normal(3)
-        movers.append([sp, rng.normal(0.0, 3.0 if mode != "clump" else 1.5, 2), r, float(rng.uniform(0, 2 * np.pi)),
-                       axis / np.linalg.norm(axis), float(rng.uniform(0.0, 0.08))])
-    struts = []
-    for _ in range(int(rng.integers(0, 5))):
-        p0 = rng.uniform([0, 0], [width, height])
-        p1 = p0 + rng.normal(0, 220, 2)
-        grey = rng.uniform(0.1, 0.85)
-        struts.append((Strut(tuple(p0), tuple(p1), float(rng.uniform(4, 20)), (grey, grey, grey * rng.uniform(0.9, 1.1))),
-                       rng.normal(0, 1.5, 2)))
-    out = []
-    for k in range(frames):
-        jerk = motion_rng.random() < 0.15
-        shutter = motion_rng.uniform(0.1, 0.9) if jerk else motion_rng.uniform(0.05, 0.4)
-        shake = tuple(motion_rng.normal(0, 4.0, 2)) if motion_rng.random() < 0.08 else (0.0, 0.0)
-        drawn = []
-        for m in movers:
-            sp, vel, base_r, phase, axis, rate = m
-            vel = 0.9 * vel + motion_rng.normal(0.0, 1.0, 2)
-            step = vel * (2.5 if jerk else 1.0)
-            r = float(np.clip(base_r * (1.0 + 0.15 * np.sin(0.07 * k + phase)), radius[0], radius[1]))
-            u, v = sp.u + step[0], sp.v + step[1]
-            if not -r < u < width + r:
-                vel[0] = -vel[0]
-            if not -r < v < height + r:
-                vel[1] = -vel[1]
-            c, s = np.cos(rate), np.sin(rate)
-            t = np.asarray(sp.tag_normal)
-            t = t * c + np.cross(axis, t) * s + axis * np.dot(axis, t) * (1 - c)
-            sp = replace(sp, u=float(u), v=float(v), r=r, tag_normal=tuple(t), velocity=tuple(step * shutter))
-            m[0], m[1] = sp, vel
-            drawn.append(sp)
-        struts = [(Strut(tuple(np.asarray(st.p0) + vel), tuple(np.asarray(st.p1) + vel), st.width, st.colour), vel)
-                  for st, vel in struts]
-        out.append(render(tuple(drawn), tuple(s for s, _ in struts), look, floor, gradient, noise_rng, shake=shake))
-    return out
+        normal = random_tag_normal(rng, 1.3)
+        colour = _colour(rng, floor_mean)
+        movers.append(random_mover(rng, int(ids[i]), float(u), float(v), r, colour, tag=bool(rng.random() < 0.9),
+                                   tag_normal=normal, max_specular=0.8, speed=3.0 if mode != "clump" else 1.5))
+    struts = random_struts(rng, width, height, count=(0, 4), spread=220, widths=(4, 20), greys=(0.1, 0.85))
+    return animate(movers, struts, look, floor, gradient, noise_rng, motion_rng, frames,
+                   radius=radius, jitter=1.0, wobble=0.15, margin=1.0)

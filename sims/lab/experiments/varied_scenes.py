@@ -14,7 +14,7 @@ Seeds: :data:`TUNING_SEEDS` are the scenes the perception parameters were develo
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -26,6 +26,7 @@ from sims.simulation.render.textures import TAG_IDS, tag_cells
 
 __all__ = [
     "TUNING_SEEDS", "HELD_OUT_SEEDS", "Sphere", "Strut", "Look", "Frame", "render", "sequence",
+    "Mover", "random_look", "random_tag_normal", "random_mover", "random_struts", "animate",
 ]
 
 #: scene seeds the detector and tracker parameters were developed on (0-7 for the rim detector,
@@ -253,7 +254,7 @@ def render(spheres: tuple[Sphere, ...], struts: tuple[Strut, ...], look: Look, f
 
 
 @dataclass
-class _Mover:
+class Mover:
     """A sphere's state while a sequence is generated (position, velocity, size, tag orientation)."""
 
     sphere: Sphere
@@ -262,26 +263,115 @@ class _Mover:
     phase: float
     rot_axis: np.ndarray
     rot_rate: float
-    history: list = field(default_factory=list)
 
 
 def _colour_near(rng: np.random.Generator, ref: np.ndarray, spread: float) -> tuple[float, float, float]:
     return tuple(float(x) for x in np.clip(ref + rng.uniform(-spread, spread, 3), 0.04, 0.96))
 
 
-def _random_look(rng: np.random.Generator) -> Look:
+def random_look(rng: np.random.Generator, *, elevation: tuple[float, float] = (0.35, 1.2),
+                ambient: tuple[float, float] = (0.25, 0.55), noise: tuple[float, float] = (1.0, 6.0),
+                blur: tuple[float, float] = (0.0, 1.1), gain: tuple[float, float] = (0.8, 1.2),
+                jpeg: tuple[int, ...] = (0, 0, 70, 85), shadow: tuple[float, float] = (0.05, 0.25)) -> Look:
+    """A :class:`Look` drawn from ``rng``: each field uniform in its range (``jpeg``: one of the listed qualities).
+
+    The light comes from a uniform azimuth at an elevation (rad above the image plane) in
+    ``elevation``. The defaults are the varied scenes' ranges.
+    """
     az = rng.uniform(0, 2 * np.pi)
-    elev = rng.uniform(0.35, 1.2)
+    elev = rng.uniform(*elevation)
     light = (np.cos(elev) * np.cos(az), np.cos(elev) * np.sin(az), np.sin(elev))
-    return Look(light=light, ambient=float(rng.uniform(0.25, 0.55)), noise=float(rng.uniform(1.0, 6.0)),
-                blur=float(rng.uniform(0.0, 1.1)), gain=float(rng.uniform(0.8, 1.2)),
-                jpeg=int(rng.choice([0, 0, 70, 85])), shadow=float(rng.uniform(0.05, 0.25)))
+    return Look(light=light, ambient=float(rng.uniform(*ambient)), noise=float(rng.uniform(*noise)),
+                blur=float(rng.uniform(*blur)), gain=float(rng.uniform(*gain)),
+                jpeg=int(rng.choice(list(jpeg))), shadow=float(rng.uniform(*shadow)))
 
 
 def _rotate(v: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
     """Rodrigues' rotation of ``v`` about unit ``axis`` by ``angle``."""
     c, s = np.cos(angle), np.sin(angle)
     return v * c + np.cross(axis, v) * s + axis * np.dot(axis, v) * (1 - c)
+
+
+def random_tag_normal(rng: np.random.Generator, max_polar: float) -> tuple[float, float, float]:
+    """A unit tag direction (camera frame) at most ``max_polar`` rad from facing the camera (draws polar, azimuth)."""
+    polar, az = rng.uniform(0.0, max_polar), rng.uniform(0, 2 * np.pi)
+    return (np.sin(polar) * np.cos(az), np.sin(polar) * np.sin(az), np.cos(polar))
+
+
+def random_mover(rng: np.random.Generator, tag_id: int, u: float, v: float, r: float,
+                 colour: tuple[float, float, float], *, tag: bool, tag_normal: tuple[float, float, float],
+                 max_specular: float, speed: float) -> Mover:
+    """A sphere at (``u``, ``v``, ``r``) px and its motion; the rest drawn from ``rng``.
+
+    Draws, in this order: tag spin, tag half-angle (0.3-0.5 rad), paper (probability 0.6),
+    specular strength (0 to ``max_specular``), the tag's rotation axis, the velocity (normal, standard
+    deviation ``speed`` px per frame per axis), the size phase and the tag's rotation rate (0-0.08 rad
+    per frame). The generators rely on this order: their scenes are reproduced from seeds.
+    """
+    sp = Sphere(tag_id, u, v, r, colour, tag=tag, tag_normal=tag_normal, tag_spin=float(rng.uniform(-np.pi, np.pi)),
+                tag_half_angle=float(rng.uniform(0.3, 0.5)), paper=bool(rng.random() < 0.6),
+                specular=float(rng.uniform(0.0, max_specular)))
+    axis = rng.standard_normal(3)
+    return Mover(sp, rng.normal(0.0, speed, 2), r, float(rng.uniform(0, 2 * np.pi)),
+                 axis / np.linalg.norm(axis), float(rng.uniform(0.0, 0.08)))
+
+
+def random_struts(rng: np.random.Generator, width: int, height: int, *, count: tuple[int, int], spread: float,
+                  widths: tuple[float, float], greys: tuple[float, float]) -> list[tuple[Strut, np.ndarray]]:
+    """Struts and their velocities (px per frame), drawn from ``rng``.
+
+    ``count`` is the inclusive range of the number of struts; each starts anywhere in the frame, ends
+    a normal offset of standard deviation ``spread`` px away, is ``widths`` px wide and grey
+    (``greys``, slightly tinted) and moves with a velocity of standard deviation 1.5 px per frame.
+    """
+    struts = []
+    for _ in range(int(rng.integers(count[0], count[1] + 1))):
+        p0 = rng.uniform([0, 0], [width, height])
+        p1 = p0 + rng.normal(0, spread, 2)
+        grey = rng.uniform(*greys)
+        struts.append((Strut(tuple(p0), tuple(p1), float(rng.uniform(*widths)),
+                             (grey, grey, grey * rng.uniform(0.9, 1.1))),
+                       rng.normal(0, 1.5, 2)))
+    return struts
+
+
+def animate(movers: list[Mover], struts: list[tuple[Strut, np.ndarray]], look: Look, floor: np.ndarray,
+            gradient: np.ndarray, noise_rng: np.random.Generator, motion_rng: np.random.Generator, frames: int, *,
+            radius: tuple[float, float], jitter: float, wobble: float, margin: float) -> list[Frame]:
+    """Move the scene's spheres and struts for ``frames`` frames and render each (see :func:`sequence`).
+
+    Per frame (from ``motion_rng``): now and then a jerk (the spheres move 2.5 times as far, the
+    exposure is up to 0.9 of the frame interval) or camera shake; each sphere's velocity is damped
+    and kicked by normal noise of standard deviation ``jitter`` px, its radius swings by up to
+    ``wobble`` (a fraction, clipped to ``radius``), it bounces back once its centre is more than
+    ``margin`` radii outside the frame, and its tag turns about the mover's axis. ``movers`` are
+    updated in place. ``noise_rng`` draws the sensor noise (:func:`render`).
+    """
+    height, width = floor.shape[:2]
+    out = []
+    for k in range(frames):
+        jerk = motion_rng.random() < 0.15  # a fast frame: tags smeared
+        shutter = motion_rng.uniform(0.1, 0.9) if jerk else motion_rng.uniform(0.05, 0.4)
+        shake = tuple(motion_rng.normal(0, 4.0, 2)) if motion_rng.random() < 0.08 else (0.0, 0.0)
+        drawn = []
+        for m in movers:
+            m.vel = 0.9 * m.vel + motion_rng.normal(0.0, jitter, 2)
+            step = m.vel * (2.5 if jerk else 1.0)
+            sp = m.sphere
+            r = float(np.clip(m.base_r * (1.0 + wobble * np.sin(0.07 * k + m.phase)), radius[0], radius[1]))
+            u, v = sp.u + step[0], sp.v + step[1]
+            if not -margin * r < u < width + margin * r:
+                m.vel[0] = -m.vel[0]
+            if not -margin * r < v < height + margin * r:
+                m.vel[1] = -m.vel[1]
+            normal = _rotate(np.asarray(sp.tag_normal), m.rot_axis, m.rot_rate)
+            smear = step * shutter  # the exposure is a fraction of the frame interval
+            m.sphere = replace(sp, u=float(u), v=float(v), r=r, tag_normal=tuple(normal), velocity=tuple(smear))
+            drawn.append(m.sphere)
+        struts = [(Strut(tuple(np.asarray(st.p0) + vel), tuple(np.asarray(st.p1) + vel), st.width, st.colour), vel)
+                  for st, vel in struts]
+        out.append(render(tuple(drawn), tuple(s for s, _ in struts), look, floor, gradient, noise_rng, shake=shake))
+    return out
 
 
 def sequence(seed: int, frames: int = 30, *, width: int = 1024, height: int = 768,
@@ -300,7 +390,7 @@ def sequence(seed: int, frames: int = 30, *, width: int = 1024, height: int = 76
     kind = list(SURFACES)[int(rng.integers(0, len(SURFACES)))]
     floor = surface(kind, floor_rng, height, width)
     gradient = lighting_gradient(floor_rng, height, width)
-    look = _random_look(rng)
+    look = random_look(rng)
     floor_mean = floor[height // 3:].reshape(-1, 3).mean(axis=0)
     n = int(rng.integers(spheres[0], spheres[1] + 1))
     ids = rng.choice(TAG_IDS, size=n, replace=False)
@@ -308,45 +398,10 @@ def sequence(seed: int, frames: int = 30, *, width: int = 1024, height: int = 76
     for i in range(n):
         r = float(np.exp(rng.uniform(np.log(radius[0]), np.log(radius[1]))))
         colour = _colour_near(rng, floor_mean, 0.06) if rng.random() < 0.35 else _colour_near(rng, rng.uniform(0.15, 0.85, 3), 0.0)
-        polar, az = rng.uniform(0.0, 1.1), rng.uniform(0, 2 * np.pi)
-        normal = (np.sin(polar) * np.cos(az), np.sin(polar) * np.sin(az), np.cos(polar))
-        sp = Sphere(int(ids[i]), float(rng.uniform(r, width - r)), float(rng.uniform(r, height - r)), r, colour,
-                    tag=True, tag_normal=normal, tag_spin=float(rng.uniform(-np.pi, np.pi)),
-                    tag_half_angle=float(rng.uniform(0.3, 0.5)), paper=bool(rng.random() < 0.6),
-                    specular=float(rng.uniform(0.0, 0.6)))
-        axis = rng.standard_normal(3)
-        movers.append(_Mover(sp, rng.normal(0.0, 4.0, 2), r, float(rng.uniform(0, 2 * np.pi)),
-                             axis / np.linalg.norm(axis), float(rng.uniform(0.0, 0.08))))
-    struts = []
-    for _ in range(int(rng.integers(0, 4))):
-        p0 = rng.uniform([0, 0], [width, height])
-        p1 = p0 + rng.normal(0, 200, 2)
-        grey = rng.uniform(0.1, 0.8)
-        struts.append((Strut(tuple(p0), tuple(p1), float(rng.uniform(5, 16)), (grey, grey, grey * rng.uniform(0.9, 1.1))),
-                       rng.normal(0, 1.5, 2)))
-    out = []
-    for k in range(frames):
-        jerk = motion_rng.random() < 0.15  # a fast frame: tags smeared
-        shutter = motion_rng.uniform(0.1, 0.9) if jerk else motion_rng.uniform(0.05, 0.4)
-        shake = tuple(motion_rng.normal(0, 4.0, 2)) if motion_rng.random() < 0.08 else (0.0, 0.0)
-        drawn = []
-        for m in movers:
-            m.vel = 0.9 * m.vel + motion_rng.normal(0.0, 1.2, 2)
-            step = m.vel * (2.5 if jerk else 1.0)
-            sp = m.sphere
-            r = float(np.clip(m.base_r * (1.0 + 0.12 * np.sin(0.07 * k + m.phase)), radius[0], radius[1]))
-            u, v = sp.u + step[0], sp.v + step[1]
-            if not -0.3 * r < u < width + 0.3 * r:
-                m.vel[0] = -m.vel[0]
-            if not -0.3 * r < v < height + 0.3 * r:
-                m.vel[1] = -m.vel[1]
-            normal = _rotate(np.asarray(sp.tag_normal), m.rot_axis, m.rot_rate)
-            smear = step * shutter  # the exposure is a fraction of the frame interval
-            m.sphere = replace(sp, u=float(u), v=float(v), r=r, tag_normal=tuple(normal), velocity=tuple(smear))
-            drawn.append(m.sphere)
-        moved = []
-        for st, vel in struts:
-            moved.append((Strut(tuple(np.asarray(st.p0) + vel), tuple(np.asarray(st.p1) + vel), st.width, st.colour), vel))
-        struts = moved
-        out.append(render(tuple(drawn), tuple(s for s, _ in struts), look, floor, gradient, noise_rng, shake=shake))
-    return out
+        normal = random_tag_normal(rng, 1.1)
+        u, v = float(rng.uniform(r, width - r)), float(rng.uniform(r, height - r))
+        movers.append(random_mover(rng, int(ids[i]), u, v, r, colour, tag=True, tag_normal=normal,
+                                   max_specular=0.6, speed=4.0))
+    struts = random_struts(rng, width, height, count=(0, 3), spread=200, widths=(5, 16), greys=(0.1, 0.8))
+    return animate(movers, struts, look, floor, gradient, noise_rng, motion_rng, frames,
+                   radius=radius, jitter=1.2, wobble=0.12, margin=0.3)
