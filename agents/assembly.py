@@ -185,6 +185,9 @@ class AssemblyAgent(AssemblyResults):
         self._consensus.slide(self._steps, self._odometry)
         self._dirty = True
         self._rounds.new_window()
+        # (a neighbour busy in the last window says nothing about this one: carried over, an exact window ran ADMM
+        # rounds "to answer" it, its values made the neighbours busy in turn, and no window converged again)
+        self._busy_seen = -(10**9)
 
     def seed(self, poses: dict) -> None:
         """Start the current window from a known joint solution ``(assembly, step) -> (R (2, 2), p (3,))``.

@@ -168,17 +168,15 @@ def test_a_killed_agent_restarts_fresh_and_catches_up_within_ten_steps(tmp_path)
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason=(
-    "known defect: with A3 never started, the processes' windows report no step converged (placements right, "
-    "provisional) where the simulated runner with A3 down converges from step 2 on; seen before the real-time "
-    "changes too"))
 def test_a_peer_that_never_starts_hangs_nobody(tmp_path):
-    """A3 never starts: launch ends on its own, the reference says it never heard from A3, and once A3 is
-    no longer waited for (two windows) it places what the centralized estimator places without A3's data."""
+    """A3 never starts: launch ends on its own, the reference says it never heard from A3, the two windows that
+    wait for it are the only ones that do not converge (status degraded), and from then on it places what the
+    centralized estimator places without A3's data."""
     sim = _sim(5, 10)
     began = time.monotonic()
     est = launch(sim.log, LaunchConfig(absent=("A3",), **PACE), workdir=tmp_path).estimate
-    assert time.monotonic() - began < 60 and est.stats["status"] == "ok"
+    assert time.monotonic() - began < 60 and est.stats["status"] == "degraded"
+    assert all(est.stats["converged_per_step"][2:]), est.stats["converged_per_step"]
     assert est.stats["missing"] == ["A3"] and est.stats["processes"] == 4
     central = estimate_log(without(sim.log, "A3"), EstimatorConfig(window=5))
     dp, dth, mismatched = _gap_from(central, est, first=3)
