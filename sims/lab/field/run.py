@@ -15,14 +15,14 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 from decentral.errors import DecentralError
 from decentral.observations import ObservationLog
 from sims.lab.field.netns import Field
 from sims.lab.field.starve import Busy
-from sims.runners.launch import CrashPlan, LaunchConfig, LaunchResult, _Children, _compose, _die_with_parent, _read_records, _wait_ready
+from sims.runners.launch import LaunchConfig, LaunchResult, _Children, _compose, _die_with_parent, _read_records, _wait_ready
 from sims.runners.parts import split_log, write_part
 
 __all__ = ["FieldConfig", "run_field"]
