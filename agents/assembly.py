@@ -344,7 +344,12 @@ class AssemblyAgent(AssemblyResults):
         if self._dirty:
             self._rebuild()
         self._request_unknown()
-        if sharing.own is None and (not self._unresolved() or sharing.share.waited >= self._patience):
+        # an agent that did not run every step of the window (started late, restarted) holds none of its data of
+        # the steps it missed: its forms would make the others' set look complete while it lacks them (a member
+        # that skipped step 0 left windows 1-4 "converged" 1.5-19 mm from the centralized estimate), so it shares
+        # nothing until its window holds only steps it ran; the others' windows then end partial, provisional
+        ran_all = all(k in self._seen for k in self._steps)
+        if sharing.own is None and ran_all and (not self._unresolved() or sharing.share.waited >= self._patience):
             # one form per pair and step, and per odometry link: a window adds only its newest step's forms
             problems = [part for _, parts in sorted(self._shared.items()) for part in parts] \
                 + self._consensus.odometry_links()
