@@ -266,8 +266,11 @@ class LocalAgent:
             self._finish(converged=False)
 
     def _finish(self, converged: bool) -> None:
+        # an unconverged window goes on from here once the next step has come; one that converged after all
+        # (an answer had made it busy again) needs no fork
+        self._next_background = None
         if not converged and self.rule.background and self.agent.windows_independent:
-            self._next_background = self._fork()  # it goes on from here once the next step has come
+            self._next_background = self._fork()
         if not converged:
             self.agent.settle_provisional()  # an answer from the forms that arrived, if the sharing has not ended
         self.done = True

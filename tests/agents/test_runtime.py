@@ -132,3 +132,56 @@ def test_quiet_agents_send_nothing_until_the_next_step():
         assert a.poses.keys() == b.poses.keys()
         for name in a.poses:
             assert np.allclose(a.poses[name].p, b.poses[name].p, atol=1e-12)
+
+
+class _Forking(_Stub):
+    """A stub whose windows are independent (every window shares its forms): an unfinished one can be forked."""
+
+    def __init__(self, name="A0"):
+        super().__init__(name)
+        self.windows_independent = True
+
+    def fork(self):
+        twin = _Forking(self.name)
+        twin.converged = self.converged
+        return twin
+
+
+def test_an_unconverged_window_goes_on_in_the_background_and_revises_its_step():
+    """A window ended unconverged by its budget goes on beside the next one; once the fork converges its answer is a
+    revision of that step, taken once."""
+    local = LocalAgent(_Forking(), WindowRule(budget=4))
+    local.on_step(OwnStep(step=0, t=0.0, config={}))
+    _run_rounds(local, 4)
+    assert local.done and not local.converged
+    local.on_step(OwnStep(step=1, t=0.1, config={}), 4)
+    background = local.background
+    assert background is not None and background.step == 0
+    background.agent.converged = True
+    _run_rounds(local, 4, start=4)
+    revisions = local.take_revisions()
+    assert [r.step for r in revisions] == [0] and revisions[0].poses == {"A1": "pose"}
+    assert local.take_revisions() == []
+    local.on_step(OwnStep(step=2, t=0.2, config={}), 8)
+    assert local.background is None or local.background.step == 1  # the step-0 window ended for good
+
+
+def test_a_window_that_converged_leaves_nothing_in_the_background():
+    """A window that converged before the next step is not forked."""
+    stub = _Forking()
+    local = LocalAgent(stub, WindowRule(budget=50))
+    local.on_step(OwnStep(step=0, t=0.0, config={}))
+    stub.converged = True
+    _run_rounds(local, 6)
+    assert local.done and local.converged
+    local.on_step(OwnStep(step=1, t=0.1, config={}), 6)
+    assert local.background is None
+
+
+def test_messages_are_routed_by_the_window_they_belong_to():
+    """ADMM values name their window, form messages their step; heartbeats and configurations belong to none."""
+    from agents.runtime import window_of
+    from protocols.messages import Heartbeat
+
+    assert window_of(_busy(3)) == 0
+    assert window_of(Heartbeat(sender="A1", receiver="A0", round=2, t=0.0)) is None
