@@ -144,7 +144,9 @@ class WindowShare:
                 # a member whose data the others contradict is left out, with every form over its poses
                 members = {k[0] for prob in problems for k in prob.keys}
                 if len(members) <= SCREEN_MAX_MEMBERS:
-                    screening = screen_members(problems, (reference, first), value)
+                    # the class-by-class tests cost about 3 solves per member: only where one agent solves for all
+                    # (the tree's reference), not at every agent of a broadcast window (slow links)
+                    screening = screen_members(problems, (reference, first), value, classes=self.mode != "broadcast")
                     self.excluded, self.kept = screening.excluded, screening.kept
                     self.suspects = tuple(screening.suspects)
                 else:
