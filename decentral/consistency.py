@@ -268,8 +268,9 @@ def screen_members(problems: Sequence[LocalProblem], gauge: tuple, value=None, *
         ``solve(problems, gauge, value)`` with a ``poses`` attribute (default :func:`solve_joint`).
     classes : bool
         Run the class-by-class tests (:func:`decentral.attribution.attribute`, about 3 solves per member) when
-        the member-wide tests name no one. Off where every agent solves the window itself (a broadcast
-        window): on an 8-ring over 200 ms links their CPU at every agent left 61 % placed instead of 100 %.
+        the member-wide tests name no one. The agents skip them in broadcast windows after the cold start,
+        where every agent solves the window itself: on an 8-ring over 200 ms links their CPU at every agent
+        left 61 % placed instead of 100 %.
 
     Returns
     -------

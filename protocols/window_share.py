@@ -129,10 +129,11 @@ class WindowShare:
         pin = () if self.pin is None else tuple(np.asarray(self.pin, float).tolist())
         return tuple((i, len(self.records[i])) for i in sorted(self.records)), pin
 
-    def solve(self, reference: str, first: int) -> bool:
+    def solve(self, reference: str, first: int, classes: bool = True) -> bool:
         """Compute the joint solution of the forms held (:func:`decentral.admm.solve_joint`) with the gauge at
         ``(reference, first)``, the window's first step: ``joint`` is ``None`` without forms or without the
-        gauge's value at this window (known at step 0, else from the reference's ``pin``). ``False`` when the
+        gauge's value at this window (known at step 0, else from the reference's ``pin``); ``classes``: run the
+        class-by-class lie tests too (:func:`decentral.consistency.screen_members`). ``False`` when the
         solve failed: a set whose variables are tied by keys but not by factors (a step with neither
         odometry nor detections, forms missing); the ADMM then goes on from its own state."""
         self.joint, self.solved_for, self.placeable = None, self._held(), None
@@ -144,9 +145,7 @@ class WindowShare:
                 # a member whose data the others contradict is left out, with every form over its poses
                 members = {k[0] for prob in problems for k in prob.keys}
                 if len(members) <= SCREEN_MAX_MEMBERS:
-                    # the class-by-class tests cost about 3 solves per member: only where one agent solves for all
-                    # (the tree's reference), not at every agent of a broadcast window (slow links)
-                    screening = screen_members(problems, (reference, first), value, classes=self.mode != "broadcast")
+                    screening = screen_members(problems, (reference, first), value, classes=classes)
                     self.excluded, self.kept = screening.excluded, screening.kept
                     self.suspects = tuple(screening.suspects)
                 else:

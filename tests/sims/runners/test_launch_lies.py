@@ -29,8 +29,7 @@ def _stretched(parts: dict, liar: str) -> dict:
 @pytest.mark.slow
 def test_a_stretched_layout_two_observers_check_is_named_and_never_placed(tmp_path, monkeypatch):
     """A3 announces its layout stretched 1.5x (seed 3: seen by A2 and A1): the reference names A3 in `excluded`, no
-    one else, and never places A3 after the cold start (the first window is shared by broadcast, where the
-    class-by-class tests do not run: every agent would pay for them)."""
+    one else, and never places A3."""
     import sims.runners.launch as launch_module
 
     sim = simulate(get_scenario("multi", n_assemblies=5, steps=8), seed=3)
@@ -38,4 +37,4 @@ def test_a_stretched_layout_two_observers_check_is_named_and_never_placed(tmp_pa
     monkeypatch.setattr(launch_module, "split_log", lambda log: _stretched(real_split(log), "A3"))
     est = launch(sim.log, LaunchConfig(**PACE), workdir=tmp_path).estimate
     assert est.stats["excluded"] == ["A3"], est.stats.get("suspects")
-    assert not any("A3" in step.poses for step in est.steps[1:])
+    assert not any("A3" in step.poses for step in est.steps)
