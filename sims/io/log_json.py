@@ -48,6 +48,7 @@ from sims.io.validate import (
 )
 
 __all__ = [
+    "poses_to_dict",
     "LOG_FORMAT",
     "ESTIMATE_FORMAT",
     "load_json",
@@ -301,6 +302,12 @@ def write_log(path: str | os.PathLike, log: ObservationLog) -> None:
 # --- decentral.estimate/1 --------------------------------------------------------------------
 
 
+def poses_to_dict(poses) -> dict:
+    """A step's poses (assembly -> :class:`PlanarPose`) as ``decentral.estimate/1`` writes them:
+    ``{name: {"p": [x, y, z], "theta": rad}}``, in the mapping's order."""
+    return {name: {"p": [float(x) for x in pose.p], "theta": float(pose.theta)} for name, pose in poses.items()}
+
+
 def estimate_to_dict(estimate: Estimate) -> dict:
     """Return the ``decentral.estimate/1`` document of ``estimate``."""
     estimate = require_estimate(estimate)
@@ -310,10 +317,7 @@ def estimate_to_dict(estimate: Estimate) -> dict:
         "steps": [
             {
                 "t": step.t,
-                "poses": {
-                    name: {"p": [float(x) for x in pose.p], "theta": float(pose.theta)}
-                    for name, pose in step.poses.items()
-                },
+                "poses": poses_to_dict(step.poses),
                 "unplaced": dict(step.unplaced),
             }
             for step in estimate.steps

@@ -308,8 +308,7 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
     seconds = time.perf_counter() - start
     total_rounds = int(sum(rounds))
     unplaced = count_reasons(step.unplaced for step in est_steps)
-    status, status_counts = run_status(converged, placed_steps(est_steps), unplaced)
-    status_counts["revised"] = len(revised)
+    status, status_counts = run_status(converged, placed_steps(est_steps), unplaced, revised=len(revised))
     stats = {
         "estimator": "consensus-admm",
         "mode": "admm",

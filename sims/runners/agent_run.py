@@ -44,6 +44,7 @@ from decentral.observations import Estimate, EstimateStep, ObservationLog, Plana
 from decentral.unplaced import count_reasons
 from protocols.messages import BROADCAST, Heartbeat
 from protocols.transport import Transport
+from sims.io.log_json import poses_to_dict
 from sims.runners.admm_run import own_step
 from sims.runners.run_status import placed_steps, run_status
 from sims.runners.start_clock import StartClock
@@ -259,8 +260,7 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
 
     def close(step: int) -> None:
         local.end_window()
-        poses = {a: {"p": [float(x) for x in pose.p], "theta": float(pose.theta)}
-                 for a, pose in sorted(local.window_estimate.items())}
+        poses = poses_to_dict(dict(sorted(local.window_estimate.items())))
         record = {"step": step, "t": part.steps[step].t, "poses": poses, "unplaced": dict(local.window_unplaced),
                   "converged": local.converged,
                   "rounds": local.rounds, "window_seconds": took, "counts": _counts(transport, name), "heard": sorted(heard),
@@ -285,11 +285,9 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
             at = next((i for i, r in enumerate(records) if r["step"] == rev.step), None)
             if at is None:
                 continue
-            now_ = clock()
-            poses = {a: {"p": [float(x) for x in pose.p], "theta": float(pose.theta)}
-                     for a, pose in sorted(rev.poses.items())}
-            records[at] = dict(records[at], poses=poses, unplaced=dict(rev.unplaced), converged=True,
-                               rounds=rev.rounds, revised_after_s=round(now_ - records[at]["closed_at"], 4))
+            records[at] = dict(records[at], poses=poses_to_dict(dict(sorted(rev.poses.items()))),
+                               unplaced=dict(rev.unplaced), converged=True, rounds=rev.rounds,
+                               revised_after_s=round(clock() - records[at]["closed_at"], 4))
             write(records[at])
 
     adopted = []  # (wall time, the START given, the peers' START adopted)
@@ -368,8 +366,8 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
     final = _counts(transport, name)
     unplaced = count_reasons(step.unplaced for step in steps)
     status, status_counts = run_status([r["converged"] for r in records], placed_steps(steps), unplaced,
-                                       not_run=n - len(records))
-    status_counts["revised"] = sum(1 for r in records if "revised_after_s" in r)
+                                       not_run=n - len(records),
+                                       revised=sum(1 for r in records if "revised_after_s" in r))
     stats = {
         "unplaced": unplaced,
         "status": status,

@@ -439,8 +439,8 @@ def _compose(log, reference, records, config, incarnations, timed_out, failures)
     unplaced = count_reasons(step.unplaced for step in steps)
     ran = sorted(by_step)
     status, status_counts = run_status([bool(by_step[k]["converged"]) for k in ran], [bool(steps[k].poses) for k in ran],
-                                       unplaced, not_run=len(log.steps) - len(ran), timed_out=timed_out)
-    status_counts["revised"] = sum(1 for k in ran if "revised_after_s" in by_step[k])
+                                       unplaced, not_run=len(log.steps) - len(ran), timed_out=timed_out,
+                                       revised=sum(1 for k in ran if "revised_after_s" in by_step[k]))
     heard = set()
     for run in records[reference]:
         if run:

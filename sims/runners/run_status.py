@@ -16,7 +16,7 @@ the same verdict, computed here from what each step's window did:
   agent held, or its last iterate (placing at least one assembly);
 - ``unanswered``: of those, steps that placed no assembly at all;
 - ``not_run``: steps the agent never ran (it was down, started late, or the run was cut short);
-- ``revised`` (where the runner reports it): steps answered provisionally when the next sensor step
+- ``revised`` (where the runner reports it, ``run_status(..., revised=)``): steps answered provisionally when the next sensor step
   came whose window then converged in the background (:mod:`agents.runtime`): counted as converged,
   at most one sensor step late;
 - one entry per reason of an assembly-step left unplaced (:data:`decentral.unplaced.REASONS`,
@@ -40,7 +40,7 @@ EXIT_DEGRADED = 4
 
 
 def run_status(converged: Sequence[bool], placed: Sequence[bool], unplaced: Mapping[str, int] | None = None, *,
-               not_run: int = 0, timed_out: bool = False) -> tuple[str, dict[str, int]]:
+               not_run: int = 0, timed_out: bool = False, revised: int | None = None) -> tuple[str, dict[str, int]]:
     """The verdict and the counts per reason of a run (see the module docstring).
 
     Parameters
@@ -55,6 +55,8 @@ def run_status(converged: Sequence[bool], placed: Sequence[bool], unplaced: Mapp
         Steps of the log the agent never ran.
     timed_out : bool
         Whether the run was cut short.
+    revised : int, optional
+        Of the converged steps, those revised one step late (counted as ``revised``; omitted: not reported).
 
     Returns
     -------
@@ -78,6 +80,8 @@ def run_status(converged: Sequence[bool], placed: Sequence[bool], unplaced: Mapp
               "unanswered": sum(1 for p in off if not p), "not_run": int(not_run)}
     for reason, n in sorted((unplaced or {}).items()):
         counts[str(reason)] = int(n)
+    if revised is not None:
+        counts["revised"] = int(revised)
     if timed_out:
         return "timeout", counts
     return ("ok" if not off and not not_run else "degraded"), counts
