@@ -54,13 +54,14 @@ class Field:
     tag : str
         Distinguishes this run's namespaces (default: from the process id).
     loss : float
-        Share of the packets arriving at the hub from the agents that its kernel drops (iptables
-        ``statistic``: every ``round(1/loss)``-th packet when that is a whole number, a reproducible
-        pattern; otherwise at random with that probability). Every data packet crosses the hub once, so
-        this is the per-packet loss of a link, for UDP datagrams and TCP segments (and their
-        acknowledgements) alike: TCP retransmits in the kernel, as over a lossy radio.
+        Share of the TCP packets arriving at the hub from the agents that its kernel drops (iptables
+        ``statistic --mode random``; the kernel's draw takes no seed). Every TCP packet crosses the hub
+        once, so this is the per-packet loss of a link, for data segments and their acknowledgements
+        alike: TCP retransmits in the kernel, as over a lossy radio. Datagrams are dropped by the link
+        relays instead, from each link's seeded stream (:mod:`sims.lab.field.proxy`): reproducible.
+        (A fixed every-n-th pattern is no radio: it drops one piece of every frame cut into n datagrams.)
     seed : int
-        Which packet of every ``round(1/loss)`` is dropped.
+        Kept for the caller's record (the relays draw the datagrams' loss from it).
     """
 
     n: int
@@ -118,11 +119,9 @@ class Field:
         if self.loss > 0:
             if shutil.which("iptables") is None:
                 raise DecentralError("field harness: packet loss needs iptables")
-            every = round(1 / self.loss)
-            mode = (["--mode", "nth", "--every", str(every), "--packet", str(self.seed % every)]
-                    if abs(every * self.loss - 1) < 1e-9 else ["--mode", "random", "--probability", f"{self.loss:.6f}"])
-            res = subprocess.run(self.exec(hub) + ["iptables", "-A", "INPUT", "-i", "br0", "-m", "statistic", *mode,
-                                                   "-j", "DROP"], capture_output=True, text=True)
+            mode = ["-p", "tcp", "-m", "statistic", "--mode", "random", "--probability", f"{self.loss:.6f}"]
+            res = subprocess.run(self.exec(hub) + ["iptables", "-A", "INPUT", "-i", "br0", *mode, "-j", "DROP"],
+                                 capture_output=True, text=True)
             if res.returncode != 0:
                 raise DecentralError(f"field harness: iptables: {res.stderr.strip()}")
 

@@ -3,13 +3,14 @@
 Run as ``python -m sims.lab.field.proxy CONFIG.json`` (in the hub namespace); it prints ``ready`` once
 every relay listens and runs until killed. ``CONFIG.json`` is
 ``{"host": IP, "links": [{"name": "A0->A1", "port": P, "to": [IP, PORT], "delay": s, "jitter": 0.2,
-"rate": bytes_per_s_or_null, "seed": int}]}``: what arrives on ``host:P`` (UDP datagrams, or a TCP
-stream) leaves for ``to`` after ``delay * (1 + jitter * u)`` seconds, ``u`` uniform in [-1, 1] drawn
-per datagram (or per chunk of a stream) from the link's own seeded stream, and no faster than
-``rate``. Datagrams are delayed independently (jitter reorders them, as a radio's retries do); a TCP
-stream keeps its order (each chunk leaves no earlier than the one before). Packet loss is not
-drawn here but by the hub's kernel (:class:`sims.lab.field.netns.Field`), so that TCP meets real
-retransmissions.
+"rate": bytes_per_s_or_null, "loss": share, "seed": int}]}``: what arrives on ``host:P`` (UDP datagrams,
+or a TCP stream) leaves for ``to`` after ``delay * (1 + jitter * u)`` seconds, ``u`` uniform in [-1, 1]
+drawn per datagram (or per chunk of a stream) from the link's own seeded stream, and no faster than
+``rate``. Datagrams are delayed independently (jitter reorders them, as a radio's retries do) and each
+is lost with probability ``loss``, drawn from the same seeded stream (the same datagrams in the same
+order meet the same fate); a TCP stream keeps its order (each chunk leaves no earlier than the one
+before) and loses nothing here: its packets are dropped by the hub's kernel
+(:class:`sims.lab.field.netns.Field`), so that TCP meets real retransmissions.
 """
 
 from __future__ import annotations
@@ -33,11 +34,16 @@ class LinkDelay:
     True
     """
 
-    def __init__(self, delay: float, jitter: float, rate: float | None, seed: int, ordered: bool = False):
-        self.delay, self.jitter, self.rate, self.ordered = float(delay), float(jitter), rate, ordered
+    def __init__(self, delay: float, jitter: float, rate: float | None, seed: int, ordered: bool = False,
+                 loss: float = 0.0):
+        self.delay, self.jitter, self.rate, self.ordered, self.loss = float(delay), float(jitter), rate, ordered, float(loss)
         self._rng = np.random.default_rng(seed)
         self._free = 0.0  # when the link's sender side is free again (rate limit)
         self._last = 0.0  # departure of the previous unit (ordered streams)
+
+    def lost(self) -> bool:
+        """Whether the next datagram is lost (a draw from the link's stream, made for every datagram)."""
+        return bool(self._rng.random() < self.loss)
 
     def departure(self, now: float, size: int) -> float:
         """Time at which a unit of ``size`` bytes that arrived at ``now`` leaves."""
@@ -58,6 +64,8 @@ class _Udp(asyncio.DatagramProtocol):
         self.to, self.delay, self.loop, self.out = tuple(to), delay, loop, out
 
     def datagram_received(self, data, addr):
+        if self.delay.lost():
+            return
         when = self.delay.departure(self.loop.time(), len(data))
         self.loop.call_at(when, self.out.sendto, data, self.to)
 
@@ -100,8 +108,9 @@ async def _serve(config: dict) -> None:
     for k, link in enumerate(config["links"]):
         seed = int(link.get("seed", k))
         args = (float(link.get("delay", 0.0)), float(link.get("jitter", 0.0)), link.get("rate"))
+        loss = float(link.get("loss", 0.0))
         out, _ = await loop.create_datagram_endpoint(asyncio.DatagramProtocol, local_addr=(host, 0))
-        await loop.create_datagram_endpoint(lambda: _Udp(link["to"], LinkDelay(*args, seed), loop, out),
+        await loop.create_datagram_endpoint(lambda: _Udp(link["to"], LinkDelay(*args, seed, loss=loss), loop, out),
                                             local_addr=(host, int(link["port"])))
 
         async def accept(reader, writer, link=link, args=args, seed=seed):

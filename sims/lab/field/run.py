@@ -42,13 +42,14 @@ class FieldConfig:
     jitter : float
         Relative jitter: each datagram (or stream chunk) waits ``delay * (1 + jitter * u)``, ``u`` in [-1, 1].
     loss : float
-        Share of packets the hub drops (:class:`sims.lab.field.netns.Field`).
+        Share of packets lost on every link: datagrams by the link relays, each link from its own seeded
+        stream (:mod:`sims.lab.field.proxy`), TCP packets by the hub's kernel (:class:`sims.lab.field.netns.Field`).
     rate : float, optional
         Bytes per second of every link (``None``: unlimited).
     busy_per_core : int
         Spinning processes per core while the agents run.
     seed : int
-        Seed of the links' delays and of the loss pattern.
+        Seed of the links' delays and of their datagrams' loss.
     start_margin : float
         Seconds between the moment every agent listens and the log's first step.
     fresh_restart : bool
@@ -110,7 +111,8 @@ def _run(log, config: LaunchConfig, fc: FieldConfig, work: Path, python: str) ->
                 else:
                     address = f"tcp://{net.hub_ip}:{port(a, b)}"
                     links.append({"name": f"{names[a]}->{names[b]}", "port": port(a, b), "to": [net.ip(b), _AGENT_PORT],
-                                  "delay": fc.delay, "jitter": fc.jitter, "rate": fc.rate, "seed": fc.seed * 7919 + a * n + b})
+                                  "delay": fc.delay, "jitter": fc.jitter, "rate": fc.rate, "loss": fc.loss,
+                                  "seed": fc.seed * 7919 + a * n + b})
                 table[names[b]] = Peer(names[b], address, public_key_bytes(keys[names[b]]))
             write_json_atomic(work / f"{names[a]}.peers.json", peers_json(table))
         (work / "proxy.json").write_text(json.dumps({"host": net.hub_ip, "links": links}))

@@ -37,6 +37,16 @@ def test_link_delay_is_seeded_and_keeps_stream_order():
     assert times == sorted(times)
 
 
+def test_link_loss_is_seeded_and_independent_of_the_datagrams_before():
+    """The same seed loses the same datagrams; 20 % loss loses about a fifth, and a run of five is not always hit."""
+    a, b = LinkDelay(0.0, 0.0, None, 5, loss=0.2), LinkDelay(0.0, 0.0, None, 5, loss=0.2)
+    fates = [a.lost() for _ in range(5000)]
+    assert fates == [b.lost() for _ in range(5000)]
+    assert 0.18 < np.mean(fates) < 0.22
+    runs_of_five_hit = [any(fates[i:i + 5]) for i in range(0, 5000, 5)]
+    assert 0.6 < np.mean(runs_of_five_hit) < 0.75  # 1 - 0.8 ** 5 = 0.67 (a frame of five datagrams)
+
+
 def test_rate_limit_spaces_departures():
     """At 1000 bytes/s, ten 100-byte datagrams sent at once leave over about a second."""
     d = LinkDelay(0.0, 0.0, 1000.0, 0)
@@ -71,11 +81,9 @@ def test_a_ring_in_namespaces_behind_delayed_links_gives_the_centralized_estimat
 
 @pytest.mark.slow
 @needs_field
-@pytest.mark.xfail(strict=False, reason=(
-    "known defect: under 20 % loss on a busy machine (load 10-14) a window is sometimes reported converged 10-50 mm "
-    "from the centralized estimate, on both transports and before the background windows too (2 of 4 UDP runs); "
-    "ZeroMQ/TCP also stalls frames for seconds"))
-@pytest.mark.parametrize("transport", ["udp", "zmq"])
+@pytest.mark.parametrize("transport", ["udp", pytest.param("zmq", marks=pytest.mark.xfail(strict=False, reason=(
+    "known limit of TCP: 20 % segment loss stalls a connection for seconds, a live peer then goes unheard for "
+    "two windows, looks down, and the others' windows converge without its forms (2 of 4 runs)")))])
 def test_under_loss_and_delay_every_converged_step_is_exact(transport):
     """4 agents, 30 ms +-20 % links, 20 % packet loss: converged steps equal the centralized estimate."""
     sim = simulate(get_scenario("multi", n_assemblies=4, steps=10), seed=1)
