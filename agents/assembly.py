@@ -307,6 +307,8 @@ class AssemblyAgent(AssemblyResults):
         self._round = self._sharing.round = round_index
         self._scale_waits()
         self._parent, self._hop = self._sharing.tree.position(self._round, self._step)
+        if self._phase == 0:
+            self._sharing.resend_owed()
         if self._phase == 0 and self._sharing.share is None:
             self._sharing.repair_down(lambda name: self._inbox.heard_in(name, self._step))
             self._sharing.ask_down()
@@ -349,7 +351,10 @@ class AssemblyAgent(AssemblyResults):
         # that skipped step 0 left windows 1-4 "converged" 1.5-19 mm from the centralized estimate), so it shares
         # nothing until its window holds only steps it ran; the others' windows then end partial, provisional
         ran_all = all(k in self._seen for k in self._steps)
-        if sharing.own is None and ran_all and (not self._unresolved() or sharing.share.waited >= self._patience):
+        # nor while it sees nodes it cannot name yet (a configuration that has not arrived): forms without their
+        # pairs made a complete set whose exact solution lacked them (over TCP stalls, windows "converged" 17-134
+        # mm from the centralized estimate); stray tags no live assembly owns are not waited for (_unresolved)
+        if sharing.own is None and ran_all and not self._unresolved():
             # one form per pair and step, and per odometry link: a window adds only its newest step's forms
             problems = [part for _, parts in sorted(self._shared.items()) for part in parts] \
                 + self._consensus.odometry_links()
@@ -487,3 +492,4 @@ class AssemblyAgent(AssemblyResults):
         """Unnamed nodes that an assembly whose configuration has not arrived here may still own
         (:meth:`protocols.config_gossip.ConfigGossip.unresolved`)."""
         return self._configs.unresolved(self._sharing.alive_members(self._step or 0))
+

@@ -164,6 +164,11 @@ class TreeAggregation:
             return len(self.records) == self.total
         return self.expected.issubset(self.records)
 
+    def expect(self, member: int) -> None:
+        """Wait for ``member``'s record too (an agent given up on at the window's start was heard again)."""
+        if self.expected is not None and 0 <= member < self.total:
+            self.expected = self.expected | {member}
+
     @property
     def sent_up(self) -> bool:
         """Whether a bundle has gone up this window."""

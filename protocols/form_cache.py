@@ -50,6 +50,15 @@ class FormCache:
     def clear(self) -> None:
         self._forms.clear()
 
+    @staticmethod
+    def whole(forms, digest: tuple[int, int]) -> list | None:
+        """The record ``forms`` ``[(keys, problem)]`` (in key order) if they are all of it (``digest``: count,
+        XOR of CRCs), else ``None``."""
+        forms = sorted(((tuple(keys), problem) for keys, problem in forms), key=lambda f: f[0])
+        if not forms or record_digest([_crc(problem) for _, problem in forms]) != tuple(digest):
+            return None
+        return forms
+
     def rebuild(self, member: int, digest: tuple[int, int], first: int, last: int) -> list | None:
         """``member``'s record of the window ``[first, last]`` if the forms held here match ``digest``
         (count, XOR of CRCs) exactly, else ``None``. Forms in key order."""
@@ -70,12 +79,13 @@ class DeltaSender:
         """Forget forms with a pose before step ``first``."""
         self._sent = {p: {e for e in sent if _span(e[1])[1] >= first} for p, sent in self._sent.items()}
 
-    def delta(self, parent: int, records: dict, step: int) -> tuple[dict, list] | None:
+    def delta(self, parent: int, records: dict, step: int, every: bool = False) -> tuple[dict, list] | None:
         """``(carried, digests)`` for sending ``records`` (member -> ``[(keys, problem)]``) to ``parent``:
-        ``carried`` member -> ``[(keys, M, b_z, c_z, count)]`` of the forms it has not had from here, ``digests``
-        one ``(count, crc)`` per member in sorted order. ``None`` when a form is not over two poses within
-        255 steps of ``step`` (the records then go whole). The forms are marked as sent."""
-        sent = self._sent.setdefault(parent, set())
+        ``carried`` member -> ``[(keys, M, b_z, c_z, count)]`` of the forms it has not had from here (``every``:
+        all of them, a resend), ``digests`` one ``(count, crc)`` per member in sorted order. ``None`` when a form
+        is not over two poses within 255 steps of ``step`` (the records then go as a
+        :class:`protocols.admm_messages.FormBundle`). The forms are marked as sent."""
+        sent = set() if every else self._sent.setdefault(parent, set())
         carried, digests, new = {}, [], set()
         for member in sorted(records):
             crcs = []
@@ -88,5 +98,5 @@ class DeltaSender:
                     carried.setdefault(member, []).append((keys, problem.M, problem.b_z, problem.c_z, problem.count))
                     new.add((member, tuple(keys), crc))
             digests.append(record_digest(crcs))
-        sent |= new
+        self._sent.setdefault(parent, set()).update(new)
         return carried, digests

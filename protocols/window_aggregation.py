@@ -40,7 +40,7 @@ Nothing here reads a clock: the agent sets :attr:`WindowAggregation.round` and
 from __future__ import annotations
 
 import copy
-from typing import Callable, Iterable
+from typing import Callable, Iterable, NamedTuple
 
 import numpy as np
 
@@ -53,6 +53,15 @@ from protocols.messages import BROADCAST, Message
 from protocols.window_share import NEVER, DownState, OwnForms, WindowShare
 
 __all__ = ["WindowAggregation"]
+
+
+class Owed(NamedTuple):
+    """Records of window ``share`` that ``parent``'s partial down bundle lacked, last sent at round ``last``."""
+
+    share: WindowShare
+    parent: int
+    indices: list[int]
+    last: int
 
 
 class WindowAggregation:
@@ -107,6 +116,9 @@ class WindowAggregation:
         self.late: WindowShare | None = None
         self.down: DownState | None = None
         self.own: OwnForms | None = None
+        #: records a parent's down bundle lacked (it timed out without them), sent again until the parent
+        #: acknowledges them or the next window has gone by
+        self.owed: Owed | None = None
         self.depth = 1  # depth of the aggregation tree in the last down bundle
         self.forms = FormCache()  # every agent's forms seen here for the window (rebuilds deltas from below)
         self._delta_sender = DeltaSender()  # per parent, the forms already sent up to it
@@ -122,17 +134,22 @@ class WindowAggregation:
 
     # ------------------------------------------------------------------ windows
     def heard(self, sender: int, step: int) -> None:
-        """Agent ``sender`` was heard from (directly or through its records) at log step ``step``."""
+        """Agent ``sender`` was heard from (directly or through its records) at log step ``step``: alive, and
+        waited for again by the open window (and by one that timed out here) if it had been given up on."""
         self.alive[sender] = step
+        for share in (self.share, self.late):
+            if share is not None:
+                share.agg.expect(sender)
 
     def alive_members(self, step: int) -> set[int] | None:
-        """Agents heard from (directly or through their records) in this window or the one before: a set of
-        forms is complete once it holds theirs. ``None`` (every agent) without such a history (the first
-        two steps): an agent down for two windows, or one that never started, is then no longer waited
-        for, and the others' windows complete without it."""
+        """Agents heard from (directly or through their records) in the two windows before this one or since:
+        a set of forms is complete once it holds theirs. ``None`` (every agent) without such a history (the
+        first two steps): an agent down for two whole windows, or one that never started, is then no longer
+        waited for, and the others' windows complete without it (a window that missed a live agent's records
+        to loss alone must not: its solution would be exact for a set that lacks them)."""
         if not self.alive or step < 2:
             return None
-        return {i for i, seen in self.alive.items() if seen >= step - 1}
+        return {i for i, seen in self.alive.items() if seen >= step - 2}
 
     def open(self, step: int, parent: int | None, hop: int | None, wait: int) -> None:
         """Start sharing window ``step`` below ``parent`` at ``hop`` hops from the reference (children: the
@@ -248,17 +265,19 @@ class WindowAggregation:
 
     def _send_up(self, indices: list[int], whole: bool = False) -> None:
         """Records ``indices`` to the parent: as a delta (what it lacks), or ``whole`` (a resend: it could not
-        rebuild them, or the bundle was lost)."""
+        rebuild them, or the bundle was lost), as a delta that carries every form (float32, a quarter of a
+        :class:`protocols.admm_messages.FormBundle`'s bytes: a frame of fewer datagrams survives loss more often)."""
         agg = self.share.agg
-        delta = None if whole else self._delta(agg.parent, indices)
+        delta = self._delta(agg.parent, indices, every=whole)
         self._send(delta or self._bundle(self.names[agg.parent], indices, down=False))
 
-    def _delta(self, parent: int, indices: list[int]) -> DeltaBundle | None:
+    def _delta(self, parent: int, indices: list[int], every: bool = False,
+               share: WindowShare | None = None) -> DeltaBundle | None:
         """Records ``indices`` for ``parent`` as a delta (:class:`protocols.form_cache.DeltaSender`): the forms
-        not yet sent to it, and each record's digest (``None``: the records go whole)."""
-        share = self.share
+        not yet sent to it (``every``: all of them), and each record's digest (``None``: the records go whole)."""
+        share = share or self.share
         agg = share.agg
-        packed = self._delta_sender.delta(parent, {i: agg.records[i] for i in indices}, share.step)
+        packed = self._delta_sender.delta(parent, {i: agg.records[i] for i in indices}, share.step, every=every)
         if packed is None:
             return None
         carried, digests = packed
@@ -339,6 +358,23 @@ class WindowAggregation:
         self.counters["retransmits"] += 1
         self._send(self._bundle(self.names[late.agg.parent], sorted(late.agg.records), down=False, share=late))
 
+    def resend_owed(self) -> None:
+        """Send the records a parent's partial down bundle lacked again (every :attr:`resend_after` rounds, every
+        form carried) until it acknowledges them: its window, kept open for late records, may still complete
+        (:meth:`_on_late`) and revise its answer. Given up once the window after theirs has gone by."""
+        if self.owed is None:
+            return
+        share, parent, indices, last = self.owed
+        if self.step is not None and share.step < self.step - 1:
+            self.owed = None
+            return
+        if self.round - last < self.resend_after:
+            return
+        self.owed = Owed(share, parent, indices, self.round)
+        self.counters["retransmits"] += 1
+        delta = self._delta(parent, indices, every=True, share=share)
+        self._send(delta or self._bundle(self.names[parent], indices, down=False, share=share))
+
     def repair_down(self, heard: Callable[[str], bool]) -> None:
         """Send the down bundle again to children not ``heard`` from in this window's ADMM (it was lost).
 
@@ -358,7 +394,10 @@ class WindowAggregation:
     # ------------------------------------------------------------------ receive half
     def on_ack(self, message: FormAck) -> None:
         """The parent acknowledges the bundle up, or a child says it has the down bundle."""
-        share, down = self.share, self.down
+        share, down, owed = self.share, self.down, self.owed
+        if (owed is not None and owed.share.step == message.step and self.index.get(message.sender) == owed.parent
+                and set(owed.indices) <= set(message.have.tolist())):
+            self.owed = None
         if share is not None and share.step == message.step and self.index.get(message.sender) == share.agg.parent:
             share.agg.acknowledge(message.have.tolist(), self.round)
         elif down is not None and down.step == message.step:
@@ -377,7 +416,11 @@ class WindowAggregation:
             if sender not in share.records:
                 forms = self._problems(message.unpack())
                 self.forms.remember(sender, forms)
-                agg.add({sender: forms}, forward=message.sender == self.name)
+                # a record that came by broadcast to an agent of the tree goes up with its own: the agents decide
+                # on the broadcast each from its own measured lag, and a tree's root waits for every record
+                # (records an agent that broadcasts sent its tree neighbours never reached the root otherwise)
+                forward = message.sender == self.name or (share.mode == "tree" and sender != agg.parent)
+                agg.add({sender: forms}, forward=forward)
                 if len(message.pin):
                     share.pin = np.array(message.pin)
             if share.mode == "tree" and message.receiver == BROADCAST and agg.parent == sender and not agg.final:
@@ -402,12 +445,17 @@ class WindowAggregation:
                 or (len(message.members) and message.members.max() >= n)):
             self.counters["ignored"] += 1
             return False
+        carried = {}
         for owner, keys, M, b_z, c_z, count in message.carried():
-            self.forms.remember(owner, self._problems([(keys, M, b_z, c_z, count)]))
+            forms = self._problems([(keys, M, b_z, c_z, count)])
+            self.forms.remember(owner, forms)
+            carried.setdefault(owner, []).extend(forms)
         first = message.step - self.window + 1
         rebuilt = {}
         for member, digest in zip(message.members.tolist(), message.digest.tolist()):
-            record = self.forms.rebuild(member, tuple(digest), first, message.step)
+            # a record carried whole (a resend) is taken as it came; else rebuilt from the forms held here
+            record = FormCache.whole(carried.get(member, ()), tuple(digest)) \
+                or self.forms.rebuild(member, tuple(digest), first, message.step)
             if record is not None:
                 rebuilt[member] = record
         return self.on_bundle(message, rebuilt)
@@ -431,6 +479,9 @@ class WindowAggregation:
                 self.forms.remember(i, forms)
         else:
             records = rebuilt
+        owed = self.owed
+        if down and owed is not None and owed.share.step == message.step and set(owed.indices) <= set(message.members.tolist()):
+            self.owed = None  # a down bundle that holds them: the parent has them
         share, late = self.share, self.late
         if share is None and late is not None and late.step == message.step == self.step:
             return self._on_late(message, records, down, sender)
@@ -449,7 +500,8 @@ class WindowAggregation:
             self.depth = max(1, message.depth)
             lost = agg.missing_from(message.members.tolist())
             if lost and agg.parent is not None:  # the root timed out without records from here: send them again
-                self._send(self._bundle(self.names[agg.parent], lost, down=False))
+                self.owed = Owed(share, agg.parent, lost, NEVER)
+                self.resend_owed()
             self._send_down(exclude=(sender,), start=message.start)  # forwarded at once: one hop per phase
             # acknowledged: in an exact window no ADMM values come back to tell the parent it arrived
             self._send(share.ack(self.name, message.sender, self.round))
@@ -470,6 +522,8 @@ class WindowAggregation:
         if len(message.pin):
             late.pin = np.array(message.pin)
         new = agg.add(records, child=None if down else sender)
+        if not down:  # (a child whose records a partial down bundle lacked sends them until they are acknowledged)
+            self._send(late.ack(self.name, message.sender, self.round))
         if not down and new and agg.parent is not None:  # the root missed them too: pass them on
             self._send(self._bundle(self.names[agg.parent], sorted(new), down=False, share=late))
         if agg.complete:  # start again from the joint solution, and tell the children
@@ -504,3 +558,4 @@ class WindowAggregation:
         # and whoever has finished the window answers with the solution)
         self._send_down(exclude=(self.index.get(message.sender),), start=message.start)
         return True
+

@@ -84,15 +84,25 @@ def test_the_bundle_up_waits_for_the_child_and_carries_its_record():
 
 
 def test_an_unacknowledged_bundle_up_is_resent_whole():
-    """Without the parent's acknowledgement, the records go up again whole (admm.bundle) after 3 rounds."""
+    """Without the parent's acknowledgement, the records go up again after 3 rounds carrying every form (a delta
+    with nothing left to rebuild), and a parent holding another version of a form takes the record as it came."""
     role, out = _role("A1")
     _open(role, parent=0, hop=1, own=1)
     role.progress(parent=0)
     assert [type(m) for m in out] == [DeltaBundle]
     role.round += 3
     role.progress(parent=0)
-    assert isinstance(out[-1], FormBundle) and not out[-1].down and out[-1].receiver == "A0"
-    assert role.counters["retransmits"] == 1
+    resent = out[-1]
+    assert isinstance(resent, DeltaBundle) and resent.receiver == "A0" and role.counters["retransmits"] == 1
+    assert len(resent.owners) == resent.digest[0, 0] == 1  # (every form of A1's record, not only the new ones)
+    parent, _ = _role("A0")
+    _open(parent, parent=None, hop=0, own=0)
+    stale = _form(1, 0)
+    parent.forms.remember(1, parent._problems([(((1, 0), (0, 0)), 2 * stale[1], stale[2], stale[3], stale[4])]))
+    parent.forms.remember(1, parent._problems([(((1, -1), (1, 0)), stale[1], stale[2], stale[3], stale[4])]))
+    parent.on_delta(resent)
+    assert parent.share.agg.complete is False and 1 in parent.share.agg.records
+    np.testing.assert_array_equal(parent.share.agg.records[1][0][1].M, _form(1, 0)[1].astype(np.float32))
 
 
 def test_the_root_sends_the_joint_solution_down_once_complete():
@@ -245,3 +255,35 @@ def test_agents_not_heard_from_for_two_windows_are_not_waited_for():
     assert role.alive_members(1) is None
     role.heard(0, 3), role.heard(1, 3), role.heard(2, 1)
     assert role.alive_members(4) == {0, 1}
+
+
+def test_an_agent_given_up_on_and_heard_again_is_waited_for():
+    """A window opened without A2 (not heard for two windows) waits for A2's record once A2 is heard again."""
+    role, _ = _role("A0")
+    role.heard(1, 3)
+    role.heard(2, 1)
+    role.open(4, None, 0, wait=6)
+    role.step = 4
+    role.share.agg.add(_records(0, 1))
+    assert role.share.agg.complete  # (A2 given up on)
+    role.heard(2, 4)
+    assert not role.share.agg.complete
+
+
+def test_records_a_partial_down_bundle_lacked_are_resent_until_acknowledged():
+    """A1's record missing from the root's down bundle goes up again every `resend_after` rounds, every form
+    carried, until the root acknowledges it; then nothing more is sent."""
+    role, out = _middle()
+    role.on_bundle(_bundle("A2", "A1", [2], down=False, hop=2, parent=1, depth=2))
+    out.clear()
+    role.on_bundle(_bundle("A0", "A1", [0, 2], down=True, hop=0, parent=-1, depth=2))  # (timed out without A1's)
+    sent = [m for m in out if isinstance(m, DeltaBundle)]
+    assert len(sent) == 1 and sent[0].members.tolist() == [1] and len(sent[0].owners) == 1
+    role.round += role.resend_after
+    role.resend_owed()
+    assert len([m for m in out if isinstance(m, DeltaBundle)]) == 2
+    role.on_ack(FormAck(sender="A0", receiver="A1", round=0, step=0, have=np.array([0, 1, 2])))
+    out.clear()
+    role.round += 10 * role.resend_after
+    role.resend_owed()
+    assert out == [] and role.owed is None
