@@ -111,6 +111,7 @@ class AssemblyAgent(AssemblyResults):
         #: its ADMM values then carry a ``done`` block, so that quiet neighbours do not answer them
         self.window_done = False
         self._busy_seen = -(10**9)  # last round with ADMM values of this window from a neighbour still at work
+        self._rounds_heard = 0  # rounds of the current window this agent ran (the clock of its peers' liveness)
         self._watchers: set[str] = set()  # observers named by the last complete set of forms
         self._shared: dict[str, list[LocalProblem]] = {}  # target -> its pair's forms, one per step
         #: members whose data the others' contradicted in the last window this agent solved (left out of it)
@@ -130,6 +131,8 @@ class AssemblyAgent(AssemblyResults):
 
     def advance(self, round_index: int) -> None:
         """The runtime's clock: the round under way, also while the agent runs no half rounds (quiet)."""
+        if int(round_index) > self._round:
+            self._rounds_heard += 1  # (a round it polled the network in; a process that fell behind jumps rounds)
         self._round = max(self._round, int(round_index))
         self._sharing.round = self._round
 
@@ -163,6 +166,9 @@ class AssemblyAgent(AssemblyResults):
             self.advance(round_index)
         cfg = self.config
         first = self._step is None and own.step == 0
+        if self._step is not None and self._rounds_heard >= max(1, self._patience):
+            self._sharing.listened += 1  # it listened through that window: silence in it counts
+        self._rounds_heard = 0
         self._start = WindowStart()
         if cfg.share_forms == "every" or (cfg.share_forms == "first" and first):
             self._parent, self._hop = self._sharing.tree.position(self._round, self._step)
@@ -212,7 +218,7 @@ class AssemblyAgent(AssemblyResults):
         sharing = self._sharing
         self._lag.observe(self._round - message.round)
         if self._step is not None:
-            sharing.heard(sender, self._step)
+            sharing.heard(sender)
         if isinstance(message, ConfigAnnounce):
             if self._configs.learn(message):
                 self._dirty = True
@@ -338,7 +344,7 @@ class AssemblyAgent(AssemblyResults):
 
     # ------------------------------------------------------------------ cold start
     def _request_unknown(self) -> None:
-        self._outbox += self._configs.request(self._round, self._sharing.alive_members(self._step or 0))
+        self._outbox += self._configs.request(self._round, self._sharing.alive_members())
 
     def _bootstrap_phase(self) -> None:
         """Share the window's cost forms (up and down the tree, or by broadcast); then solve and seed."""
@@ -491,5 +497,5 @@ class AssemblyAgent(AssemblyResults):
     def _unresolved(self) -> set[int]:
         """Unnamed nodes that an assembly whose configuration has not arrived here may still own
         (:meth:`protocols.config_gossip.ConfigGossip.unresolved`)."""
-        return self._configs.unresolved(self._sharing.alive_members(self._step or 0))
+        return self._configs.unresolved(self._sharing.alive_members())
 

@@ -116,6 +116,9 @@ class WindowAggregation:
         self.late: WindowShare | None = None
         self.down: DownState | None = None
         self.own: OwnForms | None = None
+        #: windows through which the agent ran at least a round trip of rounds (counted by the agent): the clock
+        #: of :meth:`alive_members`
+        self.listened = 0
         #: records a parent's down bundle lacked (it timed out without them), sent again until the parent
         #: acknowledges them or the next window has gone by
         self.owed: Owed | None = None
@@ -123,7 +126,7 @@ class WindowAggregation:
         self.forms = FormCache()  # every agent's forms seen here for the window (rebuilds deltas from below)
         self._delta_sender = DeltaSender()  # per parent, the forms already sent up to it
         self._edges_sent: set = set()  # the view graph in the last solution sent down (the reference)
-        self.alive: dict[int, int] = {}  # agent index -> last step at which it (or its records) was heard
+        self.alive: dict[int, int] = {}  # agent index -> :attr:`listened` when it (or its records) was last heard
         #: set by the agent when a trip up and down the tree takes longer than its share timeout at the measured
         #: lag: its windows are then shared by broadcast (one trip), whatever ``aggregation`` says
         self.slow_tree = False
@@ -133,30 +136,32 @@ class WindowAggregation:
         self.resend_after = 3
 
     # ------------------------------------------------------------------ windows
-    def heard(self, sender: int, step: int) -> None:
-        """Agent ``sender`` was heard from (directly or through its records) at log step ``step``: alive, and
-        waited for again by the open window (and by one that timed out here) if it had been given up on."""
-        self.alive[sender] = step
+    def heard(self, sender: int) -> None:
+        """Agent ``sender`` was heard from (directly or through its records): alive, and waited for again by the
+        open window (and by one that timed out here) if it had been given up on."""
+        self.alive[sender] = self.listened
         for share in (self.share, self.late):
             if share is not None:
                 share.agg.expect(sender)
 
-    def alive_members(self, step: int) -> set[int] | None:
-        """Agents heard from (directly or through their records) in the two windows before this one or since:
-        a set of forms is complete once it holds theirs. ``None`` (every agent) without such a history (the
-        first two steps): an agent down for two whole windows, or one that never started, is then no longer
-        waited for, and the others' windows complete without it (a window that missed a live agent's records
-        to loss alone must not: its solution would be exact for a set that lacks them)."""
-        if not self.alive or step < 2:
+    def alive_members(self) -> set[int] | None:
+        """Agents heard from (directly or through their records) in the last two windows this agent listened
+        through, or since: a set of forms is complete once it holds theirs. ``None`` (every agent) before two
+        such windows. An agent silent that long (down, or never started) is no longer waited for and the
+        others' windows complete without it; silence while this agent itself was off the CPU (windows it ran
+        no round trip of) says nothing (a starved reference heard nobody for four windows and solved the next
+        one alone, 14 mm off), nor does one window's records lost to loss (its next window was 'exact'
+        without them, 25-480 mm off)."""
+        if not self.alive or self.listened < 2:
             return None
-        return {i for i, seen in self.alive.items() if seen >= step - 2}
+        return {i for i, seen in self.alive.items() if seen >= self.listened - 2}
 
     def open(self, step: int, parent: int | None, hop: int | None, wait: int) -> None:
         """Start sharing window ``step`` below ``parent`` at ``hop`` hops from the reference (children: the
         neighbours that named this agent as their parent lately; ``wait``: rounds to wait for them)."""
         agg = TreeAggregation(self.me, len(self.names), root=self.name == self.reference, parent=parent,
                               children=self.tree.children(self.round, self.step), start=self.round + 1, wait=wait,
-                              hop=hop or 0, expected=self.alive_members(step))
+                              hop=hop or 0, expected=self.alive_members())
         self.share = WindowShare(step=step, agg=agg)
         self.own = None
 
@@ -472,7 +477,7 @@ class WindowAggregation:
             return False  # (a delta's indices were checked by on_delta)
         self.tree.heard(message.sender, message.hop, message.parent, self.round, self.step)
         for member in message.members.tolist():
-            self.heard(int(member), self.step if self.step is not None else 0)
+            self.heard(int(member))
         if rebuilt is None:
             records = {i: self._problems(forms) for i, forms in message.records().items()}
             for i, forms in records.items():

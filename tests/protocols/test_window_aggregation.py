@@ -250,23 +250,30 @@ def test_indices_beyond_the_agents_are_counted_and_ignored(bad):
 
 
 def test_agents_not_heard_from_for_two_windows_are_not_waited_for():
-    """From step 2 on, a window is complete without the records of agents last heard two windows ago."""
+    """After two windows listened through, a window is complete without the records of agents not heard in the
+    last two; windows the agent did not listen through (off the CPU) do not count."""
     role, _ = _role("A1")
-    assert role.alive_members(1) is None
-    role.heard(0, 3), role.heard(1, 3), role.heard(2, 1)
-    assert role.alive_members(4) == {0, 1}
+    assert role.alive_members() is None
+    role.heard(2)
+    role.listened = 1
+    role.heard(0), role.heard(1)
+    role.listened = 3
+    assert role.alive_members() == {0, 1}
+    role.heard(2)
+    assert role.alive_members() == {0, 1, 2}
 
 
 def test_an_agent_given_up_on_and_heard_again_is_waited_for():
     """A window opened without A2 (not heard for two windows) waits for A2's record once A2 is heard again."""
     role, _ = _role("A0")
-    role.heard(1, 3)
-    role.heard(2, 1)
+    role.heard(2)
+    role.listened = 3
+    role.heard(1)
     role.open(4, None, 0, wait=6)
     role.step = 4
     role.share.agg.add(_records(0, 1))
     assert role.share.agg.complete  # (A2 given up on)
-    role.heard(2, 4)
+    role.heard(2)
     assert not role.share.agg.complete
 
 
