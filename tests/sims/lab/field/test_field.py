@@ -98,9 +98,6 @@ def test_under_loss_and_delay_every_converged_step_is_exact(transport):
 
 @pytest.mark.slow
 @needs_field
-@pytest.mark.xfail(strict=False, reason=(
-    "intermittent (1 of 5 runs at load 1-3): a step 10 or more after the rejoin once came out off the centralized "
-    "estimate; the same open defect as the converged-but-off windows under loss"))
 def test_a_restart_with_a_fresh_start_catches_up_within_ten_steps():
     """A2 killed at step 4 and restarted 3 steps later with its own START, 50 ms links: exact again 10 steps on."""
     sim = simulate(get_scenario("multi", n_assemblies=4, steps=24), seed=1)
