@@ -498,4 +498,3 @@ class AssemblyAgent(AssemblyResults):
         """Unnamed nodes that an assembly whose configuration has not arrived here may still own
         (:meth:`protocols.config_gossip.ConfigGossip.unresolved`)."""
         return self._configs.unresolved(self._sharing.alive_members())
-
