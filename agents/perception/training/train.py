@@ -328,7 +328,11 @@ def train(network: str, data: Shards, val: Shards, out: str | os.PathLike, confi
         if progress:
             progress(f"{network}: weights of {init} (largest difference from onnxruntime {diff:.2g})")
     elif init is not None:
-        net.load_state_dict(torch.load(init, weights_only=True, map_location="cpu"))
+        try:
+            net.load_state_dict(torch.load(init, weights_only=True, map_location="cpu"))
+        except RuntimeError:  # another network's shape
+            raise InputError("the weights do not fit the network: give the --width and --channels they were "
+                             "trained with", source=str(init)) from None
     _WORKER_DATA["data"] = data
     pool = None  # forked before CUDA starts; the workers only run numpy and OpenCV
     if config.workers > 0 and "fork" in multiprocessing.get_all_start_methods():

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The shipped learned detector's training on one CUDA GPU machine (16 cores): render the shards with
 # 16 processes, then train three proposal-network variants and the second stage side by side (one
-# process each, batches prepared by forked workers); the best variant on validation is shipped.
+# process each, batches prepared by forked workers); the model card says which variant shipped and how.
 #
 # usage: train_gpu.sh SCALE OUT [STEPS REFINE_STEPS]
 #   SCALE  tiny (a handful of scenes and 40 steps: checks the whole chain) or full
