@@ -5,9 +5,10 @@ CenterNet-style (Zhou et al. 2019) version small enough for one CPU core, traine
 (:mod:`agents.perception.training`; the model card ``agents/perception/models/circles.md`` gives its
 data, training and scores):
 
-1. *Proposals* (``circles.onnx``): the frame resized to 256 x 192 (padded to 4:3 first if needed)
-   gives, on a 64 x 48 grid, a centre heatmap, the log radius and the centre's sub-cell offset;
-   each 3 x 3 local maximum of the heatmap of at least ``threshold`` is a circle.
+1. *Proposals* (``circles.onnx``): the frame resized to the network's input size, read from the
+   ONNX file's input shape (the shipped network: 384 x 288; padded to its aspect ratio first if
+   needed), gives, on the grid of stride 4, a centre heatmap, the log radius and the centre's
+   sub-cell offset; each 3 x 3 local maximum of the heatmap of at least ``threshold`` is a circle.
 2. *Second stage* (``circle_refine.onnx``), ``refine_passes`` times: a window 2.5 radii wide around
    each circle, at full resolution, resampled to 32 x 32 (:mod:`agents.perception.crops`), gives the
    true circle relative to it. It was trained on partly hidden spheres too, so such a sphere's radius
@@ -32,10 +33,11 @@ import cv2
 import numpy as np
 
 from agents.perception.crops import CROP_SIZE, crop_circle, refine_input
+from agents.perception.onnx_shape import onnx_input_shape
 from agents.perception.types import Circle
 from decentral.errors import InputError
 
-__all__ = ["MODEL_DIR", "LearnedCircleDetector", "LearnedConfig", "decode"]
+__all__ = ["MODEL_DIR", "LearnedCircleDetector", "LearnedConfig", "decode", "model_input_size"]
 
 #: folder of the shipped networks (package data)
 MODEL_DIR = Path(__file__).resolve().parent / "models"
@@ -78,6 +80,19 @@ class LearnedConfig:
     threads: int = 1
     converge: float = 0.05
     overlap: float = 0.5
+
+
+def model_input_size(path: str | os.PathLike) -> tuple[int, int]:
+    """(width, height) of the frames a proposal network takes: its ONNX input shape (N, 3, H, W).
+
+    A file whose input is not a fixed-size colour frame with sides a multiple of the stride (4) is an
+    :class:`~decentral.errors.InputError` naming it.
+    """
+    shape = onnx_input_shape(path)
+    if len(shape) != 4 or shape[1] != 3 or not all(isinstance(d, int) and d >= 4 and d % 4 == 0 for d in shape[2:]):
+        raise InputError(f"the proposal network's input is {shape}, not (N, 3, H, W) with H and W multiples of 4",
+                         source=str(path))
+    return int(shape[3]), int(shape[2])
 
 
 class _Net:
@@ -152,7 +167,6 @@ def decode(out: np.ndarray, scale: float, threshold: float, stride: int = 4) -> 
 class LearnedCircleDetector:
     """A :class:`~agents.perception.types.CircleDetector` running the shipped (or a user's) networks."""
 
-    input_size = (256, 192)
     stride = 4
     #: a circle whose correction falls below this (radii) is not passed again
     settled = 0.01
@@ -162,6 +176,8 @@ class LearnedCircleDetector:
         if not 0.0 < cfg.threshold < 1.0 or cfg.refine_passes < 0 or cfg.threads < 1:
             raise InputError("threshold must lie in (0, 1), refine_passes >= 0, threads >= 1", field="LearnedConfig")
         self.net = _Net(cfg.model, cfg.backend, cfg.threads)
+        #: (width, height) of the proposal network's input, from the model file
+        self.input_size = model_input_size(cfg.model)
         self.refiner = None if cfg.refine_model is None or cfg.refine_passes == 0 else \
             _Net(cfg.refine_model, cfg.backend, cfg.threads)
 

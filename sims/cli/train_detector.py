@@ -4,7 +4,8 @@ Renders the training shards that are not yet in ``OUT/shards`` (varied scenes, h
 ``table1`` runs by seed, :mod:`sims.lab.experiments.detector_data`; the held-out varied scenes are refused), adds shards of
 the user's own labelled frames (``--labels``, see
 :func:`agents.perception.training.data.shard_from_labels`), then trains both networks on the CPU
-(``python -m agents.perception.training train``; PyTorch from the ``train`` extra) and writes
+(``python -m agents.perception.training train``; PyTorch from the ``train`` extra; on a CUDA GPU
+where torch finds one) and writes
 ``OUT/circles.onnx``, ``OUT/circle_refine.onnx`` and their loss curves. Use the result with
 ``LearnedConfig(model=..., refine_model=...)``.
 """
@@ -18,7 +19,7 @@ from decentral.errors import InputError
 
 __all__ = ["HELP", "add_arguments", "run"]
 
-HELP = "retrain the learned circle detector (rendered scenes and/or your labelled frames) on the CPU -> ONNX"
+HELP = "retrain the learned circle detector (rendered scenes and/or your labelled frames) -> ONNX"
 
 
 def _range(text: str) -> range:
@@ -44,6 +45,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--steps", type=int, default=900, help="proposal network steps (default: 900)")
     parser.add_argument("--refine-steps", type=int, default=2500, help="second-stage steps (default: 2500)")
     parser.add_argument("--seed", type=int, default=0, help="training seed (default: 0)")
+    parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto",
+                        help="train on a CUDA GPU where torch finds one (auto, the default), the CPU, or the GPU")
+    parser.add_argument("--input-size", default=None, metavar="WxH",
+                        help="the proposal network's input (default: that of --init's network, else the shipped one's)")
     parser.add_argument("--init", type=Path, default=None, metavar="FOLDER",
                         help="fine-tune the networks in FOLDER (.pt of an earlier run, or .onnx, e.g. the shipped "
                              "agents/perception/models) instead of starting from random weights")
@@ -61,11 +66,25 @@ def run(args: argparse.Namespace) -> int:
     render = ["--varied", f"{args.varied.start}:{args.varied.stop}", "--varied-frames", str(args.varied_frames),
               "--hard", f"{args.hard.start}:{args.hard.stop}", "--hard-frames", str(args.varied_frames),
               "--table1", f"{args.table1.start}:{args.table1.stop}", "--table1-steps", str(args.table1_steps)]
+    from agents.perception.training.__main__ import _size
+
+    size = None if args.input_size is None else "x".join(map(str, _size(args.input_size)))
+    if size is None and args.init is not None and (args.init / "circles.onnx").is_file():
+        from agents.perception.learned import model_input_size
+
+        size = "x".join(map(str, model_input_size(args.init / "circles.onnx")))
+    if size is not None:
+        render += ["--input-size", size]
     if render_main([str(shards), *render]) != 0:
         return 2
+    if size is None:
+        from agents.perception.learned import MODEL_DIR, model_input_size
+
+        size = "x".join(map(str, model_input_size(MODEL_DIR / "circles.onnx")))
     for k, labels in enumerate(args.labels):
-        write_shard(shards / f"labels-{k}.npz", shard_from_labels(labels))
+        write_shard(shards / f"labels-{k}.npz",
+                    shard_from_labels(labels, input_size=_size(size)))
     init = [] if args.init is None else ["--init", str(args.init)]
     return train_main(["train", str(shards), "-o", str(args.out), "--steps", str(args.steps),
-                       "--refine-steps", str(args.refine_steps), "--seed", str(args.seed), *init,
+                       "--refine-steps", str(args.refine_steps), "--seed", str(args.seed), "--device", args.device, *init,
                        "--validation", "varied-*9.npz", "hard-*49.npz", "table1-*8.npz", "--oversample", "table1-*=2"])

@@ -1,9 +1,10 @@
 """Command line: train the learned circle detector on shards, or make a shard of labelled frames.
 
 ``python -m agents.perception.training train SHARD_DIR -o OUT [--network detector|refine|both]
-[--steps N] [--seed S] [--validation PATTERN ...]`` trains on every ``*.npz`` in SHARD_DIR (sorted by
-name) except those matching a ``--validation`` pattern, which form the validation set; writes
-``OUT/circles.onnx`` and/or ``OUT/circle_refine.onnx`` with their loss curves.
+[--steps N] [--seed S] [--device auto|cpu|cuda] [--workers N] [--validation PATTERN ...]`` trains on
+every ``*.npz`` in SHARD_DIR (sorted by name) except those matching a ``--validation`` pattern, which
+form the validation set; writes ``OUT/circles.onnx`` and/or ``OUT/circle_refine.onnx`` with their
+loss curves. The proposal network's input size is the shards' frame size.
 
 ``python -m agents.perception.training label LABELS.json SHARD.npz`` turns a user's labelled frames
 (see :func:`agents.perception.training.data.shard_from_labels`) into a shard.
@@ -34,6 +35,14 @@ def _split(folder: Path, patterns: list[str]) -> tuple[list[Path], list[Path]]:
     return train, val
 
 
+def _size(text: str) -> tuple[int, int]:
+    """``"384x288"`` -> (384, 288); anything else is an InputError naming --input-size."""
+    parts = text.lower().split("x")
+    if len(parts) != 2 or not all(p.isdigit() and int(p) > 0 for p in parts):
+        raise InputError(f"expected WIDTHxHEIGHT, e.g. 384x288, got {text!r}", field="--input-size")
+    return int(parts[0]), int(parts[1])
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m agents.perception.training", description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="command", required=True)
@@ -51,6 +60,15 @@ def main(argv=None) -> int:
     tr.add_argument("--init", type=Path, default=None,
                     help="start from the networks in this folder (an earlier run's circles.pt / circle_refine.pt, else "
                          "the .onnx files, e.g. agents/perception/models): fine-tuning")
+    tr.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto",
+                    help="where to train: a CUDA GPU where torch finds one (auto, the default), the CPU, or the GPU")
+    tr.add_argument("--workers", type=int, default=0,
+                    help="processes preparing the batches (default 0: the training process; the result is the same)")
+    tr.add_argument("--width", type=int, default=48, help="proposal network: top-down and head channels (default 48)")
+    tr.add_argument("--channels", type=int, nargs=5, default=[16, 32, 64, 96, 128], metavar="C",
+                    help="proposal network: stem and pyramid channels at strides 2-32 (default 16 32 64 96 128)")
+    tr.add_argument("--max-minutes", type=float, default=0.0,
+                    help="stop each network's training after this many minutes (wall; default 0: no limit)")
     tr.add_argument("--validation", nargs="+", default=["varied-*9.npz", "table1-*9.npz"],
                     help="name patterns of the validation shards (default: seeds ending in 9)")
     tr.add_argument("--oversample", nargs="+", default=[], metavar="PATTERN=N",
@@ -58,17 +76,28 @@ def main(argv=None) -> int:
     lb = sub.add_parser("label", help="a shard from labelled frames (JSON)")
     lb.add_argument("labels", type=Path)
     lb.add_argument("shard", type=Path)
+    lb.add_argument("--input-size", default=None, metavar="WxH",
+                    help="the frames' size in the shard (default: the shipped proposal network's input)")
     args = ap.parse_args(argv)
     try:
         if args.command == "label":
             from agents.perception.training.data import shard_from_labels, write_shard
 
-            arrays = shard_from_labels(args.labels)
+            if args.input_size is None:
+                from agents.perception.learned import MODEL_DIR, model_input_size
+
+                size = model_input_size(MODEL_DIR / "circles.onnx")
+            else:
+                size = _size(args.input_size)
+            arrays = shard_from_labels(args.labels, input_size=size)
             write_shard(args.shard, arrays)
             print(f"{args.shard}: {len(arrays['images'])} frames, {len(arrays['circles'])} circles")
             return 0
-        if min(args.steps, args.refine_steps, args.batch, args.eval_every) < 1 or args.lr <= 0:
-            raise InputError("--steps, --refine-steps, --batch, --eval-every and --lr must be positive", field="options")
+        if min(args.steps, args.refine_steps, args.batch, args.eval_every, args.width, *args.channels) < 1 or args.lr <= 0:
+            raise InputError("--steps, --refine-steps, --batch, --eval-every, --width, --channels and --lr must be positive",
+                             field="options")
+        if args.workers < 0 or args.max_minutes < 0:
+            raise InputError("--workers and --max-minutes must not be negative", field="options")
         train_files, val_files = _split(args.shards, args.validation)
         os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
         try:
@@ -89,7 +118,9 @@ def main(argv=None) -> int:
         for network, steps in (("detector", args.steps), ("refine", args.refine_steps)):
             if args.network in (network, "both"):
                 cfg = TrainConfig(steps=steps, batch=args.batch if network == "detector" else 4 * args.batch,
-                                  lr=args.lr, seed=args.seed, eval_every=args.eval_every, warmup=args.warmup)
+                                  lr=args.lr, seed=args.seed, eval_every=args.eval_every, warmup=args.warmup,
+                                  device=args.device, workers=args.workers, width=args.width,
+                                  channels=tuple(args.channels), max_seconds=60.0 * args.max_minutes)
                 init = None
                 if args.init is not None:
                     stem = "circles" if network == "detector" else "circle_refine"

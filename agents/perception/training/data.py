@@ -42,7 +42,9 @@ __all__ = [
     "write_shard",
 ]
 
-#: the network's input (width, height) and output stride (input pixels per heatmap cell)
+#: the default input (width, height) of :func:`shard_from_frames` (the first releases' networks; the command-line
+#: tools default to the shipped network's, :func:`agents.perception.learned.model_input_size`) and the output
+#: stride (input pixels per heatmap cell)
 INPUT_SIZE = (256, 192)
 STRIDE = 4
 #: spheres showing less than this fraction of their disc are neither positives nor negatives

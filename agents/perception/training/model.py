@@ -1,8 +1,9 @@
 """The learned detector's two networks (PyTorch; the ``train`` extra).
 
-- :class:`CircleNet`: a CenterNet-style [1]_ network on the frame resized to 256 x 192: a small
-  pyramid of depthwise-separable blocks (strides 4-32) merged top-down to stride 4, and one output
-  of 4 channels on the 64 x 48 grid: the centre heatmap (sigmoid), the log radius in input pixels,
+- :class:`CircleNet`: a CenterNet-style [1]_ network on the frame resized to the input size (the
+  shipped one 384 x 288, the first releases 256 x 192): a small pyramid of depthwise-separable
+  blocks (strides 4-32) merged top-down to stride 4, and one output of 4 channels on the grid of
+  stride 4 (96 x 72 at 384 x 288): the centre heatmap (sigmoid), the log radius in input pixels,
   and the centre's sub-cell offset (x, y).
 - :class:`RefineNet`: the second stage, on a 32 x 32 window 2.5 proposal radii wide around each
   proposal: the true circle relative to the proposal (du / r, dv / r, log(r / r_p)).
@@ -48,15 +49,22 @@ def _stage(ci: int, co: int, n: int) -> nn.Sequential:
 
 
 class CircleNet(nn.Module):
-    """Frame (B, 3, 192, 256) in [-0.5, 0.5] -> (B, 4, 48, 64): heatmap, log radius, offset x, offset y."""
+    """Frame (B, 3, H, W) in [-0.5, 0.5] -> (B, 4, H / 4, W / 4): heatmap, log radius, offset x, offset y.
 
-    def __init__(self, width: int = 48):
+    H and W must be multiples of 32 (e.g. 256 x 192, 384 x 288). ``channels``: the stem's first
+    convolution and the four pyramid levels (strides 4, 8, 16, 32); ``width``: the merged top-down
+    features and the head.
+    """
+
+    def __init__(self, width: int = 48, channels: tuple[int, ...] = (16, 32, 64, 96, 128)):
         super().__init__()
-        self.stem = nn.Sequential(_conv(3, 16, 2), _conv(16, 32, 2), _Block(32, 32), _Block(32, 32))  # stride 4
-        self.s8 = _stage(32, 64, 3)
-        self.s16 = _stage(64, 96, 3)
-        self.s32 = _stage(96, 128, 3)
-        self.lat = nn.ModuleList([nn.Conv2d(c, width, 1) for c in (32, 64, 96, 128)])
+        c0, c4, c8, c16, c32 = channels
+        self.config = {"width": int(width), "channels": [int(c) for c in channels]}
+        self.stem = nn.Sequential(_conv(3, c0, 2), _conv(c0, c4, 2), _Block(c4, c4), _Block(c4, c4))  # stride 4
+        self.s8 = _stage(c4, c8, 3)
+        self.s16 = _stage(c8, c16, 3)
+        self.s32 = _stage(c16, c32, 3)
+        self.lat = nn.ModuleList([nn.Conv2d(c, width, 1) for c in (c4, c8, c16, c32)])
         self.head = nn.Sequential(_Block(width, width), _Block(width, width), nn.Conv2d(width, 4, 1))
         nn.init.constant_(self.head[-1].bias, 0.0)
         with torch.no_grad():

@@ -1,17 +1,23 @@
-"""Training the learned detector's networks on the CPU, and their export to ONNX (PyTorch).
+"""Training the learned detector's networks on the CPU or a GPU, and their export to ONNX (PyTorch).
 
 :func:`train` runs one network (``"detector"``: :class:`~agents.perception.training.model.CircleNet`,
 ``"refine"``: :class:`~agents.perception.training.model.RefineNet`) for a fixed number of steps from
-one seed: the same seed, shards and settings give the same weights up to floating-point noise
-(one thread; the batches and augmentations come from the seed). Every ``eval_every`` steps the
-validation loss is computed and the best weights so far are exported to ONNX, so a run stopped early
-still leaves its best model. The loss curves go to ``<name>_training.json`` and ``.png`` beside it.
+one seed: the same seed, shards and settings give the same weights up to floating-point noise on the
+CPU (one thread; the batches come from the seed and each step's augmentations from the seed and the
+step, so ``workers`` processes preparing batches change nothing). On a GPU (``device="cuda"``, or
+``"auto"`` where one is found) the same batches are used; cuDNN's kernels make its runs repeat only
+approximately. Every ``eval_every`` steps the validation loss is computed and the best weights so far
+are exported to ONNX, so a run stopped early still leaves its best model. The loss curves go to
+``<name>_training.json`` and ``.png`` beside it.
 """
 
 from __future__ import annotations
 
+import collections
+import copy
 import json
 import math
+import multiprocessing
 import os
 import time
 from dataclasses import asdict, dataclass
@@ -23,13 +29,21 @@ from torch.nn import functional as F
 
 from agents.perception.training.data import Shards, detector_batch, refine_batch
 from agents.perception.training.model import CircleNet, RefineNet
+from decentral.errors import InputError
 
-__all__ = ["TrainConfig", "export_onnx", "focal_loss", "load_onnx_weights", "train"]
+__all__ = ["TrainConfig", "circlenet_from_onnx", "export_onnx", "focal_loss", "load_onnx_weights", "resolve_device",
+           "train"]
 
 
 @dataclass(frozen=True)
 class TrainConfig:
-    """Steps, batch, learning rate (AdamW, linear warm-up then cosine decay), seed, evaluation period."""
+    """Steps, batch, learning rate (AdamW, linear warm-up then cosine decay), seed, evaluation period.
+
+    ``device``: ``"auto"`` (a CUDA GPU where torch finds one, else the CPU), ``"cpu"`` or ``"cuda"``;
+    ``workers``: processes preparing the batches (0: the training process itself); ``width`` and
+    ``channels``: the proposal network's (:class:`~agents.perception.training.model.CircleNet`);
+    ``max_seconds`` > 0: stop (after a last validation) once training has run this long (wall).
+    """
 
     steps: int = 3000
     batch: int = 24
@@ -39,6 +53,22 @@ class TrainConfig:
     seed: int = 0
     eval_every: int = 100
     threads: int = 1
+    device: str = "auto"
+    workers: int = 0
+    width: int = 48
+    channels: tuple[int, ...] = (16, 32, 64, 96, 128)
+    max_seconds: float = 0.0
+
+
+def resolve_device(device: str) -> torch.device:
+    """``"auto"`` -> CUDA where available, else the CPU; ``"cuda"`` without a GPU is an InputError."""
+    if device == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if device == "cuda" and not torch.cuda.is_available():
+        raise InputError("no CUDA GPU is available to torch (use --device cpu or auto)", field="--device")
+    if device not in ("cpu", "cuda"):
+        raise InputError(f"unknown device {device!r} (auto, cpu or cuda)", field="--device")
+    return torch.device(device)
 
 
 def focal_loss(logit: torch.Tensor, heat: torch.Tensor, weight: torch.Tensor, pos: torch.Tensor) -> torch.Tensor:
@@ -50,8 +80,12 @@ def focal_loss(logit: torch.Tensor, heat: torch.Tensor, weight: torch.Tensor, po
     return (pos_loss.sum() + neg_loss.sum()) / pos.sum().clamp(min=1.0)
 
 
-def _detector_loss(net: CircleNet, batch) -> tuple[torch.Tensor, dict]:
-    x, heat, weight, reg = (torch.from_numpy(a) for a in batch)
+def _tensors(batch, device: torch.device):
+    return (torch.from_numpy(a).to(device, non_blocking=True) for a in batch)
+
+
+def _detector_loss(net: CircleNet, batch, device: torch.device = torch.device("cpu")) -> tuple[torch.Tensor, dict]:
+    x, heat, weight, reg = _tensors(batch, device)
     out = net.logits(x)
     pos = reg[:, 3:4]
     n = pos.sum().clamp(min=1.0)
@@ -61,23 +95,48 @@ def _detector_loss(net: CircleNet, batch) -> tuple[torch.Tensor, dict]:
     return hm + rad + off, {"heatmap": hm.item(), "log_radius": rad.item(), "offset": off.item()}
 
 
-def _refine_loss(net: RefineNet, batch) -> tuple[torch.Tensor, dict]:
-    x, y = (torch.from_numpy(a) for a in batch)
+def _refine_loss(net: RefineNet, batch, device: torch.device = torch.device("cpu")) -> tuple[torch.Tensor, dict]:
+    x, y = _tensors(batch, device)
     err = torch.abs(net(x) - y)
     centre, radius = err[:, :2].mean(), err[:, 2].mean()
     return centre + radius, {"centre": centre.item(), "log_radius": radius.item()}
 
 
 def export_onnx(net: torch.nn.Module, path: str | os.PathLike, shape: tuple[int, ...], output: str) -> None:
-    """Export ``net`` (eval mode) with one input ``image`` of ``shape`` and one output named ``output``."""
-    net.eval()
+    """Export ``net`` (eval mode, a CPU copy) with one input ``image`` of ``shape`` and one output named ``output``.
+
+    A network with a ``config`` dict (:class:`~agents.perception.training.model.CircleNet`) keeps it in
+    the file's metadata (``circlenet``), so that :func:`circlenet_from_onnx` can rebuild it.
+    """
+    net = copy.deepcopy(net).cpu().eval()
     path = Path(path)
     tmp = path.with_name(f".{path.name}.part")
     with torch.no_grad():
         torch.onnx.export(net, torch.zeros(shape), str(tmp), input_names=["image"], output_names=[output],
                           opset_version=17, do_constant_folding=True, dynamo=False,
                           dynamic_axes={"image": {0: "batch"}, output: {0: "batch"}} if output == "circle" else None)
+    config = getattr(net, "config", None)
+    if config:
+        import onnx
+
+        model = onnx.load(str(tmp))
+        entry = model.metadata_props.add()
+        entry.key, entry.value = "circlenet", json.dumps(config)
+        onnx.save(model, str(tmp))
     os.replace(tmp, path)
+
+
+def circlenet_from_onnx(path: str | os.PathLike) -> CircleNet:
+    """A fresh :class:`CircleNet` of the shape of the exported network at ``path`` (its ``circlenet``
+    metadata; the first release's shape where there is none)."""
+    import onnx
+
+    model = onnx.load(str(path), load_external_data=False)
+    meta = {p.key: p.value for p in model.metadata_props}
+    if "circlenet" not in meta:
+        return CircleNet()
+    config = json.loads(meta["circlenet"])
+    return CircleNet(int(config["width"]), tuple(int(c) for c in config["channels"]))
 
 
 def load_onnx_weights(net: torch.nn.Module, path: str | os.PathLike, batches) -> float:
@@ -189,6 +248,37 @@ def _plot(log: dict, path: Path) -> None:
     plt.close(fig)
 
 
+#: the training data of the batch-preparing worker processes (inherited by fork, never pickled)
+_WORKER_DATA: dict = {}
+
+
+def _make_batch(job) -> tuple:
+    """One step's batch: ``job`` = (network, seed, step, indices); augmentations from (seed, step).
+
+    ``step`` is the step number (>= 1), or a pair (0, k) for the k-th batch drawn before training."""
+    network, seed, step, idx = job
+    data = _WORKER_DATA["data"]
+    rng = np.random.default_rng([seed, *np.atleast_1d(step)])
+    if network == "detector":
+        return detector_batch(data, idx, rng)
+    return refine_batch(data, idx, rng)
+
+
+def _batches(pool, jobs, ahead: int):
+    """The batches of ``jobs`` in order: made here (``pool`` None) or by ``pool``, at most ``ahead`` in flight."""
+    if pool is None:
+        for job in jobs:
+            yield _make_batch(job)
+        return
+    pending: collections.deque = collections.deque()
+    for job in jobs:
+        pending.append(pool.apply_async(_make_batch, (job,)))
+        if len(pending) >= ahead:
+            yield pending.popleft().get()
+    while pending:
+        yield pending.popleft().get()
+
+
 def train(network: str, data: Shards, val: Shards, out: str | os.PathLike, config: TrainConfig = TrainConfig(),
           *, name: str | None = None, progress=print, extra: dict | None = None, init: str | os.PathLike | None = None) -> dict:
     """Train ``network`` ("detector" or "refine") and write ``out/<name>.onnx`` and ``out/<name>_training.{json,png}``.
@@ -196,10 +286,12 @@ def train(network: str, data: Shards, val: Shards, out: str | os.PathLike, confi
     ``init`` (a ``.pt`` state dict written by an earlier run, or an exported ``.onnx`` network such
     as the shipped one: :func:`load_onnx_weights`) starts from those weights (fine-tuning, e.g. on a
     user's own labelled frames). Returns the training log (also the JSON file):
-    configuration, per-step training loss, validation losses, best step, wall and CPU seconds.
+    configuration, per-step training loss, validation losses, best step, wall and CPU seconds
+    (CPU: this process's; with ``workers`` the batch preparation's is not counted) and the device.
     """
     if network not in ("detector", "refine"):
         raise ValueError(f"unknown network {network!r} (detector or refine)")
+    device = resolve_device(config.device)
     name = name or ("circles" if network == "detector" else "circle_refine")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -208,58 +300,95 @@ def train(network: str, data: Shards, val: Shards, out: str | os.PathLike, confi
     rng = np.random.default_rng(config.seed)
     val_rng = np.random.default_rng(12345)
     if network == "detector":
-        net, loss_fn = CircleNet(), _detector_loss
-        n_train = len(data.images)
+        h, w = data.images.shape[1:3]
+        if h % 32 or w % 32:
+            raise InputError(f"the frames are {w} x {h}: the proposal network needs multiples of 32 (e.g. 384 x 288)",
+                             field="shards")
+        if init is not None and str(init).endswith(".onnx"):
+            net = circlenet_from_onnx(init)
+        else:
+            net = CircleNet(config.width, tuple(config.channels))
+        loss_fn = _detector_loss
+        n_train, items = len(data.images), np.arange(len(data.images))
         val_idx = np.arange(min(len(val.images), 240))
         val_batches = [detector_batch(val, val_idx[i:i + config.batch], None) for i in range(0, len(val_idx), config.batch)]
-        shape, output = (1, 3, data.images.shape[1], data.images.shape[2]), "heads"
-
-        def batch(idx):
-            return detector_batch(data, idx, rng)
+        shape, output = (1, 3, h, w), "heads"
     else:
         net, loss_fn = RefineNet(), _refine_loss
-        usable = np.nonzero(data.circles[:, 4] >= 0.3)[0]
-        n_train = len(usable)
+        items = np.nonzero(data.circles[:, 4] >= 0.3)[0]
+        n_train = len(items)
         v_usable = np.nonzero(val.circles[:, 4] >= 0.3)[0][:1024]
         val_batches = [refine_batch(val, v_usable[i:i + 128], val_rng) for i in range(0, len(v_usable), 128)]
         shape, output = (1, 3, 32, 32), "circle"
-
-        def batch(idx):
-            return refine_batch(data, usable[idx], rng)
     if init is not None and str(init).endswith(".onnx"):
-        stats = [batch(rng.permutation(n_train)[:config.batch])[0] for _ in range(8)]
+        _WORKER_DATA["data"] = data
+        stats = [_make_batch((network, config.seed, (0, k), items[rng.permutation(n_train)[:config.batch]]))[0]
+                 for k in range(8)]
         diff = load_onnx_weights(net, init, stats)
         if progress:
             progress(f"{network}: weights of {init} (largest difference from onnxruntime {diff:.2g})")
     elif init is not None:
-        net.load_state_dict(torch.load(init, weights_only=True))
+        try:
+            net.load_state_dict(torch.load(init, weights_only=True, map_location="cpu"))
+        except RuntimeError:  # another network's shape
+            raise InputError("the weights do not fit the network: give the --width and --channels they were "
+                             "trained with", source=str(init)) from None
+    _WORKER_DATA["data"] = data
+    pool = None  # forked before CUDA starts; the workers only run numpy and OpenCV
+    if config.workers > 0 and "fork" in multiprocessing.get_all_start_methods():
+        pool = multiprocessing.get_context("fork").Pool(config.workers)
+    net.to(device)
+    if device.type == "cuda":
+        torch.backends.cudnn.benchmark = True
     opt = torch.optim.AdamW(net.parameters(), lr=config.lr, weight_decay=config.weight_decay)
-    log = {"network": network, "config": asdict(config), "init": None if init is None else str(init), "train_items": int(n_train),
+    log = {"network": network, "config": asdict(config), "device": str(device),
+           "device_name": torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu",
+           "architecture": getattr(net, "config", None),
+           "init": None if init is None else str(init), "train_items": int(n_train),
            "validation_items": int(sum(len(b[0]) for b in val_batches)), "train": [], "validation": [],
            "parts": [], **(extra or {})}
+
+    def jobs():
+        order, pos = rng.permutation(n_train), 0
+        for step in range(1, config.steps + 1):
+            if pos + config.batch > n_train:
+                order, pos = rng.permutation(n_train), 0
+            yield network, config.seed, step, items[order[pos:pos + config.batch]]
+            pos += config.batch
+
+    try:
+        _loop(net, opt, loss_fn, _batches(pool, jobs(), 2 * config.workers + 2), val_batches, config, device, log,
+              out, name, shape, output, progress)
+    finally:
+        if pool is not None:
+            pool.terminate()
+            pool.join()
+    return log
+
+
+def _loop(net, opt, loss_fn, batches, val_batches, config: TrainConfig, device, log: dict, out: Path, name: str,
+          shape, output: str, progress) -> None:
+    """The optimisation steps, validation, best-model export and logs of :func:`train`."""
     best = math.inf
     wall0, cpu0 = time.perf_counter(), time.process_time()
-    order = rng.permutation(n_train)
-    pos = 0
-    for step in range(1, config.steps + 1):
-        if pos + config.batch > n_train:
-            order, pos = rng.permutation(n_train), 0
-        idx = order[pos:pos + config.batch]
-        pos += config.batch
+    for step, batch in enumerate(batches, start=1):
         lr = config.lr * min(1.0, step / config.warmup) * 0.5 * (1 + math.cos(math.pi * step / config.steps))
         for g in opt.param_groups:
             g["lr"] = lr
         net.train()
-        loss, parts = loss_fn(net, batch(idx))
+        loss, parts = loss_fn(net, batch, device)
         opt.zero_grad()
         loss.backward()
         opt.step()
         log["train"].append((step, loss.item()))
         log["parts"].append(parts)
-        if step % config.eval_every == 0 or step == config.steps:
+        stop = 0 < config.max_seconds < time.perf_counter() - wall0
+        if stop:
+            log["stopped_at_step"] = step  # the time limit: the schedule did not run to its end
+        if step % config.eval_every == 0 or step == config.steps or stop:
             net.eval()
             with torch.no_grad():
-                vals = [loss_fn(net, b) for b in val_batches]
+                vals = [loss_fn(net, b, device) for b in val_batches]
             v = float(np.mean([float(a) for a, _ in vals]))
             vparts = {k: float(np.mean([p[k] for _, p in vals])) for k in vals[0][1]}
             entry = {"step": step, "loss": v, **vparts, "wall_s": time.perf_counter() - wall0,
@@ -268,7 +397,7 @@ def train(network: str, data: Shards, val: Shards, out: str | os.PathLike, confi
             if v < best:
                 best = v
                 log["best_step"] = step
-                torch.save(net.state_dict(), out / f"{name}.pt")
+                torch.save({k: t.detach().cpu() for k, t in net.state_dict().items()}, out / f"{name}.pt")
                 export_onnx(net, out / f"{name}.onnx", shape, output)
             log["wall_seconds"] = time.perf_counter() - wall0
             log["cpu_seconds"] = time.process_time() - cpu0
@@ -276,6 +405,7 @@ def train(network: str, data: Shards, val: Shards, out: str | os.PathLike, confi
                 json.dump(log, fh)
             _plot(log, out / f"{name}_training.png")
             if progress:
-                progress(f"{network} step {step}/{config.steps}: train {np.mean([t for _, t in log['train'][-config.eval_every:]]):.4f}"
+                progress(f"{log['network']} step {step}/{config.steps}: train {np.mean([t for _, t in log['train'][-config.eval_every:]]):.4f}"
                          f" validation {v:.4f} {vparts} ({entry['wall_s']:.0f} s wall, {entry['cpu_s']:.0f} s CPU)")
-    return log
+        if stop:
+            break

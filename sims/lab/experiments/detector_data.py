@@ -15,7 +15,8 @@ Two sources, both with exact truth and reproducible from their seeds:
 
 A shard (``<source>-<seed>.npz``) holds, for ``n`` frames and ``m`` circles in all:
 
-- ``images`` (n, H, W, 3) uint8 BGR, each frame resized to the network's input (default 256 x 192);
+- ``images`` (n, H, W, 3) uint8 BGR, each frame resized to the network's input (``--input-size``,
+  default the shipped network's: :func:`agents.perception.learned.model_input_size`);
 - ``scale`` (n,) float: full-resolution pixels per input pixel;
 - ``circles`` (m, 5) float32: frame index, u, v, r (silhouette circle, full-resolution pixels) and the
   visible fraction of the disc;
@@ -84,6 +85,16 @@ def _range(text: str) -> range:
     return range(a, b)
 
 
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(x) for x in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, got {text!r}") from None
+    if w < 32 or h < 32 or w * 3 != h * 4:
+        raise argparse.ArgumentTypeError(f"expected a 4:3 size of at least 32 px, e.g. 384x288, got {text!r}")
+    return w, h
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description="Render training shards for the learned circle detector.")
     ap.add_argument("outdir")
@@ -93,9 +104,16 @@ def main(argv=None) -> int:
     ap.add_argument("--hard-frames", type=int, default=10, help="frames per harder scene (default 10)")
     ap.add_argument("--table1", type=_range, default=range(0), help="table1 run seeds FIRST:STOP")
     ap.add_argument("--table1-steps", type=int, default=30, help="steps per table1 run (default 30)")
+    ap.add_argument("--input-size", type=_size, default=None, metavar="WxH",
+                    help="the frames' size in the shards: the proposal network's input (default: the shipped network's)")
     ap.add_argument("--stride", type=int, default=1, help="render every STRIDE-th seed of the ranges ...")
     ap.add_argument("--offset", type=int, default=0, help="... starting at OFFSET (parallel workers)")
     args = ap.parse_args(argv)
+    if args.input_size is None:
+        from agents.perception.learned import MODEL_DIR, model_input_size
+
+        args.input_size = model_input_size(MODEL_DIR / "circles.onnx")
+    kw = {"input_size": args.input_size}
     out = Path(args.outdir)
     out.mkdir(parents=True, exist_ok=True)
     jobs = [("varied", s) for s in args.varied] + [("hard", s) for s in args.hard] + [("table1", s) for s in args.table1]
@@ -107,11 +125,11 @@ def main(argv=None) -> int:
             continue
         try:
             if kind == "varied":
-                arrays = varied_shard(seed, args.varied_frames)
+                arrays = varied_shard(seed, args.varied_frames, **kw)
             elif kind == "hard":
-                arrays = hard_shard(seed, args.hard_frames)
+                arrays = hard_shard(seed, args.hard_frames, **kw)
             else:
-                arrays = table1_shard(seed, args.table1_steps)
+                arrays = table1_shard(seed, args.table1_steps, **kw)
         except InputError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2

@@ -70,7 +70,7 @@ def test_every_implementation_is_checked():
 
 
 #: detector name -> the images it is checked on, where they differ from detector_test's defaults: the learned
-#: detector's networks see a 256 x 192 downscale of a 4:3 frame and were trained on spheres filling at most about
+#: detector's networks see a downscale of a 4:3 frame (384 x 288) and were trained on spheres filling at most about
 #: a fifth of its height, so a 30 px disc is checked in a 640 x 480 frame; its second stage is accurate to 2.5 px
 #: on discs of another renderer (tests/agents/perception/test_perception_learned.py)
 DETECTOR_CHECK = {"learned": {"size": (640, 480), "centre_tol": 2.5}}

@@ -79,6 +79,25 @@ def test_grey_and_other_aspect_ratio_frames_are_accepted():
         assert np.isfinite([c.u, c.v, c.r]).all() and c.r > 0
 
 
+def test_input_size_is_read_from_the_onnx_file_as_onnxruntime_reads_it(tmp_path):
+    """The ONNX input shape read from the file equals onnxruntime's; the detector's input size is that shape's W, H;
+    a file that is not ONNX is an InputError naming it."""
+    ort = pytest.importorskip("onnxruntime")
+    from agents.perception.onnx_shape import onnx_input_shape
+
+    for name in ("circles.onnx", "circle_refine.onnx"):
+        want = [d if isinstance(d, int) else None for d in
+                ort.InferenceSession(str(MODEL_DIR / name), providers=["CPUExecutionProvider"]).get_inputs()[0].shape]
+        assert list(onnx_input_shape(MODEL_DIR / name)) == want
+    n, c, h, w = onnx_input_shape(MODEL_DIR / "circles.onnx")
+    assert make_detector("learned").input_size == (w, h)
+    bad = tmp_path / "bad.onnx"
+    bad.write_bytes(b"\xff\xff\xff")
+    for read in (onnx_input_shape, lambda p: LearnedCircleDetector(LearnedConfig(model=p, backend="onnxruntime"))):
+        with pytest.raises(InputError, match="bad.onnx"):
+            read(bad)
+
+
 def test_missing_model_and_unknown_backend_are_input_errors(tmp_path):
     """A missing model file or an unknown backend raises InputError naming it."""
     with pytest.raises(InputError, match="nope.onnx"):

@@ -180,14 +180,68 @@ def test_shipped_networks_load_back_into_torch_for_fine_tuning(tmp_path):
     """The shipped ONNX networks, loaded back into the torch networks, give onnxruntime's outputs (eval mode)."""
     pytest.importorskip("torch", reason="training needs PyTorch (the `train` extra)")
     pytest.importorskip("onnxruntime")
-    from agents.perception.learned import MODEL_DIR
-    from agents.perception.training.data import detector_batch, to_input
-    from agents.perception.training.model import CircleNet, RefineNet
-    from agents.perception.training.train import load_onnx_weights
+    import cv2
 
-    data = load_shards(_shards(tmp_path))
-    frames = detector_batch(data, np.arange(len(data.images)), None)[0]
-    # the tiny frames are 256 x 192 already: the network's input size
-    assert load_onnx_weights(CircleNet(), MODEL_DIR / "circles.onnx", [frames]) < 1e-4
+    from agents.perception.learned import MODEL_DIR, model_input_size
+    from agents.perception.training.data import to_input
+    from agents.perception.training.model import RefineNet
+    from agents.perception.training.train import circlenet_from_onnx, load_onnx_weights
+
+    size = model_input_size(MODEL_DIR / "circles.onnx")
+    frames = to_input(np.stack([cv2.resize(f.image, size, interpolation=cv2.INTER_AREA)
+                                for f in sequence(2000, 3, width=512, height=384)]))
+    assert load_onnx_weights(circlenet_from_onnx(MODEL_DIR / "circles.onnx"), MODEL_DIR / "circles.onnx", [frames]) < 1e-4
     windows = to_input(np.random.default_rng(0).integers(0, 255, (8, 32, 32, 3)))
     assert load_onnx_weights(RefineNet(), MODEL_DIR / "circle_refine.onnx", [windows]) < 1e-4
+
+
+def test_device_is_recorded_and_a_missing_gpu_is_one_line(tmp_path, capsys):
+    """--device cpu trains and records the device; --device cuda without a GPU exits 2 naming --device."""
+    torch = pytest.importorskip("torch", reason="training needs PyTorch (the `train` extra)")
+    from agents.perception.training.__main__ import main
+
+    _shards(tmp_path)
+    args = ["train", str(tmp_path), "--network", "detector", "--steps", "1", "--batch", "2", "--eval-every", "1",
+            "--validation", "varied-2002.npz"]
+    assert main([*args, "-o", str(tmp_path / "cpu"), "--device", "cpu"]) == 0
+    assert json.loads((tmp_path / "cpu" / "circles_training.json").read_text())["device"] == "cpu"
+    if not torch.cuda.is_available():
+        assert main([*args, "-o", str(tmp_path / "gpu"), "--device", "cuda"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "--device" in err[0]
+
+
+def test_batch_workers_change_nothing(tmp_path):
+    """Batches prepared by two worker processes give the same weights as batches prepared in the training process."""
+    torch = pytest.importorskip("torch", reason="training needs PyTorch (the `train` extra)")
+    from agents.perception.training.train import TrainConfig, train
+
+    paths = _shards(tmp_path)
+    data, val = load_shards(paths[:2]), load_shards(paths[2:])
+    weights = []
+    for workers in (0, 2):
+        cfg = TrainConfig(steps=2, batch=2, eval_every=2, seed=3, device="cpu", workers=workers)
+        train("detector", data, val, tmp_path / f"w{workers}", cfg, progress=None)
+        weights.append(torch.cat([v.flatten().float() for v in torch.load(tmp_path / f"w{workers}" / "circles.pt").values()]))
+    assert torch.allclose(weights[0], weights[1], atol=1e-5, rtol=0)
+
+
+def test_detector_takes_its_input_size_from_the_model(tmp_path):
+    """A proposal network trained on 384 x 288 frames is run at 384 x 288 (read from the ONNX file) and finds circles."""
+    pytest.importorskip("torch", reason="training needs PyTorch (the `train` extra)")
+    from agents.perception.learned import LearnedCircleDetector, LearnedConfig, model_input_size
+    from agents.perception.training.__main__ import main
+
+    for seed in (2000, 2001):
+        seq = sequence(seed, 1, width=384, height=288, radius=(10.0, 40.0))
+        frames = [(f.image, [(s.u, s.v, s.r, v) for s, v in zip(f.spheres, f.visible)]) for f in seq]
+        write_shard(tmp_path / f"varied-{seed}.npz", shard_from_frames(frames, input_size=(384, 288)))
+    out = tmp_path / "m"
+    assert main(["train", str(tmp_path), "-o", str(out), "--network", "detector", "--steps", "1", "--batch", "1",
+                 "--eval-every", "1", "--width", "16", "--channels", "8", "16", "16", "24", "32", "--device", "cpu",
+                 "--validation", "varied-2001.npz"]) == 0
+    assert model_input_size(out / "circles.onnx") == (384, 288)
+    det = LearnedCircleDetector(LearnedConfig(model=out / "circles.onnx", refine_model=None, threshold=0.01))
+    assert det.input_size == (384, 288)
+    image = sequence(2003, 1)[0].image  # 1024 x 768
+    assert all(np.isfinite([c.u, c.v, c.r]).all() for c in det.detect(image))

@@ -1,0 +1,55 @@
+#!/usr/bin/env bash
+# The shipped learned detector's training on one CUDA GPU machine (16 cores): render the shards with
+# 16 processes, then train three proposal-network variants and the second stage side by side (one
+# process each, batches prepared by forked workers); the model card says which variant shipped and how.
+#
+# usage: train_gpu.sh SCALE OUT [STEPS REFINE_STEPS]
+#   SCALE  tiny (a handful of scenes and 40 steps: checks the whole chain) or full
+#   OUT    folder for the logs, ONNX files and training JSON (shards go to $SHARDS, default /tmp/dd)
+# Training stops (after a last validation) BUDGET seconds (default 470) after the script started,
+# whatever the steps; DEVICE=cpu runs the chain without a GPU.
+# Run from the repository root (or a copy of agents/, sims/, decentral/, protocols/).
+set -u -o pipefail
+SCALE=${1:?tiny or full}; OUT=${2:?output folder}
+STEPS=${3:-4000}; RSTEPS=${4:-6000}
+SHARDS=${SHARDS:-/tmp/dd}; NPROC=${NPROC:-16}; DEVICE=${DEVICE:-cuda}; BUDGET=${BUDGET:-470}
+export PYTHONPATH=$PWD${PYTHONPATH:+:$PYTHONPATH} PYTHONUNBUFFERED=1 OMP_NUM_THREADS=1 OMP_WAIT_POLICY=PASSIVE
+mkdir -p "$OUT" "$SHARDS"
+PY=${PY:-python3}
+if [ "$SCALE" = tiny ]; then
+  RENDER="--varied 2008:2010 --varied-frames 3 --hard 5048:5050 --hard-frames 3 --table1 107:109 --table1-steps 2"
+else
+  RENDER="--varied 2000:2400 --hard 5000:5300 --table1 100:109"
+fi
+t0=$(date +%s)
+for i in $(seq 0 $((NPROC - 1))); do
+  $PY -m sims.lab.experiments.detector_data "$SHARDS" $RENDER --input-size 384x288 --stride "$NPROC" --offset "$i" \
+    > "$SHARDS/render_$i.log" 2>&1 &
+done
+wait
+t1=$(date +%s)
+echo "rendered $(ls "$SHARDS"/*.npz | wc -l) shards ($(du -sh "$SHARDS" | cut -f1)) in $((t1 - t0)) s"
+grep -h -i error "$SHARDS"/render_*.log && exit 1
+set -f
+MINUTES=$(awk "BEGIN {m = ($BUDGET - $t1 + $t0 - 60) / 60; print (m < 0.2 ? 0.2 : m)}")
+echo "training for at most $MINUTES min each"
+V="--validation varied-2??9.npz hard-5?49.npz table1-108.npz --oversample table1-*=2"
+EVERY=250
+[ "$SCALE" = tiny ] && EVERY=20 STEPS=40 RSTEPS=40
+COMMON="--device $DEVICE --eval-every $EVERY --max-minutes $MINUTES --seed 7 $V"
+train() {  # name, then options
+  local name=$1; shift
+  $PY -m agents.perception.training train "$SHARDS" -o "$OUT/$name" "$@" $COMMON > "$OUT/$name.log" 2>&1
+  echo "$name: exit $?"
+}
+train det_a --network detector --steps "$STEPS" --batch 32 --lr 2e-3 --warmup 200 --workers 4 &
+train det_b --network detector --steps "$STEPS" --batch 32 --lr 2e-3 --warmup 200 --workers 4 \
+  --width 64 --channels 24 48 96 144 192 &
+train det_c --network detector --steps "$STEPS" --batch 32 --lr 2e-3 --warmup 200 --workers 4 \
+  --width 64 --channels 16 32 64 128 192 &
+train ref --network refine --refine-steps "$RSTEPS" --batch 32 --lr 1e-3 --warmup 200 --workers 2 &
+wait
+t2=$(date +%s)
+echo "trained in $((t2 - t1)) s (render $((t1 - t0)) s)"
+set +f
+for f in "$OUT"/*.log; do echo "== $f"; grep -v Warning "$f" | tail -4; done
