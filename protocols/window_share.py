@@ -150,7 +150,7 @@ class WindowShare:
                     self.suspects = tuple(screening.suspects)
                 else:
                     self.excluded, self.kept = (), problems
-                self.joint = solve_joint(screening.kept, (reference, first), value)
+                self.joint = solve_joint(self.kept, (reference, first), value)
             except np.linalg.LinAlgError:
                 return False
         return True
