@@ -268,13 +268,16 @@ class WindowAggregation:
         return (share or self.share).bundle(self.name, receiver, indices, down=down, start=start,
                                             round_index=self.round, reference=self.index[self.reference])
 
-    def _send_up(self, indices: list[int], whole: bool = False) -> None:
-        """Records ``indices`` to the parent: as a delta (what it lacks), or ``whole`` (a resend: it could not
-        rebuild them, or the bundle was lost), as a delta that carries every form (float32, a quarter of a
-        :class:`protocols.admm_messages.FormBundle`'s bytes: a frame of fewer datagrams survives loss more often)."""
-        agg = self.share.agg
-        delta = self._delta(agg.parent, indices, every=whole)
-        self._send(delta or self._bundle(self.names[agg.parent], indices, down=False))
+    def _send_up(self, indices: list[int], whole: bool = False, share: WindowShare | None = None,
+                 parent: int | None = None) -> None:
+        """Records ``indices`` of ``share`` (default: the open window) to ``parent`` (default: its parent): as a
+        delta (what it lacks), or ``whole`` (a resend: it could not rebuild them, or the bundle was lost), as a
+        delta that carries every form (float32, a quarter of a :class:`protocols.admm_messages.FormBundle`'s
+        bytes: a frame of fewer datagrams survives loss more often)."""
+        share = share or self.share
+        parent = share.agg.parent if parent is None else parent
+        delta = self._delta(parent, indices, every=whole, share=share)
+        self._send(delta or self._bundle(self.names[parent], indices, down=False, share=share))
 
     def _delta(self, parent: int, indices: list[int], every: bool = False,
                share: WindowShare | None = None) -> DeltaBundle | None:
@@ -377,8 +380,7 @@ class WindowAggregation:
             return
         self.owed = Owed(share, parent, indices, self.round)
         self.counters["retransmits"] += 1
-        delta = self._delta(parent, indices, every=True, share=share)
-        self._send(delta or self._bundle(self.names[parent], indices, down=False, share=share))
+        self._send_up(indices, whole=True, share=share, parent=parent)
 
     def repair_down(self, heard: Callable[[str], bool]) -> None:
         """Send the down bundle again to children not ``heard`` from in this window's ADMM (it was lost).

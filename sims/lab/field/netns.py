@@ -60,14 +60,11 @@ class Field:
         alike: TCP retransmits in the kernel, as over a lossy radio. Datagrams are dropped by the link
         relays instead, from each link's seeded stream (:mod:`sims.lab.field.proxy`): reproducible.
         (A fixed every-n-th pattern is no radio: it drops one piece of every frame cut into n datagrams.)
-    seed : int
-        Kept for the caller's record (the relays draw the datagrams' loss from it).
     """
 
     n: int
     tag: str = field(default_factory=lambda: f"{os.getpid() % 100000:05d}")
     loss: float = 0.0
-    seed: int = 0
     made: list[str] = field(default_factory=list)
 
     @property

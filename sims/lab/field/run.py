@@ -100,7 +100,7 @@ def _run(log, config: LaunchConfig, fc: FieldConfig, work: Path, python: str) ->
     reference = config.reference or names[0]
     work.mkdir(parents=True, exist_ok=True)
     keys = {name: new_private_key() for name in names}
-    with Field(n, loss=fc.loss, seed=fc.seed) as net, _Children() as children:
+    with Field(n, loss=fc.loss) as net, _Children() as children:
         port = lambda a, b: _LINK_PORT + a * n + b  # noqa: E731
         links = []
         for a in range(n):
