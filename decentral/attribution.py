@@ -29,13 +29,15 @@ it is seen by one observer only, that observer's removal explains it as well, an
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Hashable, Sequence
+from typing import Hashable, Sequence
 
 import numpy as np
 
-from decentral.admm import LocalProblem, solve_joint
+from decentral.admm import JointSolution, LocalProblem
+from decentral.admm.form_sum import FormSum
 
-__all__ = ["CLASSES", "MARGIN", "MIN_COUNT", "THRESHOLD", "Attribution", "attribute", "class_excess", "data_of"]
+__all__ = ["CLASSES", "MARGIN", "MIN_COUNT", "THRESHOLD", "Attribution", "attribute", "class_excess", "data_of",
+           "optimum_residual"]
 
 #: the classes of a member's data
 CLASSES = ("detections", "odometry", "layout")
@@ -53,13 +55,13 @@ MARGIN = 6.0
 _SPREAD = 3.0
 
 
-def _residual(problems: Sequence[LocalProblem], poses: dict) -> float:
-    total = 0.0
-    for prob in problems:
-        if all(k in poses for k in prob.keys):
-            theta = np.array([np.arctan2(poses[k][0][1, 0], poses[k][0][0, 0]) for k in prob.keys])
-            total += prob.cost(theta, np.array([np.asarray(poses[k][1], float) for k in prob.keys]))
-    return float(total)
+def optimum_residual(sums: FormSum, gauge: tuple, value=None, drop: frozenset = frozenset(),
+                     warm: JointSolution | None = None) -> float:
+    """Joint residual of the forms of ``sums`` not in ``drop`` at their own optimum (forms not tied to the
+    gauge left out; 0 when every form is dropped). ``warm``: a solution to start the solve from."""
+    if len(drop) >= len(sums):
+        return 0.0
+    return sums.residual(sums.solve(gauge, value, drop, warm=warm).poses, drop)
 
 
 def data_of(problems: Sequence[LocalProblem], member: Hashable, kind: str) -> list[int]:
@@ -78,7 +80,7 @@ def data_of(problems: Sequence[LocalProblem], member: Hashable, kind: str) -> li
 
 
 def class_excess(problems: Sequence[LocalProblem], gauge: tuple, value=None, *, members=None,
-                 min_count: int = MIN_COUNT, solve: Callable = solve_joint) -> dict:
+                 min_count: int = MIN_COUNT) -> dict:
     r"""Per ``(member, class)`` with data, the excess residual per measurement :math:`e_h` of the module docstring.
 
     Parameters
@@ -93,8 +95,6 @@ def class_excess(problems: Sequence[LocalProblem], gauge: tuple, value=None, *, 
         The members to test (default: every member but the gauge's).
     min_count : int
         Odometry classes with fewer scalar measurements are not tested.
-    solve : callable
-        ``solve(problems, gauge, value)`` with a ``poses`` attribute.
 
     Returns
     -------
@@ -102,20 +102,27 @@ def class_excess(problems: Sequence[LocalProblem], gauge: tuple, value=None, *, 
         ``(member, class)`` -> ``e_h`` (float); odometry classes with fewer than ``min_count`` measurements,
         and classes whose removal leaves the rest untied, are left out.
     """
-    problems = list(problems)
-    total = _residual(problems, solve(problems, gauge, value).poses)
+    return _class_excess(FormSum(problems), gauge, value, frozenset(), members=members, min_count=min_count)
+
+
+def _class_excess(sums: FormSum, gauge: tuple, value, drop: frozenset, *, members=None,
+                  min_count: int = MIN_COUNT) -> dict:
+    """:func:`class_excess` of the forms of ``sums`` not in ``drop``."""
+    problems = sums.problems
+    whole = sums.solve(gauge, value, drop)
+    total = sums.residual(whole.poses, drop)
     if members is None:
-        members = sorted({k[0] for prob in problems for k in prob.keys} - {gauge[0]}, key=repr)
+        members = sorted({k[0] for i, prob in enumerate(problems) if i not in drop for k in prob.keys} - {gauge[0]},
+                         key=repr)
     out = {}
     for member in members:
         for kind in CLASSES:
-            idx = set(data_of(problems, member, kind))
+            idx = frozenset(data_of(problems, member, kind)) - drop
             m = sum(int(problems[i].count) for i in idx)
             if not idx or m < (max(min_count, 1) if kind == "odometry" else 1):
                 continue
-            rest = [p for i, p in enumerate(problems) if i not in idx]
-            try:
-                left = _residual(rest, solve(rest, gauge, value).poses) if rest else 0.0
+            try:  # (started from the whole window's optimum: one or two Newton steps instead of a spectral start)
+                left = optimum_residual(sums, gauge, value, drop | idx, warm=whole)
             except np.linalg.LinAlgError:  # the rest does not tie its variables: no verdict on this class
                 continue
             out[(member, kind)] = max(total - left, 0.0) / m
@@ -145,9 +152,11 @@ class Attribution:
     excess: dict
 
 
-def attribute(problems: Sequence[LocalProblem], gauge: tuple, value=None, *, threshold: float = THRESHOLD,
-              solve: Callable = solve_joint) -> Attribution:
+def attribute(problems: Sequence[LocalProblem] | FormSum, gauge: tuple, value=None, *,
+              threshold: float = THRESHOLD) -> Attribution:
     """Name the member whose data of one class the others contradict (module docstring).
+
+    ``problems``: the window's forms, or a :class:`decentral.admm.form_sum.FormSum` of them.
 
     Every class above ``threshold`` is a candidate; a candidate *explains* the window when, its forms
     removed, no class of the rest is above ``threshold``. One member among the explaining candidates:
@@ -171,19 +180,20 @@ def attribute(problems: Sequence[LocalProblem], gauge: tuple, value=None, *, thr
     >>> found.liar, "detections" in found.kinds
     ('C', True)
     """
-    problems = list(problems)
-    excess = class_excess(problems, gauge, value, solve=solve)
+    sums = problems if isinstance(problems, FormSum) else FormSum(problems)
+    problems = sums.problems
+    excess = _class_excess(sums, gauge, value, frozenset())
     candidates = sorted((h for h, e in excess.items() if e > threshold), key=lambda h: -excess[h])
     if not candidates:
         return Attribution(None, (), (), excess)
     explaining, left = [], {}
     for member, kind in candidates:
-        idx = set(data_of(problems, member, kind))
-        rest = [p for i, p in enumerate(problems) if i not in idx]
+        idx = frozenset(data_of(problems, member, kind))
         try:
-            after = class_excess(rest, gauge, value, solve=solve)
-            left[(member, kind)] = (_residual(rest, solve(rest, gauge, value).poses),
-                                    sum(int(problems[i].count) for i in idx), sum(int(p.count) for p in rest))
+            after = _class_excess(sums, gauge, value, idx)
+            left[(member, kind)] = (optimum_residual(sums, gauge, value, idx),
+                                    sum(int(problems[i].count) for i in idx),
+                                    sum(int(p.count) for i, p in enumerate(problems) if i not in idx))
         except np.linalg.LinAlgError:
             continue
         if all(e <= threshold for e in after.values()):

@@ -20,13 +20,14 @@ when the measurement counts are unknown.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable, Hashable, Sequence
+from typing import Hashable, Sequence
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import chdtrc  # the chi-square survival function (scipy.stats costs 0.5 s more to import)
 
-from decentral.admm import LocalProblem, solve_joint
-from decentral.attribution import attribute
+from decentral.admm import LocalProblem
+from decentral.admm.form_sum import FormSum
+from decentral.attribution import attribute, optimum_residual
 
 #: per-window false-alarm probability of the chi-square test (Bonferroni-divided over the members tested): at
 #: 1e-3 an honest 4-ring had a member excluded once in 160 windows (seed 28, T/d 5.5), a false exclusion every
@@ -93,19 +94,30 @@ def member_tests(problems: Sequence[LocalProblem], poses: dict, *, pose_dof: int
     dict
         Member -> ``(T, d, p_value)``; members whose forms hold no measurement are left out.
     """
+    return _member_tests(FormSum(problems), frozenset(), poses, pose_dof=pose_dof, gauges=gauges,
+                         dispersion=dispersion)
+
+
+def _member_tests(sums: FormSum, drop: frozenset, poses: dict, *, pose_dof: int = 4, gauges: int = 1,
+                  dispersion: float = DISPERSION) -> dict:
+    """:func:`member_tests` of the forms of ``sums`` not in ``drop``."""
+    costs = sums.costs(poses)
     stat: dict = {}
-    n = len({k for prob in problems for k in prob.keys if k in poses})
-    for prob in problems:
-        owner = _owner(prob)
-        t, m = stat.get(owner, (0.0, 0))
-        stat[owner] = (t + residual([prob], poses), m + int(prob.count))
+    keys: set = set()
+    for i, prob in enumerate(sums.problems):
+        if i in drop:
+            continue
+        keys.update(k for k in prob.keys if k in poses)
+        t, m = stat.get(_owner(prob), (0.0, 0))
+        stat[_owner(prob)] = (t + (0.0 if np.isnan(costs[i]) else float(costs[i])), m + int(prob.count))
+    n = len(keys)
     total = sum(m for _, m in stat.values())
     share = 1.0 - min(pose_dof * max(n - gauges, 0) / total, 0.9) if total else 1.0
     out = {}
     for owner, (t, m) in stat.items():
         if m > 0:
             d = max(m * share, 1.0)
-            out[owner] = (t, d, float(chi2.sf(t / dispersion, d / dispersion)))
+            out[owner] = (t, d, float(chdtrc(d / dispersion, max(t, 0.0) / dispersion)))  # (t < 0: rounding of a sum of squares)
     return out
 
 
@@ -146,8 +158,7 @@ class Screening:
 
 
 def screen_by_margin(problems: Sequence[LocalProblem], gauge: tuple, value=None, *, ratio: float = 10.0,
-                   floor: float = 100.0, max_excluded: int | None = None,
-                   solve: Callable = solve_joint) -> Screening:
+                   floor: float = 100.0, max_excluded: int | None = None) -> Screening:
     r"""Remove the members whose data the others' contradict (leave-one-out residual margin test).
 
     The test :func:`screen_members` falls back to when some form's measurement count is unknown
@@ -180,8 +191,6 @@ def screen_by_margin(problems: Sequence[LocalProblem], gauge: tuple, value=None,
         The test's thresholds (dimensionless; residual units).
     max_excluded : int, optional
         At most this many members are removed.
-    solve : callable
-        ``solve(problems, gauge, value)`` with a ``poses`` attribute (default :func:`solve_joint`).
 
     Returns
     -------
@@ -204,11 +213,14 @@ def screen_by_margin(problems: Sequence[LocalProblem], gauge: tuple, value=None,
     >>> screen_by_margin(forms, ("A", 0), floor=1.0).excluded
     ('C',)
     """
-    kept = list(problems)
-    members = sorted({k[0] for prob in kept for k in prob.keys} - {gauge[0]}, key=repr)
+    sums = FormSum(problems)
+    problems = sums.problems
+    members = sorted({k[0] for prob in problems for k in prob.keys} - {gauge[0]}, key=repr)
     limit = max(0, (len(members) + 1 - 1) // 2) if max_excluded is None else int(max_excluded)
     excluded: list[Hashable] = []
-    first_total = residual(kept, solve(kept, gauge, value).poses)
+    whole = sums.solve(gauge, value)
+    first_total = sums.residual(whole.poses)
+    dropped: frozenset = frozenset()
     left: dict = {}
     while len(excluded) < limit:
         candidates = [a for a in members if a not in excluded]
@@ -216,10 +228,9 @@ def screen_by_margin(problems: Sequence[LocalProblem], gauge: tuple, value=None,
             break
         left, rests = {}, {}
         for a in candidates:
-            rest = [p for p in kept if all(k[0] != a for k in p.keys)]
-            rests[a] = rest
+            rests[a] = dropped | _over(problems, a)
             try:
-                left[a] = residual(rest, solve(rest, gauge, value).poses) if rest else 0.0
+                left[a] = optimum_residual(sums, gauge, value, rests[a], warm=whole)
             except np.linalg.LinAlgError:  # the rest does not tie its variables: no verdict on this member
                 left[a] = np.inf
         order = sorted(candidates, key=lambda a: (left[a], repr(a)))
@@ -227,13 +238,22 @@ def screen_by_margin(problems: Sequence[LocalProblem], gauge: tuple, value=None,
         if not (np.isfinite(best) and second > ratio * best and second - best > floor):
             break
         excluded.append(order[0])
-        kept = rests[order[0]]
-    return Screening(tuple(excluded), kept, first_total, left)
+        dropped = rests[order[0]]
+    return Screening(tuple(excluded), _without(problems, dropped), first_total, left)
+
+
+def _over(problems: Sequence[LocalProblem], member) -> frozenset:
+    """Indices of the forms over some pose of ``member``."""
+    return frozenset(i for i, prob in enumerate(problems) if any(k[0] == member for k in prob.keys))
+
+
+def _without(problems: Sequence[LocalProblem], drop: frozenset) -> list:
+    return [prob for i, prob in enumerate(problems) if i not in drop]
 
 
 def screen_members(problems: Sequence[LocalProblem], gauge: tuple, value=None, *, alpha: float = ALPHA,
                    dispersion: float = DISPERSION, max_excluded: int | None = None,
-                   solve: Callable = solve_joint, classes: bool = True) -> Screening:
+                   classes: bool = True) -> Screening:
     r"""Remove the member whose data the others contradict: the chi-square test of :func:`member_tests`, leave-one-out.
 
     The forms are solved jointly and every member's statistic tested at level ``alpha / G``
@@ -267,8 +287,6 @@ def screen_members(problems: Sequence[LocalProblem], gauge: tuple, value=None, *
         Variance inflation of the whitened residuals (:func:`member_tests`; 1 for calibrated Gaussian noise).
     max_excluded : int, optional
         At most this many members are removed.
-    solve : callable
-        ``solve(problems, gauge, value)`` with a ``poses`` attribute (default :func:`solve_joint`).
     classes : bool
         Run the class-by-class tests (:func:`decentral.attribution.attribute`, about 3 solves per member) when
         the member-wide tests name no one. The agents skip them in broadcast windows after the cold start,
@@ -299,32 +317,34 @@ def screen_members(problems: Sequence[LocalProblem], gauge: tuple, value=None, *
     ('C',)
     """
     if any(prob.count <= 0 and np.any(prob.M) for prob in problems):
-        return screen_by_margin(problems, gauge, value, max_excluded=max_excluded, solve=solve)
-    kept = list(problems)
-    first = solve(kept, gauge, value).poses
-    first_total, first_tests = residual(kept, first), member_tests(kept, first, dispersion=dispersion)
+        return screen_by_margin(problems, gauge, value, max_excluded=max_excluded)
+    sums = FormSum(problems)
+    problems = sums.problems
+    whole = sums.solve(gauge, value)
+    first_total, first_tests = sums.residual(whole.poses), _member_tests(sums, frozenset(), whole.poses,
+                                                                        dispersion=dispersion)
     if not _within(first_tests, alpha):  # (a consistent window skips the leave-one-out margin test: N solves)
-        margin = screen_by_margin(problems, gauge, value, max_excluded=max_excluded, solve=solve)
+        margin = screen_by_margin(problems, gauge, value, max_excluded=max_excluded)
         if margin.excluded:  # a lie far above the noise: named by the residual margin
             return margin
-    members = sorted({k[0] for prob in kept for k in prob.keys} - {gauge[0]}, key=repr)
+    members = sorted({k[0] for prob in problems for k in prob.keys} - {gauge[0]}, key=repr)
     limit = max(0, len(members) // 2) if max_excluded is None else int(max_excluded)
     excluded: list[Hashable] = []
     left: dict = {}
-    tests, suspects = first_tests, ()
+    tests, suspects, dropped = first_tests, (), frozenset()
     while len(excluded) < limit and not _within(tests, alpha):
         candidates = [a for a in members if a not in excluded]
-        left, rests, solved, untied = {}, {}, {}, []
+        left, rests, tested, untied = {}, {}, {}, []
         for a in candidates:
-            rest = [prob for prob in kept if all(k[0] != a for k in prob.keys)]
+            rest = dropped | _over(problems, a)
             try:
-                rest_poses = solve(rest, gauge, value).poses if rest else {}
+                rest_poses = sums.solve(gauge, value, rest, warm=whole).poses if len(rest) < len(sums) else {}
             except np.linalg.LinAlgError:  # the rest does not tie its variables: a may be the liar or not
                 untied.append(a)
                 continue
-            rests[a], solved[a] = rest, rest_poses
-            rest_tests = member_tests(rest, rest_poses, dispersion=dispersion)
-            left[a] = min((p * max(len(rest_tests), 1) for _, _, p in rest_tests.values()), default=1.0)
+            rests[a] = rest
+            tested[a] = _member_tests(sums, rest, rest_poses, dispersion=dispersion)
+            left[a] = min((p * max(len(tested[a]), 1) for _, _, p in tested[a].values()), default=1.0)
         explaining = sorted((a for a in left if left[a] > alpha), key=repr)
         if len(explaining) != 1 or untied:
             # no single removal explains it (two liars), or several do or may (a lie that only one other member
@@ -333,15 +353,15 @@ def screen_members(problems: Sequence[LocalProblem], gauge: tuple, value=None, *
             break
         liar = explaining[0]
         excluded.append(liar)
-        kept, poses = rests[liar], solved[liar]
-        tests = member_tests(kept, poses, dispersion=dispersion)
+        dropped, tests = rests[liar], tested[liar]
+    kept = _without(problems, dropped)
     if classes and not excluded and len(members) >= 2 and limit >= 1:
         # the omnibus test is blind to a lie in one class of a member's data (a view turned, odometry scaled, a
         # layout stretched) that its other data dilute: test each class against the rest
-        found = attribute(kept, gauge, value, solve=solve)
+        found = attribute(sums, gauge, value)  # (kept: every form, nobody was excluded)
         if found.liar is not None:
             excluded, suspects = [found.liar], ()
-            kept = [prob for prob in kept if all(k[0] != found.liar for k in prob.keys)]
+            kept = _without(problems, _over(problems, found.liar))
         elif found.suspects and not suspects:
             suspects = found.suspects
     return Screening(tuple(excluded), kept, first_total, left, first_tests, suspects)

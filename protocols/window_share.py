@@ -18,8 +18,9 @@ from decentral.admm import LocalProblem, solve_joint
 from decentral.consistency import screen_members
 
 #: windows of at most this many members are screened for a member whose data the others contradict (the
-#: test solves the window once more per member; larger windows are solved as they come)
-SCREEN_MAX_MEMBERS = 8
+#: tests cost about 14 joint solves a window: 22 ms for 12 members, 46 ms for 16, one core; larger windows are
+#: solved as they come). ``benchmarks/screening.py``
+SCREEN_MAX_MEMBERS = 16
 from decentral.geometry import rot2
 from decentral.unplaced import unplaced_reasons
 from protocols.admm_messages import FormAck, FormBundle, pack_bundle

@@ -11,7 +11,7 @@ from decentral.estimator import placeable_yaws
 from decentral.geometry import rot2, yaw_of
 from decentral.relaxation import recover_positions, reduce_rotations, solve_low_rank
 
-__all__ = ["JointSolution", "solve_joint"]
+__all__ = ["JointSolution", "solve_joint", "solve_form"]
 
 
 def _joint_form(problems: list[LocalProblem], fixed_key) -> tuple[list, dict, np.ndarray, np.ndarray]:
@@ -108,14 +108,23 @@ def solve_joint(problems: list[LocalProblem], fixed_key, fixed_value: Pose2 | No
         Its ``poses``: key -> ``Pose2`` for every variable connected to ``fixed_key`` (only
         ``fixed_key`` when nothing is); and what the placement test needs.
     """
+    keys, _, M, b_z = _joint_form(problems, fixed_key)
+    return solve_form(keys, M, b_z, fixed_key, fixed_value)
+
+
+def solve_form(keys: list, M: np.ndarray, b_z: np.ndarray, fixed_key, fixed_value: Pose2 | None = None,
+               theta0: np.ndarray | None = None) -> JointSolution:
+    """:func:`solve_joint` of a form already summed: ``M`` (3n, 3n) over ``[P_xy | R]`` and ``b_z`` (n,) over
+    ``keys`` (n, the gauge variable ``fixed_key`` among them, every one tied to it); ``theta0`` (n,): yaws to
+    start the rotation solve from (:func:`decentral.relaxation.solve_low_rank`)."""
     fixed_value = fixed_value or (np.eye(2), np.zeros(3))
-    keys, index, M, b_z = _joint_form(problems, fixed_key)
+    index = {k: i for i, k in enumerate(keys)}
     if len(keys) == 1:
         return JointSolution({fixed_key: fixed_value}, index, np.zeros((0, 0)), np.zeros(1))
     n = len(keys)
     # gauge-free, as the centralized window (Liu et al. 2024 eq. (14)-(18)), then moved onto the fixed value
     Q = reduce_rotations(M, n)
-    res = solve_low_rank(Q)
+    res = solve_low_rank(Q, theta0)
     position = recover_positions(M, res.theta, b_z)
     f = index[fixed_key]
     d = float(yaw_of(fixed_value[0])) - res.theta[f]
