@@ -41,6 +41,16 @@ class LocalProblem:
     c_z: float
     count: int = 0
 
+    def __post_init__(self) -> None:
+        for array in (self.M, self.b_z):
+            if isinstance(array, np.ndarray):
+                array.setflags(write=False)  # a form is a value: nothing writes into it once made
+
+    def __deepcopy__(self, memo) -> "LocalProblem":
+        """A value (frozen, its arrays read-only) is its own copy: an agent's fork (:meth:`agents.assembly.
+        AssemblyAgent.fork`) shares its window's forms instead of copying every array."""
+        return self
+
     @property
     def n(self) -> int:
         return len(self.keys)
