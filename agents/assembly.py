@@ -167,7 +167,7 @@ class AssemblyAgent(AssemblyResults):
         cfg = self.config
         first = self._step is None and own.step == 0
         if self._step is not None and self._rounds_heard >= max(1, self._patience):
-            self._sharing.listened += 1  # it listened through that window: silence in it counts
+            self._sharing.liveness.listened_through()  # silence in that window counts
         self._rounds_heard = 0
         self._start = WindowStart()
         if cfg.share_forms == "every" or (cfg.share_forms == "first" and first):

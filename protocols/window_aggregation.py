@@ -40,16 +40,17 @@ Nothing here reads a clock: the agent sets :attr:`WindowAggregation.round` and
 from __future__ import annotations
 
 import copy
-from typing import Callable, Iterable, NamedTuple
+from typing import Callable, NamedTuple
 
 import numpy as np
 
-from decentral.admm import LocalProblem
 from protocols.admm_messages import FactorShare, FormAck, FormBundle, pack_forms
 from protocols.aggregation import DownRepair, NeighbourTree, TreeAggregation
 from protocols.delta_messages import DeltaBundle, JointPoses
-from protocols.form_cache import DeltaSender, FormCache
+from protocols.form_cache import FormCache
+from protocols.liveness import Liveness
 from protocols.messages import BROADCAST, Message
+from protocols.window_messages import WindowMessages
 from protocols.window_share import NEVER, DownState, OwnForms, WindowShare
 
 __all__ = ["WindowAggregation"]
@@ -99,6 +100,10 @@ class WindowAggregation:
         The forms this agent shared for the current window.
     tree : NeighbourTree
         The neighbours' places in the tree.
+    liveness : Liveness
+        Who was heard lately, in windows listened through (:mod:`protocols.liveness`).
+    messages : WindowMessages
+        What goes out, built from a window's state (:mod:`protocols.window_messages`).
     """
 
     def __init__(self, name: str, assemblies, reference: str, *, aggregation: str, window: int, share_timeout: int,
@@ -116,17 +121,13 @@ class WindowAggregation:
         self.late: WindowShare | None = None
         self.down: DownState | None = None
         self.own: OwnForms | None = None
-        #: windows through which the agent ran at least a round trip of rounds (counted by the agent): the clock
-        #: of :meth:`alive_members`
-        self.listened = 0
+        self.liveness = Liveness()  # the agent calls liveness.listened_through() after a window it listened in
+        self.messages = WindowMessages(name, self.names, reference)
         #: records a parent's down bundle lacked (it timed out without them), sent again until the parent
         #: acknowledges them or the next window has gone by
         self.owed: Owed | None = None
         self.depth = 1  # depth of the aggregation tree in the last down bundle
         self.forms = FormCache()  # every agent's forms seen here for the window (rebuilds deltas from below)
-        self._delta_sender = DeltaSender()  # per parent, the forms already sent up to it
-        self._edges_sent: set = set()  # the view graph in the last solution sent down (the reference)
-        self.alive: dict[int, int] = {}  # agent index -> :attr:`listened` when it (or its records) was last heard
         #: set by the agent when a trip up and down the tree takes longer than its share timeout at the measured
         #: lag: its windows are then shared by broadcast (one trip), whatever ``aggregation`` says
         self.slow_tree = False
@@ -139,22 +140,15 @@ class WindowAggregation:
     def heard(self, sender: int) -> None:
         """Agent ``sender`` was heard from (directly or through its records): alive, and waited for again by the
         open window (and by one that timed out here) if it had been given up on."""
-        self.alive[sender] = self.listened
+        self.liveness.heard(sender)
         for share in (self.share, self.late):
             if share is not None:
                 share.agg.expect(sender)
 
     def alive_members(self) -> set[int] | None:
-        """Agents heard from (directly or through their records) in the last two windows this agent listened
-        through, or since: a set of forms is complete once it holds theirs. ``None`` (every agent) before two
-        such windows. An agent silent that long (down, or never started) is no longer waited for and the
-        others' windows complete without it; silence while this agent itself was off the CPU (windows it ran
-        no round trip of) says nothing (a starved reference heard nobody for four windows and solved the next
-        one alone, 14 mm off), nor does one window's records lost to loss (its next window was 'exact'
-        without them, 25-480 mm off)."""
-        if not self.alive or self.listened < 2:
-            return None
-        return {i for i, seen in self.alive.items() if seen >= self.listened - 2}
+        """Agents heard lately (:meth:`protocols.liveness.Liveness.alive_members`): a set of forms is complete once
+        it holds theirs; ``None``: every agent."""
+        return self.liveness.alive_members()
 
     def open(self, step: int, parent: int | None, hop: int | None, wait: int) -> None:
         """Start sharing window ``step`` below ``parent`` at ``hop`` hops from the reference (children: the
@@ -168,7 +162,7 @@ class WindowAggregation:
     def slide(self, first: int) -> None:
         """Forms of steps before ``first`` left the window: they are no longer part of any record."""
         self.forms.slide(first)
-        self._delta_sender.slide(first)
+        self.messages.slide(first)
 
     def share_own(self, forms: list, pin: np.ndarray) -> None:
         """Share this agent's forms ``[(keys, M, b_z, c_z, count)]`` (keys as agent index and step) of the window,
@@ -265,8 +259,8 @@ class WindowAggregation:
 
     def _bundle(self, receiver: str, indices, down: bool, start: int = 0,
                 share: WindowShare | None = None) -> FormBundle:
-        return (share or self.share).bundle(self.name, receiver, indices, down=down, start=start,
-                                            round_index=self.round, reference=self.index[self.reference])
+        return self.messages.bundle(share or self.share, receiver, indices, down=down, round_index=self.round,
+                                    start=start)
 
     def _send_up(self, indices: list[int], whole: bool = False, share: WindowShare | None = None,
                  parent: int | None = None) -> None:
@@ -276,25 +270,8 @@ class WindowAggregation:
         bytes: a frame of fewer datagrams survives loss more often)."""
         share = share or self.share
         parent = share.agg.parent if parent is None else parent
-        delta = self._delta(parent, indices, every=whole, share=share)
+        delta = self.messages.delta(share, parent, indices, round_index=self.round, every=whole)
         self._send(delta or self._bundle(self.names[parent], indices, down=False, share=share))
-
-    def _delta(self, parent: int, indices: list[int], every: bool = False,
-               share: WindowShare | None = None) -> DeltaBundle | None:
-        """Records ``indices`` for ``parent`` as a delta (:class:`protocols.form_cache.DeltaSender`): the forms
-        not yet sent to it (``every``: all of them), and each record's digest (``None``: the records go whole)."""
-        share = share or self.share
-        agg = share.agg
-        packed = self._delta_sender.delta(parent, {i: agg.records[i] for i in indices}, share.step, every=every)
-        if packed is None:
-            return None
-        carried, digests = packed
-        pin = share.pin if share.pin is not None and self.index[self.reference] in indices else np.zeros(0)
-        return DeltaBundle(sender=self.name, receiver=self.names[parent], round=self.round, step=share.step,
-                           hop=agg.hop, parent=parent, depth=agg.depth,
-                           members=np.array(sorted(indices), dtype=np.int16), pin=pin,
-                           digest=np.array(digests, dtype=np.int64).reshape(-1, 2),
-                           **DeltaBundle.pack(share.step, carried))
 
     def _send_down(self, exclude=(), start: int | None = None) -> None:
         """The final set of this window to the children (the root: when complete or on timeout)."""
@@ -326,21 +303,11 @@ class WindowAggregation:
         return down.to(self.name, receiver, self.round, solution, self.index[self.reference])
 
     def _solution_message(self, share: WindowShare, joint) -> JointPoses:
-        """The reference's joint solution of the window as it goes down, with the view graph when it changed
-        since the last solution sent."""
-        edges = share.edges()
-        previous, self._edges_sent = self._edges_sent, edges
         placeable = {self.index[a] for a, k in self.placeable(share, joint) if k == share.step}
-        return share.solution_message(self.name, joint, self.index, placeable, edges if edges != previous else None,
-                                      self.round, len(self.names))
+        return self.messages.solution(share, joint, placeable, self.round)
 
     def _factor_share(self, receiver: str) -> FactorShare:
-        own = self.own
-        have = [self.me]
-        if self.share is not None and self.share.step == own.step:
-            have = sorted(self.share.records)
-        return FactorShare(sender=self.name, receiver=receiver, round=self.round, step=own.step,
-                           have=np.array(have, dtype=np.int64), keys=own.keys, forms=own.forms, pin=own.pin)
+        return self.messages.factors(self.own, self.share, receiver, self.round)
 
     def ask(self, neighbour: str, step: int) -> None:
         """A neighbour sends ADMM values of window ``step``, so it has finished the sharing: ask it for the set
@@ -421,7 +388,7 @@ class WindowAggregation:
         if share is not None and message.step == share.step:
             agg = share.agg
             if sender not in share.records:
-                forms = self._problems(message.unpack())
+                forms = self.messages.problems(message.unpack())
                 self.forms.remember(sender, forms)
                 # a record that came by broadcast to an agent of the tree goes up with its own: the agents decide
                 # on the broadcast each from its own measured lag, and a tree's root waits for every record
@@ -438,11 +405,6 @@ class WindowAggregation:
                 and message.sender != self.name and self.me not in set(message.have.tolist())):
             self._send(self._factor_share(message.sender))
 
-    def _problems(self, forms: Iterable) -> list:
-        """Unpacked forms ``(keys, M, b_z, c_z, count)`` as ``[(keys, LocalProblem)]``."""
-        return [(keys, LocalProblem(tuple((self.names[a], s) for a, s in keys), M, b_z, c_z, count))
-                for keys, M, b_z, c_z, count in forms]
-
     def on_delta(self, message: DeltaBundle) -> bool:
         """A delta bundle from a child: rebuild each member's record of the window from the forms carried and
         those held here (:class:`protocols.form_cache.FormCache`); a member that cannot be rebuilt exactly is
@@ -454,7 +416,7 @@ class WindowAggregation:
             return False
         carried = {}
         for owner, keys, M, b_z, c_z, count in message.carried():
-            forms = self._problems([(keys, M, b_z, c_z, count)])
+            forms = self.messages.problems([(keys, M, b_z, c_z, count)])
             self.forms.remember(owner, forms)
             carried.setdefault(owner, []).extend(forms)
         first = message.step - self.window + 1
@@ -481,7 +443,7 @@ class WindowAggregation:
         for member in message.members.tolist():
             self.heard(int(member))
         if rebuilt is None:
-            records = {i: self._problems(forms) for i, forms in message.records().items()}
+            records = {i: self.messages.problems(forms) for i, forms in message.records().items()}
             for i, forms in records.items():
                 self.forms.remember(i, forms)
         else:

@@ -98,8 +98,8 @@ def test_an_unacknowledged_bundle_up_is_resent_whole():
     parent, _ = _role("A0")
     _open(parent, parent=None, hop=0, own=0)
     stale = _form(1, 0)
-    parent.forms.remember(1, parent._problems([(((1, 0), (0, 0)), 2 * stale[1], stale[2], stale[3], stale[4])]))
-    parent.forms.remember(1, parent._problems([(((1, -1), (1, 0)), stale[1], stale[2], stale[3], stale[4])]))
+    parent.forms.remember(1, parent.messages.problems([(((1, 0), (0, 0)), 2 * stale[1], stale[2], stale[3], stale[4])]))
+    parent.forms.remember(1, parent.messages.problems([(((1, -1), (1, 0)), stale[1], stale[2], stale[3], stale[4])]))
     parent.on_delta(resent)
     assert parent.share.agg.complete is False and 1 in parent.share.agg.records
     np.testing.assert_array_equal(parent.share.agg.records[1][0][1].M, _form(1, 0)[1].astype(np.float32))
@@ -255,9 +255,9 @@ def test_agents_not_heard_from_for_two_windows_are_not_waited_for():
     role, _ = _role("A1")
     assert role.alive_members() is None
     role.heard(2)
-    role.listened = 1
+    role.liveness.listened = 1
     role.heard(0), role.heard(1)
-    role.listened = 3
+    role.liveness.listened = 3
     assert role.alive_members() == {0, 1}
     role.heard(2)
     assert role.alive_members() == {0, 1, 2}
@@ -267,7 +267,7 @@ def test_an_agent_given_up_on_and_heard_again_is_waited_for():
     """A window opened without A2 (not heard for two windows) waits for A2's record once A2 is heard again."""
     role, _ = _role("A0")
     role.heard(2)
-    role.listened = 3
+    role.liveness.listened = 3
     role.heard(1)
     role.open(4, None, 0, wait=6)
     role.step = 4
