@@ -49,6 +49,7 @@ __all__ = [
     "PUBKEY_FORMAT",
     "Peer",
     "check_address",
+    "check_local_keys",
     "check_name",
     "load_peers",
     "peers_json",
@@ -130,6 +131,17 @@ def address_identity(address: str) -> frozenset:
             ip = ip[len("::ffff:"):]  # an IPv4-mapped address is that IPv4 address
         out.add((ipaddress.ip_address(ip.split("%")[0]).compressed, port))
     return frozenset(out)
+
+
+def check_local_keys(peers: Mapping[str, Peer], keys: Mapping[str, SigningKey]) -> None:
+    """Every local agent's private key belongs to an agent of the peers file, and matches its public key there
+    (``InputError`` naming the agent otherwise)."""
+    for name, key in keys.items():
+        if name not in peers:
+            raise InputError(f"agent {name!r} is not in the peers file", field="peers")
+        if public_key_bytes(key) != peers[name].public_key:
+            raise InputError(f"the key of {name!r} does not match its public key in the peers file",
+                             field=f"peers.{name}.public_key")
 
 
 def check_name(name: object) -> str:

@@ -12,6 +12,7 @@ meets in a :class:`protocols.network.SimulatedNetwork` of the same seed.
 
 from __future__ import annotations
 
+import heapq
 import math
 from dataclasses import dataclass
 from typing import Mapping
@@ -21,8 +22,9 @@ import numpy as np
 from decentral.errors import InputError
 from protocols.link_config import LinkConfig, link_root, link_stream
 from protocols.message_base import Message
+from protocols.transport import Delivery, Ledger
 
-__all__ = ["Held", "ReceiveFaults", "check_faults"]
+__all__ = ["Held", "HeldCopies", "ReceiveFaults", "check_faults"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -93,3 +95,53 @@ class ReceiveFaults:
         if gen is None:
             gen = self._rngs[(a, b)] = link_stream(self._root, a, b)
         return gen
+
+
+class HeldCopies:
+    """Admitted frames after their link's faults: per local receiver, the copies held until their arrival time.
+
+    The receive half that the socket transports share: a frame that passed every check meets its link's
+    fate (:meth:`ReceiveFaults.arrivals`: lost, delayed, duplicated; counted in the ``ledger``), and its
+    copies leave in arrival order (ties: admission order) once due.
+
+    Parameters
+    ----------
+    faults : ReceiveFaults
+        The inbound links' faults.
+    ledger : Ledger
+        The transport's books (``loss`` drops, ``duplicated``, ``in_flight``, ``delivered``).
+    """
+
+    def __init__(self, faults: ReceiveFaults, ledger: Ledger):
+        self._faults, self._ledger = faults, ledger
+        self._held: dict[str, list[tuple[float, int, Held]]] = {}
+        self._order = 0
+
+    def add(self, message: Message, receiver: str, sent_at: float, size: int, now: float) -> None:
+        """An admitted frame from ``message.sender`` at ``receiver`` (``size`` bytes), read at ``now``."""
+        a, kind = message.sender, message.KIND
+        arrivals = self._faults.arrivals(a, receiver, now)
+        if not arrivals:
+            self._ledger.drop(self._ledger.keys(a, receiver, kind), size, "loss", ("in_flight", -1))
+            return
+        held = self._held.setdefault(receiver, [])
+        for arrival, duplicate in arrivals:
+            if duplicate:
+                self._ledger.count(a, receiver, kind, ("duplicated", 1), ("in_flight", 1))
+            self._order += 1  # ties in arrival time leave in admission order
+            heapq.heappush(held, (arrival, self._order, Held(arrival, message, sent_at, size, duplicate)))
+
+    def due(self, receiver: str, now: float) -> list[Delivery]:
+        """The copies for ``receiver`` whose arrival time has come by ``now``, in arrival order."""
+        held, out = self._held.get(receiver, []), []
+        while held and held[0][0] <= now:
+            h = heapq.heappop(held)[2]
+            self._ledger.count(h.message.sender, receiver, h.message.KIND, ("in_flight", -1), ("delivered", 1),
+                               ("bytes_delivered", h.size))
+            out.append(Delivery(h.message, receiver, h.sent_at, h.arrival, h.size, h.duplicate))
+        return out
+
+    def next_release(self, receiver: str) -> float | None:
+        """Arrival time of the earliest copy held back for ``receiver`` (None if none)."""
+        held = self._held.get(receiver)
+        return held[0][0] if held else None

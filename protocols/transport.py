@@ -24,7 +24,7 @@ from __future__ import annotations
 import abc
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Mapping
+from typing import Callable, Iterable, Mapping
 
 from decentral.errors import ProtocolError
 from protocols.messages import CorruptFrame, Message
@@ -296,3 +296,19 @@ def merge_stats(parts: "list[TransportStats] | tuple[TransportStats, ...]") -> T
             for reason, n in src.items():
                 book[reason] = book.get(reason, 0) + n
     return _stats_from_rows(rows, reasons, rejected)
+
+
+def send_to_each(ledger: Ledger, peers: Iterable[str], message: Message, size: int,
+                 send_one: Callable[[str], str | None]) -> None:
+    """Send one sealed frame of ``message`` (``size`` bytes) to its receiver, or to every other peer of
+    ``peers`` for a broadcast, with ``send_one(receiver)`` (``None``: sent; else the reason it was dropped,
+    e.g. ``"queue_full"``), and count each copy in ``ledger``: the send half the socket transports share."""
+    a, kind = message.sender, message.KIND
+    receivers = [b for b in peers if b != a] if message.is_broadcast else [message.receiver]
+    for b in receivers:
+        keys = ledger.keys(a, b, kind)
+        reason = send_one(b)
+        if reason is None:
+            ledger.bump(keys, ("sent", 1), ("bytes_sent", size), ("in_flight", 1))
+        else:
+            ledger.drop(keys, size, reason, ("sent", 1), ("bytes_sent", size))

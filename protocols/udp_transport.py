@@ -20,7 +20,6 @@ timeouts, newest-value-wins). Here a lost datagram is just a lost frame; the fra
 
 from __future__ import annotations
 
-import heapq
 import os
 import select
 import socket
@@ -32,13 +31,13 @@ from nacl.signing import SigningKey
 
 from decentral.errors import InputError, ProtocolError
 from protocols.admission import SuspectBudget, admit
-from protocols.auth import Gate, Rejected, Signer, public_key_bytes
+from protocols.auth import Gate, Rejected, Signer
 from protocols.datagrams import Reassembler, split_frame
 from protocols.link_config import LinkConfig
 from protocols.messages import Message
-from protocols.peers import Peer, check_address
-from protocols.receive_faults import Held, ReceiveFaults
-from protocols.transport import Delivery, Ledger, Transport, TransportStats
+from protocols.peers import Peer, check_address, check_local_keys
+from protocols.receive_faults import HeldCopies, ReceiveFaults
+from protocols.transport import Delivery, Ledger, Transport, TransportStats, send_to_each
 
 __all__ = ["UdpTransport", "udp_endpoint"]
 
@@ -105,29 +104,23 @@ class UdpTransport(Transport):
                  max_age: float | None = None, suspect_rate: float = 200.0):
         if not keys:
             raise InputError("needs at least one local agent", field="keys")
-        self._faults = ReceiveFaults(faults, {}, rng)
         self._peers = dict(peers)
+        check_local_keys(self._peers, keys)
         self._mtu, self._max_frame, self._max_batch = int(mtu), int(max_frame_bytes), int(max_batch)
         self._ledger = Ledger()
+        self._held = HeldCopies(ReceiveFaults(faults, {}, rng), self._ledger)
         self._max_age = max_age
         self._budget = SuspectBudget(rate=suspect_rate)
-        self._order = 0
         self._frame_id = int.from_bytes(os.urandom(4), "big")  # a restarted sender does not reuse a live id
         self._closed = False
         self._dest: dict[str, tuple] = {}
         self._socks: dict[str, socket.socket] = {}
         self._signers: dict[str, Signer] = {}
         self._gates: dict[str, Gate] = {}
-        self._held: dict[str, list] = {}
         self._parts: dict[str, Reassembler] = {}
         public = {name: p.public_key for name, p in self._peers.items()}
         try:
             for name, key in keys.items():
-                if name not in self._peers:
-                    raise InputError(f"agent {name!r} is not in the peers file", field="peers")
-                if public_key_bytes(key) != self._peers[name].public_key:
-                    raise InputError(f"the key of {name!r} does not match its public key in the peers file",
-                                     field=f"peers.{name}.public_key")
                 address = (bind or {}).get(name, self._peers[name].address)
                 host, port = udp_endpoint(address)
                 info = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0]
@@ -149,7 +142,6 @@ class UdpTransport(Transport):
                 self._signers[name] = Signer(name, key)
                 self._gates[name] = Gate(name, public, window, max_age=max_age)
                 self._gates[name].own_epoch(self._signers[name].epoch)
-                self._held[name] = []
                 self._parts[name] = Reassembler(max_frame_bytes=self._max_frame, timeout=reassembly)
             for name in self._peers:
                 self._resolve(name)
@@ -175,26 +167,22 @@ class UdpTransport(Transport):
         if sock is None:
             raise ProtocolError(f"sender {message.sender!r} is not a local agent of this transport")
         self._check_open()
-        a = message.sender
-        frame = self._signers[a].seal(message, float(now))
-        kind, size = message.KIND, len(frame)
-        receivers = [b for b in self._peers if b != a] if message.is_broadcast else [message.receiver]
-        pieces = split_frame(frame, self._mtu, self._frame_id) if size <= self._max_frame else None
+        frame = self._signers[message.sender].seal(message, float(now))
+        pieces = split_frame(frame, self._mtu, self._frame_id) if len(frame) <= self._max_frame else None
         self._frame_id = (self._frame_id + 1) & 0xFFFFFFFF
-        for b in receivers:
-            keys = self._ledger.keys(a, b, kind)
+
+        def send_one(b: str) -> str | None:
             dest = self._dest.get(b)
             if pieces is None or dest is None:
-                reason = "too_large" if pieces is None else ("unknown_receiver" if b not in self._peers else "no_address")
-                self._ledger.drop(keys, size, reason, ("sent", 1), ("bytes_sent", size))
-                continue
+                return "too_large" if pieces is None else ("unknown_receiver" if b not in self._peers else "no_address")
             try:
                 for piece in pieces:
                     sock.sendto(piece, dest)
             except (BlockingIOError, OSError):  # full socket buffer, or no route: the frame is lost here
-                self._ledger.drop(keys, size, "queue_full", ("sent", 1), ("bytes_sent", size))
-                continue
-            self._ledger.bump(keys, ("sent", 1), ("bytes_sent", size), ("in_flight", 1))
+                return "queue_full"
+            return None
+
+        send_to_each(self._ledger, self._peers, message, len(frame), send_one)
 
     def poll(self, agent: str, now: float) -> list[Delivery]:
         """Read what has arrived for ``agent`` (never blocks), admit whole frames, return the copies due by ``now``."""
@@ -220,13 +208,7 @@ class UdpTransport(Transport):
         lost = parts.expire(now)
         if lost:
             self._ledger.add_reason("incomplete", lost)
-        held, out = self._held[agent], []
-        while held and held[0][0] <= now:
-            h = heapq.heappop(held)[2]
-            self._ledger.count(h.message.sender, agent, h.message.KIND, ("in_flight", -1), ("delivered", 1),
-                               ("bytes_delivered", h.size))
-            out.append(Delivery(h.message, agent, h.sent_at, h.arrival, h.size, h.duplicate))
-        return out
+        return self._held.due(agent, now)
 
     def stats(self) -> TransportStats:
         return self._ledger.snapshot()
@@ -243,8 +225,7 @@ class UdpTransport(Transport):
 
     def next_release(self, agent: str) -> float | None:
         """Arrival time of the earliest copy held back by injected delay for ``agent`` (None if none)."""
-        held = self._held[agent]
-        return held[0][0] if held else None
+        return self._held.next_release(agent)
 
     def connect(self, addresses: Mapping[str, str]) -> None:
         """Point the peers named in ``addresses`` at new addresses."""
@@ -298,16 +279,4 @@ class UdpTransport(Transport):
         except Rejected as err:
             self._ledger.reject(err.reason)
             return
-        a, kind, size = env.sender, message.KIND, len(frame)
-        arrivals = self._faults.arrivals(a, b, now)  # the simulated network's six draws per copy, in its order
-        if not arrivals:
-            self._ledger.drop(self._ledger.keys(a, b, kind), size, "loss", ("in_flight", -1))
-            return
-        for arrival, duplicate in arrivals:
-            if duplicate:
-                self._ledger.count(a, b, kind, ("duplicated", 1), ("in_flight", 1))
-            self._hold(b, Held(arrival, message, env.sent_at, size, duplicate))
-
-    def _hold(self, b: str, item: Held) -> None:
-        self._order += 1
-        heapq.heappush(self._held[b], (item.arrival, self._order, item))
+        self._held.add(message, b, env.sent_at, len(frame), now)  # the link's faults, then held until due

@@ -56,7 +56,6 @@ Several agents can share one transport (one process hosting several agents, e.g.
 
 from __future__ import annotations
 
-import heapq
 import math
 import time
 from typing import Mapping
@@ -70,9 +69,9 @@ from protocols.admission import SuspectBudget, admit
 from protocols.auth import Gate, Opened, Rejected, Signer, new_private_key, public_key_bytes
 from protocols.messages import Message
 from protocols.link_config import LinkConfig
-from protocols.peers import Peer, check_address
-from protocols.receive_faults import Held, ReceiveFaults
-from protocols.transport import Delivery, Ledger, Transport, TransportStats
+from protocols.peers import Peer, check_address, check_local_keys
+from protocols.receive_faults import HeldCopies, ReceiveFaults
+from protocols.transport import Delivery, Ledger, Transport, TransportStats, send_to_each
 from protocols.zmq_drops import DropWatch
 
 __all__ = ["ZmqTransport", "open_loopback"]
@@ -89,7 +88,7 @@ _MAX_UNREAD = 100_000
 
 
 class _Endpoint:
-    """One local agent: its bound inbound socket, its signer, its gate, and copies held back by delay."""
+    """One local agent: its bound inbound socket, its signer, its gate, and the frames admitted since its last poll."""
 
     def __init__(self, name: str, socket: zmq.Socket, signer: Signer, gate: Gate):
         self.name = name
@@ -97,7 +96,6 @@ class _Endpoint:
         self.drops = DropWatch(socket)  # connections libzmq dropped on a frame over MAXMSGSIZE
         self.signer = signer
         self.gate = gate
-        self.held: list[tuple[float, int, Held]] = []
         self.admitted: list[tuple[Opened, Message, int]] = []  # checked, waiting for a poll to apply faults
         self.address = socket.getsockopt_string(zmq.LAST_ENDPOINT)
 
@@ -164,22 +162,17 @@ class ZmqTransport(Transport):
         if not keys:
             raise InputError("needs at least one local agent", field="keys")
         self._peers = dict(peers)
-        for name, key in keys.items():
-            if name not in self._peers:
-                raise InputError(f"agent {name!r} is not in the peers file", field="peers")
-            if public_key_bytes(key) != self._peers[name].public_key:
-                raise InputError(f"the key of {name!r} does not match its public key in the peers file",
-                                 field=f"peers.{name}.public_key")
+        check_local_keys(self._peers, keys)
         stray = set(bind or {}) - set(keys)
         if stray:
             raise InputError(f"bind names agents that are not local: {sorted(stray)}", field="bind")
-        self._faults = ReceiveFaults(faults, links or {}, rng)
+        faults = ReceiveFaults(faults, links or {}, rng)
         self._hwm, self._max_batch = int(hwm), int(max_batch)
         self._poll_budget = float(poll_budget)
         self._budget = SuspectBudget(rate=suspect_rate)
         self._admitted = 0
         self._ledger = Ledger()
-        self._order = 0
+        self._held = HeldCopies(faults, self._ledger)
         self._closed = False
         self._context = zmq.Context()
         self._sockets: list[zmq.Socket] = []  # every socket made, so close() closes even a half-built one
@@ -235,22 +228,18 @@ class ZmqTransport(Transport):
             raise ProtocolError(f"sender {message.sender!r} is not a local agent of this transport")
         self._check_open()
         frame = ep.signer.seal(message, float(now))
-        a, kind, size = ep.name, message.KIND, len(frame)
-        receivers = [b for b in self._peers if b != a] if message.is_broadcast else [message.receiver]
-        ledger = self._ledger
-        for b in receivers:
-            keys = ledger.keys(a, b, kind)
+
+        def send_one(b: str) -> str | None:
             socket = self._out.get(b)
             if socket is None:
-                reason = "unknown_receiver" if b not in self._peers else "no_address"
-                ledger.drop(keys, size, reason, ("sent", 1), ("bytes_sent", size))
-                continue
+                return "unknown_receiver" if b not in self._peers else "no_address"
             try:
                 socket.send(frame, zmq.NOBLOCK)
             except zmq.Again:
-                ledger.drop(keys, size, "queue_full", ("sent", 1), ("bytes_sent", size))
-                continue
-            ledger.bump(keys, ("sent", 1), ("bytes_sent", size), ("in_flight", 1))
+                return "queue_full"
+            return None
+
+        send_to_each(self._ledger, self._peers, message, len(frame), send_one)
 
     def poll(self, agent: str, now: float) -> list[Delivery]:
         """Read what has arrived for ``agent`` (never blocks), admit it, and return the copies due by ``now``."""
@@ -259,16 +248,10 @@ class ZmqTransport(Transport):
             raise ProtocolError(f"agent {agent!r} is not a local agent of this transport")
         self._check_open()
         self._read(ep, time.perf_counter() + self._poll_budget, float(now), self._max_batch)
-        for env, message, size in ep.admitted:
-            self._deliver(ep, env, message, size, float(now))
+        for env, message, size in ep.admitted:  # the link's faults, then held until due
+            self._held.add(message, ep.name, env.sent_at, size, float(now))
         ep.admitted.clear()
-        out = []
-        while ep.held and ep.held[0][0] <= now:
-            h = heapq.heappop(ep.held)[2]
-            self._ledger.count(h.message.sender, agent, h.message.KIND, ("in_flight", -1), ("delivered", 1),
-                               ("bytes_delivered", h.size))
-            out.append(Delivery(h.message, agent, h.sent_at, h.arrival, h.size, h.duplicate))
-        return out
+        return self._held.due(agent, now)
 
     def stats(self) -> TransportStats:
         self._count_oversize()
@@ -302,8 +285,7 @@ class ZmqTransport(Transport):
 
     def next_release(self, agent: str) -> float | None:
         """Arrival time of the earliest copy held back by injected delay for ``agent`` (None if none)."""
-        held = self._local[agent].held
-        return held[0][0] if held else None
+        return self._held.next_release(agent)
 
     def connect(self, addresses: Mapping[str, str]) -> None:
         """Point the peers named in ``addresses`` at new addresses (frames already queued are discarded)."""
@@ -421,22 +403,6 @@ class ZmqTransport(Transport):
         n = sum(ep.drops.take() for ep in self._local.values())
         if n:
             self._ledger.reject("oversize", n)
-
-    def _deliver(self, ep: _Endpoint, env: Opened, message: Message, size: int, now: float) -> None:
-        """Apply the link's faults to an admitted frame and hold its copies until their arrival time."""
-        a, b, kind = env.sender, ep.name, message.KIND
-        arrivals = self._faults.arrivals(a, b, now)
-        if not arrivals:
-            self._ledger.drop(self._ledger.keys(a, b, kind), size, "loss", ("in_flight", -1))
-            return
-        for arrival, duplicate in arrivals:
-            if duplicate:
-                self._ledger.count(a, b, kind, ("duplicated", 1), ("in_flight", 1))
-            self._hold(ep, Held(arrival, message, env.sent_at, size, duplicate))
-
-    def _hold(self, ep: _Endpoint, item: Held) -> None:
-        self._order += 1  # ties in arrival time leave in admission order
-        heapq.heappush(ep.held, (item.arrival, self._order, item))
 
 
 def open_loopback(
