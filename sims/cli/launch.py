@@ -63,7 +63,9 @@ def run(args: argparse.Namespace) -> int:
     for agent, line in stats.get("agent_errors", {}).items():
         feedback.warn(f"agent process {agent} failed: {line}")
     if result.timed_out:
-        feedback.warn(f"timed out after {args.timeout} s; wrote the steps gathered")
+        why = (f"timed out after {args.timeout:g} s" if args.timeout is not None else
+               "agents still running 30 s after the last step was due (kept off the CPU?)")
+        feedback.warn(f"{why}; wrote the steps gathered, stats.status {stats['status']}")
         return 1
     placed = sum(1 for step in result.estimate.steps if step.poses)
     feedback.summary(f"{len(result.estimate.steps)} steps ({placed} placing someone), {stats['processes']} processes, "

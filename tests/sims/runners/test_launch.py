@@ -257,3 +257,25 @@ def test_a_live_attack_of_a_hundred_thousand_frames_is_refused_and_changes_nothi
     """The same with 100,000 frames (about 5,000 a second over ~25 s of a 60-step run at 50 ms rounds: the
     signature checks take CPU the agents' rounds need on the loaded 2-core machine)."""
     _launch_under_attack(tmp_path, 100_000, 60, pace=dict(rate=0.2, round_period=0.05))
+
+
+@pytest.mark.parametrize("timeout, says", [(None, "30 s after the last step"), ("5", "timed out after 5 s")])
+def test_a_run_cut_short_says_why_and_exits_1(tmp_path, monkeypatch, capsys, timeout, says):
+    """A launch whose agents were cut short (its --timeout, or still running 30 s after the last step) names the cause
+    and the status on stderr, writes what was gathered and exits 1 (not 'after None s')."""
+    import sims.runners.launch as runner
+    from decentral.observations import Estimate, EstimateStep
+    from sims.runners.launch import LaunchResult
+
+    sim = _sim(2, 2)
+    write_log(tmp_path / "log.json", sim.log)
+    steps = tuple(EstimateStep(s.t, {}, {"A1": "no_consensus"}) for s in sim.log.steps)
+    stats = {"status": "timeout", "missing": [], "processes": 2, "messages": {"total": 0}, "bytes": {"total": 0},
+             "rejected": {}}
+    monkeypatch.setattr(runner, "launch", lambda log, config, workdir=None: LaunchResult(
+        Estimate("A0", steps, stats), {}, timed_out=True))
+    args = ["launch", str(tmp_path / "log.json"), "-o", str(tmp_path / "est.json")]
+    assert main(args + (["--timeout", timeout] if timeout else [])) == 1
+    err = capsys.readouterr().err
+    assert says in err and "status timeout" in err and "None" not in err, err
+    assert (tmp_path / "est.json").exists()
