@@ -16,6 +16,7 @@ import numpy as np
 from agents.perception.apriltag3 import make_identifier
 from agents.perception.detectors import make_detector
 from agents.perception.motion import FlowRegistration
+from agents.perception.read_owner import unambiguous_reads
 from agents.perception.tracking import CircleTracker
 from agents.perception.types import Circle, CircleDetector, Identifier, TrackedCircle, Tracker
 
@@ -44,7 +45,9 @@ class Perception:
         (:class:`~agents.perception.rim.RimCircleDetector`).
     identifier : Identifier, optional
         Default :func:`~agents.perception.apriltag3.make_identifier` (tag36h11): the AprilTag 3
-        library inside each circle, OpenCV's reader where it reads nothing.
+        library inside each circle, OpenCV's reader where it reads nothing. Its reads pass
+        :func:`~agents.perception.read_owner.unambiguous_reads`: a read that a nearer or overlapping
+        circle could own is dropped.
     tracker : Tracker or None
         Default :class:`~agents.perception.tracking.CircleTracker`; ``track=False`` disables it
         (then a detection's node id is its tag read's, and its track is None).
@@ -87,7 +90,7 @@ class Perception:
         circles = self.detector.detect(image)
         t1 = time.process_time()
         if self.tracker is None:
-            reads = self.identifier.identify(image, circles)
+            reads = unambiguous_reads(circles, self.identifier.identify(image, circles))
             t2 = time.process_time()
             out = [TrackedCircle(c, r, r.node if r is not None else None, None) for c, r in zip(circles, reads)]
             return out, {"detect": t1 - t0, "identify": t2 - t1}
@@ -99,7 +102,8 @@ class Perception:
         skip = settled(circles, motion=motion) if settled is not None else np.zeros(len(circles), dtype=bool)
         todo = [c for c, s in zip(circles, skip) if not s]
         got = iter(self.identifier.identify(image, todo) if todo else [])
-        reads = [None if s else next(got) for s in skip]
+        # a read that another circle of the frame could own is dropped (agents.perception.read_owner)
+        reads = unambiguous_reads(circles, [None if s else next(got) for s in skip])
         t3 = time.process_time()
         out = self.tracker.update(circles, reads, motion=motion)
         t4 = time.process_time()
