@@ -13,8 +13,8 @@ the current id adds a vote but flips the id only once it strictly outnumbers it,
 least ``confident_votes`` reads for its id is never matched to a detection reading another tag. A
 track carries its id through tag drop-outs while it is followed; once it has been lost (no
 detection) for more than ``reverify_after`` frames and is found again, or is matched to a detection
-that barely overlaps its prediction, it shows its id only after a
-fresh read agrees, and while lost it waits where it was last seen. Two tracks never show the same node id in one frame: the one
+that barely overlaps its prediction while another detection or track competes for either, it
+shows its id only after a fresh read agrees, and while lost it waits where it was last seen. Two tracks never show the same node id in one frame: the one
 with more votes for it keeps it.
 
 References
@@ -71,7 +71,11 @@ class TrackerConfig:
         only after a fresh tag read agrees.
     verify_iou : float
         The same holds for a track whose detection overlaps its predicted circle by less than this
-        IoU (plain circles): it may have jumped to a neighbouring node of the same size.
+        IoU (plain circles) while the pairing is contested: another detection lies within the
+        track's association gate, or another track's gate holds the detection (buffered IoU >=
+        ``match_iou``). Then it may have jumped to a neighbouring node of the same size; an
+        uncontested low overlap is the node itself moving faster than predicted (a jerk, or a
+        small fast node before its velocity is known) and keeps the id.
     settle_votes, settle_iou, reread_every : int, float, int
         :meth:`CircleTracker.settled`: a detection needs no tag read in this frame when exactly one
         active, verified track with at least ``settle_votes`` reads for its id overlaps it by at
@@ -257,6 +261,8 @@ class CircleTracker:
             t.mean, t.cov = done[i] if reuse else self._predict(t, motion)
         dets = np.array([[c.u, c.v, c.r] for c in circles], dtype=float).reshape(-1, 3)
         scores = np.array([c.score for c in circles], dtype=float)
+        gate = self._gate(dets)  # (tracks, dets): pairs within the association gate, before matching
+        row = {id(t): i for i, t in enumerate(self.tracks)}
         nodes = [r.node if r is not None else None for r in reads]
         owner: dict[int, Track] = {}  # detection index -> track
 
@@ -283,7 +289,8 @@ class CircleTracker:
         for j, t in owner.items():
             # overlap of the plain (not enlarged) circles: a track that only reached its detection
             # through the buffer may have jumped to a neighbouring node
-            close = float(circle_iou(t.circle[None], dets[j][None])[0, 0]) >= cfg.verify_iou
+            close = float(circle_iou(t.circle[None], dets[j][None])[0, 0]) >= cfg.verify_iou \
+                or not self._contested(gate, row[id(t)], j)
             t.mean, t.cov = self.kf.update(t.mean, t.cov, dets[j])
             t.hits += 1
             if t.lost > cfg.reverify_after or not close:
@@ -320,6 +327,21 @@ class CircleTracker:
             owner[j] = t
         self._retire_duplicates(owner)
         return self._outputs(circles, reads, owner)
+
+    def _gate(self, dets: np.ndarray) -> np.ndarray:
+        """Which (track, detection) pairs lie within the association gate (buffered IoU >= ``match_iou``), (T, N) bool."""
+        cfg = self.config
+        if not self.tracks or len(dets) == 0:
+            return np.zeros((len(self.tracks), len(dets)), dtype=bool)
+        grow = np.array([1.0, 1.0, 1.0 + cfg.buffer])
+        tc = np.array([t.circle for t in self.tracks])
+        return circle_iou(tc * grow + [0, 0, 2.0], dets * grow + [0, 0, 2.0]) >= cfg.match_iou
+
+    @staticmethod
+    def _contested(gate: np.ndarray, i: int, j: int) -> bool:
+        """Whether track ``i``'s pairing with detection ``j`` had a rival: another detection in the
+        track's gate or another track whose gate holds the detection."""
+        return bool(np.delete(gate[i], j).any() or np.delete(gate[:, j], i).any())
 
     def _inside_known(self, det: np.ndarray, owner: dict[int, Track], j: int) -> bool:
         """Whether an unmatched detection sits inside a node already known (it must not start a track).
