@@ -101,7 +101,14 @@ class Perception:
         settled = getattr(self.tracker, "settled", None)
         skip = settled(circles, motion=motion) if settled is not None else np.zeros(len(circles), dtype=bool)
         todo = [c for c, s in zip(circles, skip) if not s]
-        got = iter(self.identifier.identify(image, todo) if todo else [])
+        # a reader with a slower fallback (AprilTag3Identifier) spares it the circles whose tracked id
+        # no read can change (the tracker's carried(); a read there could only add a vote)
+        carried = getattr(self.tracker, "carried", None)
+        if todo and carried is not None and getattr(self.identifier, "fallback", None) is not None:
+            sure = carried(circles, motion=motion)
+            got = iter(self.identifier.identify(image, todo, fallback=[not x for x, s in zip(sure, skip) if not s]))
+        else:
+            got = iter(self.identifier.identify(image, todo) if todo else [])
         # a read that another circle of the frame could own is dropped (agents.perception.read_owner)
         reads = unambiguous_reads(circles, [None if s else next(got) for s in skip])
         t3 = time.process_time()

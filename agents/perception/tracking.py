@@ -178,7 +178,36 @@ class CircleTracker:
                             and t.votes.get(sure, 0) >= cfg.settle_votes and self.frame + 1 - t.read_frame < cfg.reread_every)
         if not any(eligible):  # the usual case without confident ids: no prediction needed
             return out
-        self._predicted = (self.frame, motion, [self._predict(t, motion) for t in self.tracks])
+        out = self._sole_owner(circles, eligible, motion)
+        self._unread = set(np.flatnonzero(out).tolist())
+        return out
+
+    def carried(self, circles: Sequence[Circle], *, motion: np.ndarray | None = None) -> np.ndarray:
+        """Which of the coming frame's circles carry an id no tag read can change, shape (N,) bool.
+
+        As :meth:`settled`, with a confident id (``confident_votes`` reads) in place of
+        ``settle_votes`` and without the re-reading schedule: exactly one active, confirmed,
+        verified track whose id is confident overlaps the circle by IoU >= ``settle_iou``, and
+        neither touches another. A read there can only add a vote to that id (a contradicting one is
+        refused), so :class:`~agents.perception.pipeline.Perception` spends no second, slower reader
+        on such a circle when the first reads nothing. Changes no track (the predictions are kept
+        for :meth:`update`).
+        """
+        if len(circles) == 0 or not self.tracks:
+            return np.zeros(len(circles), dtype=bool)
+        eligible = [t.confirmed and t.verified and t.lost == 0 and self._confident_node(t) is not None
+                    for t in self.tracks]
+        return self._sole_owner(circles, eligible, motion) if any(eligible) else np.zeros(len(circles), dtype=bool)
+
+    def _sole_owner(self, circles: Sequence[Circle], eligible: list[bool], motion: np.ndarray | None) -> np.ndarray:
+        """Circles (N,) bool overlapped by IoU >= ``settle_iou`` by exactly one track, an eligible one,
+        that touches no other circle (IoU >= ``match_iou``), radii within ``radius_ratio``; the
+        tracks predicted to the coming frame and moved by ``motion`` (kept for :meth:`update`)."""
+        cfg = self.config
+        out = np.zeros(len(circles), dtype=bool)
+        if self._predicted is None or self._predicted[0] != self.frame or self._predicted[1] is not motion \
+                or len(self._predicted[2]) != len(self.tracks):
+            self._predicted = (self.frame, motion, [self._predict(t, motion) for t in self.tracks])
         preds = [mean[:3] for mean, _ in self._predicted[2]]
         dets = np.array([[c.u, c.v, c.r] for c in circles], dtype=float)
         iou = circle_iou(np.array(preds), dets)  # (tracks, circles)
@@ -190,7 +219,6 @@ class CircleTracker:
             ratio = min(preds[i][2], dets[j, 2]) / max(preds[i][2], dets[j, 2])
             if iou[i, j] >= cfg.settle_iou and touch[:, j].sum() == 1 and ratio >= cfg.radius_ratio:
                 out[j] = True
-        self._unread = set(np.flatnonzero(out).tolist())
         return out
 
     def _predict(self, t: Track, motion: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:

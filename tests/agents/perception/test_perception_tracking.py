@@ -248,3 +248,16 @@ def test_pipeline_reads_fewer_circles_with_the_same_ids():
     assert runs[3][0] < runs[1][0] * 0.75
     assert runs[3][1] == runs[1][1]
     assert runs[3][1][-1] == [12, 77]
+
+
+def test_carried_marks_only_lone_confident_tracks():
+    """carried() is True for a circle on a lone track with a confident id, False beside a rival or before confidence."""
+    tr = CircleTracker()
+    for k in range(2):
+        tr.update([_c(200, 200, 20), _c(400, 200, 20)], [_read(7), None])
+    assert not tr.carried([_c(200, 200, 20)]).any()  # 2 reads: not confident yet
+    tr.update([_c(200, 200, 20), _c(400, 200, 20)], [_read(7), None])
+    assert tr.carried([_c(200, 200, 20), _c(400, 200, 20)]).tolist() == [True, False]
+    assert tr.carried([_c(200, 200, 20), _c(215, 200, 20)]).tolist() == [False, False]  # a rival touches it
+    tr.update([_c(200, 200, 20), _c(400, 200, 20)], [None, None])  # carried() changed nothing
+    assert [t.votes for t in tr.tracks] == [{7: 3}, {}]
