@@ -171,6 +171,10 @@ class LearnedCircleDetector:
     stride = 4
     #: a circle whose correction falls below this (radii) is not passed again
     settled = 0.01
+    #: it finds nearly every node (held-out recall 0.93-1.0 per scene), so a tracked node's match
+    #: that no other detection competes for is that node, not an undetected neighbour
+    #: (:attr:`~agents.perception.tracking.TrackerConfig.trust_uncontested`)
+    finds_neighbours = True
 
     def __init__(self, config: LearnedConfig | None = None):
         self.config = cfg = config or LearnedConfig()

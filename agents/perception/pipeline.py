@@ -17,7 +17,7 @@ from agents.perception.apriltag3 import make_identifier
 from agents.perception.detectors import make_detector
 from agents.perception.motion import FlowRegistration
 from agents.perception.read_owner import unambiguous_reads
-from agents.perception.tracking import CircleTracker
+from agents.perception.tracking import CircleTracker, TrackerConfig
 from agents.perception.types import Circle, CircleDetector, Identifier, TrackedCircle, Tracker
 
 __all__ = ["FrameResult", "Perception", "perceive_frames"]
@@ -49,7 +49,8 @@ class Perception:
         :func:`~agents.perception.read_owner.unambiguous_reads`: a read that a nearer or overlapping
         circle could own is dropped.
     tracker : Tracker or None
-        Default :class:`~agents.perception.tracking.CircleTracker`; ``track=False`` disables it
+        Default :class:`~agents.perception.tracking.CircleTracker` (``trust_uncontested`` when the
+        detector's ``finds_neighbours`` is True); ``track=False`` disables it
         (then a detection's node id is its tag read's, and its track is None).
     motion : callable or None
         ``motion(image, circles) -> H (3, 3) or None``, the camera motion since the previous frame
@@ -67,7 +68,9 @@ class Perception:
     ):
         self.detector = make_detector(detector) if isinstance(detector, str) else detector or make_detector()
         self.identifier = identifier or make_identifier()
-        self.tracker = (tracker or CircleTracker()) if track else None
+        # a detector that finds nearly every node lets the tracker keep ids through uncontested jumps
+        trust = bool(getattr(self.detector, "finds_neighbours", False))
+        self.tracker = (tracker or CircleTracker(TrackerConfig(trust_uncontested=trust))) if track else None
         if motion == "flow":
             motion = FlowRegistration() if track else None
         self.motion = motion

@@ -13,8 +13,8 @@ the current id adds a vote but flips the id only once it strictly outnumbers it,
 least ``confident_votes`` reads for its id is never matched to a detection reading another tag. A
 track carries its id through tag drop-outs while it is followed; once it has been lost (no
 detection) for more than ``reverify_after`` frames and is found again, or is matched to a detection
-that barely overlaps its prediction while another detection or track competes for either, it
-shows its id only after a fresh read agrees, and while lost it waits where it was last seen. Two tracks never show the same node id in one frame: the one
+that barely overlaps its prediction (with ``trust_uncontested``: only while another detection or
+track competes for either), it shows its id only after a fresh read agrees, and while lost it waits where it was last seen. Two tracks never show the same node id in one frame: the one
 with more votes for it keeps it.
 
 References
@@ -71,11 +71,16 @@ class TrackerConfig:
         only after a fresh tag read agrees.
     verify_iou : float
         The same holds for a track whose detection overlaps its predicted circle by less than this
-        IoU (plain circles) while the pairing is contested: another detection lies within the
-        track's association gate, or another track's gate holds the detection (buffered IoU >=
-        ``match_iou``). Then it may have jumped to a neighbouring node of the same size; an
-        uncontested low overlap is the node itself moving faster than predicted (a jerk, or a
-        small fast node before its velocity is known) and keeps the id.
+        IoU (plain circles): it may have jumped to a neighbouring node of the same size.
+    trust_uncontested : bool
+        With a detector that finds nearly every node, a low-overlap match that nothing contests
+        (no other detection within the track's association gate, no other track whose gate holds
+        the detection; buffered IoU >= ``match_iou``) is the node itself moving faster than
+        predicted (a jerk, or a small fast node before its velocity is known), not a jump to a
+        neighbour, and keeps the id. Off by default: with a detector that misses neighbours (the
+        default's held-out recall is 0.55) such jumps are to undetected neighbours.
+        :class:`~agents.perception.pipeline.Perception` turns it on for a detector whose
+        ``finds_neighbours`` is True.
     settle_votes, settle_iou, reread_every : int, float, int
         :meth:`CircleTracker.settled`: a detection needs no tag read in this frame when exactly one
         active, verified track with at least ``settle_votes`` reads for its id overlaps it by at
@@ -99,6 +104,7 @@ class TrackerConfig:
     confident_votes: int = 3
     reverify_after: int = 3
     verify_iou: float = 0.4
+    trust_uncontested: bool = False
     settle_votes: int = 4
     settle_iou: float = 0.6
     reread_every: int = 3
@@ -318,7 +324,7 @@ class CircleTracker:
             # overlap of the plain (not enlarged) circles: a track that only reached its detection
             # through the buffer may have jumped to a neighbouring node
             close = float(circle_iou(t.circle[None], dets[j][None])[0, 0]) >= cfg.verify_iou \
-                or not self._contested(gate, row[id(t)], j)
+                or (cfg.trust_uncontested and not self._contested(gate, row[id(t)], j))
             t.mean, t.cov = self.kf.update(t.mean, t.cov, dets[j])
             t.hits += 1
             if t.lost > cfg.reverify_after or not close:

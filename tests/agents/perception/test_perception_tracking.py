@@ -157,8 +157,20 @@ def test_unconfirmed_track_shows_no_number():
 
 
 def test_track_jumping_to_a_neighbour_needs_a_fresh_read():
-    """A track that reaches a barely overlapping detection another track also reaches (a neighbouring node) hides its id until a read agrees."""
+    """A track that reaches a barely overlapping detection (a neighbouring node) hides its id until a read agrees."""
     tr = CircleTracker()
+    for _ in range(4):
+        out = tr.update([_c(200, 200, 20)], [_read(7)])
+    assert out[0].node == 7
+    out = tr.update([_c(226, 200, 20)], [None])  # within the enlarged radii, IoU of the plain circles < 0.4
+    assert out[0].track == 1 and out[0].node is None
+    out = tr.update([_c(226, 200, 20)], [_read(7)])
+    assert out[0].node == 7
+
+
+def test_contested_jump_needs_a_fresh_read_even_when_trusting_uncontested_ones():
+    """With trust_uncontested, a low-overlap match that another track also reaches still hides the id until a read agrees."""
+    tr = CircleTracker(TrackerConfig(trust_uncontested=True))
     for _ in range(4):  # node 7, and a neighbour below it whose tag is never read
         out = tr.update([_c(200, 200, 20), _c(226, 236, 20)], [_read(7), None])
     assert out[0].node == 7
@@ -170,12 +182,18 @@ def test_track_jumping_to_a_neighbour_needs_a_fresh_read():
 
 
 def test_uncontested_fast_move_keeps_the_id():
-    """A lone node that suddenly moves further than predicted (IoU < 0.4, no rival detection or track) keeps its id."""
-    tr = CircleTracker()
+    """With trust_uncontested, a lone node that suddenly moves further than predicted (IoU < 0.4, no rival) keeps its id."""
+    tr = CircleTracker(TrackerConfig(trust_uncontested=True))
     for _ in range(4):
         out = tr.update([_c(200, 200, 20)], [_read(7)])
     out = tr.update([_c(226, 200, 20)], [None])  # the same jump as a neighbour's, but nothing competes
     assert out[0].track == 1 and out[0].node == 7
+
+
+def test_perception_trusts_uncontested_jumps_only_with_a_detector_that_finds_neighbours():
+    """Perception's default tracker keeps ids through uncontested jumps for the learned detector, not the default one."""
+    assert Perception("learned").tracker.config.trust_uncontested
+    assert not Perception().tracker.config.trust_uncontested
 
 
 def _feed(tracker, circles, node_of):
