@@ -146,14 +146,22 @@ class AprilTag3Identifier:
                                float(t.decision_margin), 1.0 - t.hamming / 36.0)
         return best
 
-    def identify(self, image: np.ndarray, circles: Sequence[Circle]) -> list[TagRead | None]:
-        """One accepted read per circle, or None."""
+    def identify(self, image: np.ndarray, circles: Sequence[Circle],
+                 fallback: Sequence[bool] | None = None) -> list[TagRead | None]:
+        """One accepted read per circle, or None.
+
+        ``fallback`` (bool per circle, optional): which circles the library reads nothing in may go
+        to the fallback reader (default all; :class:`~agents.perception.pipeline.Perception` spares
+        it the circles whose tracked id no read can change).
+        """
         img = np.asarray(image)
         if img.ndim not in (2, 3):
             raise ValueError(f"expected a (H, W), (H, W, 3) or (H, W, 4) image, got shape {img.shape}")
+        if fallback is not None and len(fallback) != len(circles):
+            raise ValueError("fallback must hold one flag per circle")
         out = [self._read(img, c) for c in circles]
         if self.fallback is not None:
-            missing = [i for i, r in enumerate(out) if r is None]
+            missing = [i for i, r in enumerate(out) if r is None and (fallback is None or fallback[i])]
             if missing:
                 for i, r in zip(missing, self.fallback.identify(img, [circles[i] for i in missing])):
                     out[i] = r

@@ -16,7 +16,8 @@ import numpy as np
 from agents.perception.apriltag3 import make_identifier
 from agents.perception.detectors import make_detector
 from agents.perception.motion import FlowRegistration
-from agents.perception.tracking import CircleTracker
+from agents.perception.read_owner import unambiguous_reads
+from agents.perception.tracking import CircleTracker, TrackerConfig
 from agents.perception.types import Circle, CircleDetector, Identifier, TrackedCircle, Tracker
 
 __all__ = ["FrameResult", "Perception", "perceive_frames"]
@@ -44,9 +45,12 @@ class Perception:
         (:class:`~agents.perception.rim.RimCircleDetector`).
     identifier : Identifier, optional
         Default :func:`~agents.perception.apriltag3.make_identifier` (tag36h11): the AprilTag 3
-        library inside each circle, OpenCV's reader where it reads nothing.
+        library inside each circle, OpenCV's reader where it reads nothing. Its reads pass
+        :func:`~agents.perception.read_owner.unambiguous_reads`: a read that a nearer or overlapping
+        circle could own is dropped.
     tracker : Tracker or None
-        Default :class:`~agents.perception.tracking.CircleTracker`; ``track=False`` disables it
+        Default :class:`~agents.perception.tracking.CircleTracker` (``trust_uncontested`` when the
+        detector's ``finds_neighbours`` is True); ``track=False`` disables it
         (then a detection's node id is its tag read's, and its track is None).
     motion : callable or None
         ``motion(image, circles) -> H (3, 3) or None``, the camera motion since the previous frame
@@ -64,7 +68,9 @@ class Perception:
     ):
         self.detector = make_detector(detector) if isinstance(detector, str) else detector or make_detector()
         self.identifier = identifier or make_identifier()
-        self.tracker = (tracker or CircleTracker()) if track else None
+        # a detector that finds nearly every node lets the tracker keep ids through uncontested jumps
+        trust = bool(getattr(self.detector, "finds_neighbours", False))
+        self.tracker = (tracker or CircleTracker(TrackerConfig(trust_uncontested=trust))) if track else None
         if motion == "flow":
             motion = FlowRegistration() if track else None
         self.motion = motion
@@ -87,7 +93,7 @@ class Perception:
         circles = self.detector.detect(image)
         t1 = time.process_time()
         if self.tracker is None:
-            reads = self.identifier.identify(image, circles)
+            reads = unambiguous_reads(circles, self.identifier.identify(image, circles))
             t2 = time.process_time()
             out = [TrackedCircle(c, r, r.node if r is not None else None, None) for c, r in zip(circles, reads)]
             return out, {"detect": t1 - t0, "identify": t2 - t1}
@@ -98,8 +104,16 @@ class Perception:
         settled = getattr(self.tracker, "settled", None)
         skip = settled(circles, motion=motion) if settled is not None else np.zeros(len(circles), dtype=bool)
         todo = [c for c, s in zip(circles, skip) if not s]
-        got = iter(self.identifier.identify(image, todo) if todo else [])
-        reads = [None if s else next(got) for s in skip]
+        # a reader with a slower fallback (AprilTag3Identifier) spares it the circles whose tracked id
+        # no read can change (the tracker's carried(); a read there could only add a vote)
+        carried = getattr(self.tracker, "carried", None)
+        if todo and carried is not None and getattr(self.identifier, "fallback", None) is not None:
+            sure = carried(circles, motion=motion)
+            got = iter(self.identifier.identify(image, todo, fallback=[not x for x, s in zip(sure, skip) if not s]))
+        else:
+            got = iter(self.identifier.identify(image, todo) if todo else [])
+        # a read that another circle of the frame could own is dropped (agents.perception.read_owner)
+        reads = unambiguous_reads(circles, [None if s else next(got) for s in skip])
         t3 = time.process_time()
         out = self.tracker.update(circles, reads, motion=motion)
         t4 = time.process_time()

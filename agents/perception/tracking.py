@@ -13,8 +13,8 @@ the current id adds a vote but flips the id only once it strictly outnumbers it,
 least ``confident_votes`` reads for its id is never matched to a detection reading another tag. A
 track carries its id through tag drop-outs while it is followed; once it has been lost (no
 detection) for more than ``reverify_after`` frames and is found again, or is matched to a detection
-that barely overlaps its prediction, it shows its id only after a
-fresh read agrees, and while lost it waits where it was last seen. Two tracks never show the same node id in one frame: the one
+that barely overlaps its prediction (with ``trust_uncontested``: only while another detection or
+track competes for either), it shows its id only after a fresh read agrees, and while lost it waits where it was last seen. Two tracks never show the same node id in one frame: the one
 with more votes for it keeps it.
 
 References
@@ -72,6 +72,15 @@ class TrackerConfig:
     verify_iou : float
         The same holds for a track whose detection overlaps its predicted circle by less than this
         IoU (plain circles): it may have jumped to a neighbouring node of the same size.
+    trust_uncontested : bool
+        With a detector that finds nearly every node, a low-overlap match that nothing contests
+        (no other detection within the track's association gate, no other track whose gate holds
+        the detection; buffered IoU >= ``match_iou``) is the node itself moving faster than
+        predicted (a jerk, or a small fast node before its velocity is known), not a jump to a
+        neighbour, and keeps the id. Off by default: with a detector that misses neighbours (the
+        default's held-out recall is 0.55) such jumps are to undetected neighbours.
+        :class:`~agents.perception.pipeline.Perception` turns it on for a detector whose
+        ``finds_neighbours`` is True.
     settle_votes, settle_iou, reread_every : int, float, int
         :meth:`CircleTracker.settled`: a detection needs no tag read in this frame when exactly one
         active, verified track with at least ``settle_votes`` reads for its id overlaps it by at
@@ -95,6 +104,7 @@ class TrackerConfig:
     confident_votes: int = 3
     reverify_after: int = 3
     verify_iou: float = 0.4
+    trust_uncontested: bool = False
     settle_votes: int = 4
     settle_iou: float = 0.6
     reread_every: int = 3
@@ -174,7 +184,36 @@ class CircleTracker:
                             and t.votes.get(sure, 0) >= cfg.settle_votes and self.frame + 1 - t.read_frame < cfg.reread_every)
         if not any(eligible):  # the usual case without confident ids: no prediction needed
             return out
-        self._predicted = (self.frame, motion, [self._predict(t, motion) for t in self.tracks])
+        out = self._sole_owner(circles, eligible, motion)
+        self._unread = set(np.flatnonzero(out).tolist())
+        return out
+
+    def carried(self, circles: Sequence[Circle], *, motion: np.ndarray | None = None) -> np.ndarray:
+        """Which of the coming frame's circles carry an id no tag read can change, shape (N,) bool.
+
+        As :meth:`settled`, with a confident id (``confident_votes`` reads) in place of
+        ``settle_votes`` and without the re-reading schedule: exactly one active, confirmed,
+        verified track whose id is confident overlaps the circle by IoU >= ``settle_iou``, and
+        neither touches another. A read there can only add a vote to that id (a contradicting one is
+        refused), so :class:`~agents.perception.pipeline.Perception` spends no second, slower reader
+        on such a circle when the first reads nothing. Changes no track (the predictions are kept
+        for :meth:`update`).
+        """
+        if len(circles) == 0 or not self.tracks:
+            return np.zeros(len(circles), dtype=bool)
+        eligible = [t.confirmed and t.verified and t.lost == 0 and self._confident_node(t) is not None
+                    for t in self.tracks]
+        return self._sole_owner(circles, eligible, motion) if any(eligible) else np.zeros(len(circles), dtype=bool)
+
+    def _sole_owner(self, circles: Sequence[Circle], eligible: list[bool], motion: np.ndarray | None) -> np.ndarray:
+        """Circles (N,) bool overlapped by IoU >= ``settle_iou`` by exactly one track, an eligible one,
+        that touches no other circle (IoU >= ``match_iou``), radii within ``radius_ratio``; the
+        tracks predicted to the coming frame and moved by ``motion`` (kept for :meth:`update`)."""
+        cfg = self.config
+        out = np.zeros(len(circles), dtype=bool)
+        if self._predicted is None or self._predicted[0] != self.frame or self._predicted[1] is not motion \
+                or len(self._predicted[2]) != len(self.tracks):
+            self._predicted = (self.frame, motion, [self._predict(t, motion) for t in self.tracks])
         preds = [mean[:3] for mean, _ in self._predicted[2]]
         dets = np.array([[c.u, c.v, c.r] for c in circles], dtype=float)
         iou = circle_iou(np.array(preds), dets)  # (tracks, circles)
@@ -186,7 +225,6 @@ class CircleTracker:
             ratio = min(preds[i][2], dets[j, 2]) / max(preds[i][2], dets[j, 2])
             if iou[i, j] >= cfg.settle_iou and touch[:, j].sum() == 1 and ratio >= cfg.radius_ratio:
                 out[j] = True
-        self._unread = set(np.flatnonzero(out).tolist())
         return out
 
     def _predict(self, t: Track, motion: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
@@ -257,6 +295,8 @@ class CircleTracker:
             t.mean, t.cov = done[i] if reuse else self._predict(t, motion)
         dets = np.array([[c.u, c.v, c.r] for c in circles], dtype=float).reshape(-1, 3)
         scores = np.array([c.score for c in circles], dtype=float)
+        gate = self._gate(dets)  # (tracks, dets): pairs within the association gate, before matching
+        row = {id(t): i for i, t in enumerate(self.tracks)}
         nodes = [r.node if r is not None else None for r in reads]
         owner: dict[int, Track] = {}  # detection index -> track
 
@@ -283,7 +323,8 @@ class CircleTracker:
         for j, t in owner.items():
             # overlap of the plain (not enlarged) circles: a track that only reached its detection
             # through the buffer may have jumped to a neighbouring node
-            close = float(circle_iou(t.circle[None], dets[j][None])[0, 0]) >= cfg.verify_iou
+            close = float(circle_iou(t.circle[None], dets[j][None])[0, 0]) >= cfg.verify_iou \
+                or (cfg.trust_uncontested and not self._contested(gate, row[id(t)], j))
             t.mean, t.cov = self.kf.update(t.mean, t.cov, dets[j])
             t.hits += 1
             if t.lost > cfg.reverify_after or not close:
@@ -320,6 +361,21 @@ class CircleTracker:
             owner[j] = t
         self._retire_duplicates(owner)
         return self._outputs(circles, reads, owner)
+
+    def _gate(self, dets: np.ndarray) -> np.ndarray:
+        """Which (track, detection) pairs lie within the association gate (buffered IoU >= ``match_iou``), (T, N) bool."""
+        cfg = self.config
+        if not self.tracks or len(dets) == 0:
+            return np.zeros((len(self.tracks), len(dets)), dtype=bool)
+        grow = np.array([1.0, 1.0, 1.0 + cfg.buffer])
+        tc = np.array([t.circle for t in self.tracks])
+        return circle_iou(tc * grow + [0, 0, 2.0], dets * grow + [0, 0, 2.0]) >= cfg.match_iou
+
+    @staticmethod
+    def _contested(gate: np.ndarray, i: int, j: int) -> bool:
+        """Whether track ``i``'s pairing with detection ``j`` had a rival: another detection in the
+        track's gate or another track whose gate holds the detection."""
+        return bool(np.delete(gate[i], j).any() or np.delete(gate[:, j], i).any())
 
     def _inside_known(self, det: np.ndarray, owner: dict[int, Track], j: int) -> bool:
         """Whether an unmatched detection sits inside a node already known (it must not start a track).

@@ -87,3 +87,41 @@ def test_many_readers_created_and_freed_do_not_crash():
         ident.identify(img, _circles(nodes))
         ident.close()
         del ident
+
+
+class _CountingReader:
+    """A fallback reader that records the circles it is asked about and reads nothing."""
+
+    def __init__(self):
+        self.asked = []
+
+    def identify(self, image, circles):
+        self.asked.extend(circles)
+        return [None] * len(circles)
+
+
+def test_fallback_mask_spares_the_fallback_reader():
+    """identify(..., fallback=mask) hands only the flagged unread circles to the fallback reader."""
+    nodes = [SceneNode(120, 120, 30, tag=None), SceneNode(320, 240, 30, tag=None)]
+    spare = _CountingReader()
+    ident = AprilTag3Identifier(fallback=spare)
+    reads = ident.identify(frame(nodes), _circles(nodes), fallback=[False, True])
+    assert reads == [None, None]
+    assert [(c.u, c.v) for c in spare.asked] == [(320, 240)]
+    with pytest.raises(ValueError):
+        ident.identify(frame(nodes), _circles(nodes), fallback=[True])
+
+
+def test_perception_skips_the_fallback_only_for_confidently_carried_circles():
+    """Once a node's id is confident, frames whose tag the library cannot read skip the fallback; a new node's do not."""
+    spare = _CountingReader()
+    p = Perception(identifier=AprilTag3Identifier(fallback=spare))
+    for k in range(5):  # the tag is read in 5 frames: the track's id is confident
+        dets, _ = p.process(frame([SceneNode(200 + 2 * k, 200, 40, tag=11, tag_size=0.75)], seed=k))
+        assert [d.node for d in dets] == [11]
+    spare.asked.clear()
+    for k in range(5, 8):  # tag gone: carried, the fallback is not asked; a second, unknown node is
+        nodes = [SceneNode(200 + 2 * k, 200, 40, tag=None), SceneNode(450, 300, 40, tag=None)]
+        dets, _ = p.process(frame(nodes, seed=k))
+        assert dets[0].node == 11 if dets[0].circle.u < 300 else dets[1].node == 11
+    assert spare.asked and all(c.u > 300 for c in spare.asked)

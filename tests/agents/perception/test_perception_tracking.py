@@ -168,6 +168,34 @@ def test_track_jumping_to_a_neighbour_needs_a_fresh_read():
     assert out[0].node == 7
 
 
+def test_contested_jump_needs_a_fresh_read_even_when_trusting_uncontested_ones():
+    """With trust_uncontested, a low-overlap match that another track also reaches still hides the id until a read agrees."""
+    tr = CircleTracker(TrackerConfig(trust_uncontested=True))
+    for _ in range(4):  # node 7, and a neighbour below it whose tag is never read
+        out = tr.update([_c(200, 200, 20), _c(226, 236, 20)], [_read(7), None])
+    assert out[0].node == 7
+    # node 7 is missed; the only detection lies between its track and the neighbour's: both gates hold it
+    out = tr.update([_c(226, 204, 20)], [None])  # within the enlarged radii, IoU of the plain circles < 0.4
+    assert out[0].track == 1 and out[0].node is None
+    out = tr.update([_c(226, 204, 20)], [_read(7)])
+    assert out[0].node == 7
+
+
+def test_uncontested_fast_move_keeps_the_id():
+    """With trust_uncontested, a lone node that suddenly moves further than predicted (IoU < 0.4, no rival) keeps its id."""
+    tr = CircleTracker(TrackerConfig(trust_uncontested=True))
+    for _ in range(4):
+        out = tr.update([_c(200, 200, 20)], [_read(7)])
+    out = tr.update([_c(226, 200, 20)], [None])  # the same jump as a neighbour's, but nothing competes
+    assert out[0].track == 1 and out[0].node == 7
+
+
+def test_perception_trusts_uncontested_jumps_only_with_a_detector_that_finds_neighbours():
+    """Perception's default tracker keeps ids through uncontested jumps for the learned detector, not the default one."""
+    assert Perception("learned").tracker.config.trust_uncontested
+    assert not Perception().tracker.config.trust_uncontested
+
+
 def _feed(tracker, circles, node_of):
     """One frame as the pipeline runs it: settled circles are not read, the others read ``node_of(j)``."""
     skip = tracker.settled(circles)
@@ -238,3 +266,16 @@ def test_pipeline_reads_fewer_circles_with_the_same_ids():
     assert runs[3][0] < runs[1][0] * 0.75
     assert runs[3][1] == runs[1][1]
     assert runs[3][1][-1] == [12, 77]
+
+
+def test_carried_marks_only_lone_confident_tracks():
+    """carried() is True for a circle on a lone track with a confident id, False beside a rival or before confidence."""
+    tr = CircleTracker()
+    for k in range(2):
+        tr.update([_c(200, 200, 20), _c(400, 200, 20)], [_read(7), None])
+    assert not tr.carried([_c(200, 200, 20)]).any()  # 2 reads: not confident yet
+    tr.update([_c(200, 200, 20), _c(400, 200, 20)], [_read(7), None])
+    assert tr.carried([_c(200, 200, 20), _c(400, 200, 20)]).tolist() == [True, False]
+    assert tr.carried([_c(200, 200, 20), _c(215, 200, 20)]).tolist() == [False, False]  # a rival touches it
+    tr.update([_c(200, 200, 20), _c(400, 200, 20)], [None, None])  # carried() changed nothing
+    assert [t.votes for t in tr.tracks] == [{7: 3}, {}]

@@ -1,0 +1,77 @@
+"""Which circle a tag read belongs to: a read is kept only where no other circle can own it.
+
+An identifier reads the tag inside each circle's square region, and a tag near the rim of two
+overlapping circles can be read in both regions: on frames where one sphere passes in front of
+another, such reads named the wrong sphere. :func:`unambiguous_reads` keeps a read on circle ``i``
+only when the geometry leaves no doubt that it is printed on ``i``'s node:
+
+1. **Its four corners lie inside circle i** (within ``corner_slack`` radii, for the circle's and
+   the corners' own errors): a print lies on its sphere, whose image is the disc.
+2. **Its centre lies inside no other circle that could hide i**: nodes share one physical size,
+   so the larger of two overlapping circles is the nearer sphere and hides the other where they
+   overlap; a print whose centre lies in both discs is the nearer one's. A read is dropped from
+   circle i when its centre lies inside a circle j whose radius is at least
+   ``(1 - radius_margin)`` times i's (j is nearer, or too close in size to tell).
+3. **No other circle keeps the same tag**: of two circles that still both hold a read of one tag,
+   neither keeps it (the tracker then carries the ids).
+
+Dropped reads become None (no read), never another circle's: the rule only removes reads.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from agents.perception.types import Circle, TagRead
+
+__all__ = ["unambiguous_reads"]
+
+
+def unambiguous_reads(circles: Sequence[Circle], reads: Sequence[TagRead | None], *,
+                      corner_slack: float = 0.2, radius_margin: float = 0.05) -> list[TagRead | None]:
+    """The reads of ``circles`` with every read a nearer or overlapping circle could own set to None.
+
+    Parameters
+    ----------
+    circles : sequence of Circle, length N
+        All circles of the frame (image pixels), also those that were not read.
+    reads : sequence of TagRead or None, length N
+        ``reads[i]`` is the read found for ``circles[i]`` (corners (4, 2), image pixels).
+    corner_slack : float
+        Corners may lie up to ``(1 + corner_slack) r + 1`` px from the circle's centre.
+    radius_margin : float
+        A circle j containing the read's centre takes it away from circle i unless
+        ``r_j < (1 - radius_margin) r_i`` (j then is farther, hidden by i where they overlap).
+
+    Returns
+    -------
+    list of TagRead or None, length N
+    """
+    if len(circles) != len(reads):
+        raise ValueError("circles and reads must have the same length")
+    c = np.array([[x.u, x.v, x.r] for x in circles], dtype=float).reshape(-1, 3)
+    out: list[TagRead | None] = list(reads)
+    for i, read in enumerate(reads):
+        if read is None:
+            continue
+        corners = np.asarray(read.corners, dtype=float).reshape(-1, 2)
+        u, v, r = c[i]
+        if np.any(np.hypot(corners[:, 0] - u, corners[:, 1] - v) > (1.0 + corner_slack) * r + 1.0):
+            out[i] = None  # rule 1: part of the print lies outside the circle
+            continue
+        cu, cv = corners.mean(axis=0)
+        inside = np.hypot(c[:, 0] - cu, c[:, 1] - cv) <= c[:, 2]
+        inside[i] = False
+        if np.any(inside & (c[:, 2] >= (1.0 - radius_margin) * r)):
+            out[i] = None  # rule 2: a nearer (or equally near) circle covers the print
+    tags: dict[int, list[int]] = {}
+    for i, read in enumerate(out):
+        if read is not None:
+            tags.setdefault(read.tag, []).append(i)
+    for held in tags.values():
+        if len(held) > 1:  # rule 3
+            for i in held:
+                out[i] = None
+    return out

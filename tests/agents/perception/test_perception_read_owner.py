@@ -1,0 +1,81 @@
+"""A tag read stays only on the circle that must own it (agents.perception.read_owner)."""
+
+import numpy as np
+import pytest
+
+from agents.perception import Perception
+from agents.perception.read_owner import unambiguous_reads
+from agents.perception.types import Circle, TagRead
+
+
+def _tag(tag, u, v, half):
+    """A read of ``tag`` whose square print of half-side ``half`` is centred on (u, v)."""
+    corners = np.array([[u - half, v - half], [u + half, v - half], [u + half, v + half], [u - half, v + half]])
+    return TagRead(tag, tag, corners, 0, 50.0, 1.0)
+
+
+# a near sphere (r 60) in front of a farther one (r 40) whose disc it overlaps from the right
+NEAR, FAR = Circle(300.0, 200.0, 60.0, 0.9), Circle(220.0, 200.0, 40.0, 0.9)
+
+
+def test_read_in_the_overlap_goes_to_the_nearer_circle_only():
+    """A print centred where two discs overlap is kept on the larger (nearer) circle and dropped from the other."""
+    read = _tag(5, 250.0, 200.0, 8.0)  # inside both discs
+    out = unambiguous_reads([NEAR, FAR], [read, read])
+    assert out[0] is read and out[1] is None
+
+
+def test_read_on_the_visible_part_of_the_farther_circle_is_kept():
+    """A print wholly on the part of the farther disc that the nearer one does not cover stays with it."""
+    read = _tag(6, 200.0, 200.0, 10.0)  # 100 px from NEAR's centre: outside its disc
+    out = unambiguous_reads([NEAR, FAR], [None, read])
+    assert out == [None, read]
+
+
+def test_read_with_a_corner_outside_its_circle_is_dropped():
+    """A print reaching well beyond the circle (by more than the slack) is not the circle's own."""
+    c = Circle(100.0, 100.0, 20.0, 0.9)
+    inside, outside = _tag(3, 100.0, 100.0, 10.0), _tag(3, 110.0, 100.0, 14.0)  # corner at 29 px > 1.2 r + 1
+    assert unambiguous_reads([c], [inside]) == [inside]
+    assert unambiguous_reads([c], [outside]) == [None]
+
+
+def test_two_circles_of_equal_size_sharing_a_read_keep_neither():
+    """Where neither circle is clearly nearer (radii within the margin), a print covered by both is nobody's."""
+    a, b = Circle(100.0, 100.0, 30.0, 0.9), Circle(140.0, 100.0, 29.5, 0.9)
+    read = _tag(9, 120.0, 100.0, 4.0)
+    assert unambiguous_reads([a, b], [read, read]) == [None, None]
+
+
+def test_same_tag_on_two_separate_circles_is_dropped_from_both():
+    """One tag cannot be printed on two nodes: two disjoint circles reading it both lose the read."""
+    a, b = Circle(100.0, 100.0, 30.0, 0.9), Circle(300.0, 100.0, 30.0, 0.9)
+    ra, rb, other = _tag(4, 100.0, 100.0, 8.0), _tag(4, 300.0, 100.0, 8.0), _tag(8, 300.0, 100.0, 8.0)
+    assert unambiguous_reads([a, b], [ra, rb]) == [None, None]
+    assert unambiguous_reads([a, b], [ra, other]) == [ra, other]
+
+
+def test_lengths_must_agree():
+    """Circles and reads of different lengths are refused."""
+    with pytest.raises(ValueError):
+        unambiguous_reads([NEAR], [])
+
+
+class _SameReadEverywhere:
+    """An identifier reading one print (centred in the overlap of NEAR and FAR) inside every circle."""
+
+    def identify(self, image, circles):
+        return [_tag(5, 250.0, 200.0, 8.0) for _ in circles]
+
+
+class _Fixed:
+    def detect(self, image):
+        return [FAR, NEAR]  # the farther first: without the rule the tracker would give it the id
+
+
+@pytest.mark.parametrize("track", [False, True])
+def test_perception_shows_an_overlap_read_only_on_the_nearer_node(track):
+    """Through the front end (with or without tracking) the shared read names the nearer node only."""
+    p = Perception(_Fixed(), _SameReadEverywhere(), track=track, motion=None)
+    dets, _ = p.process(np.zeros((400, 500, 3), np.uint8))
+    assert [d.node for d in dets] == [None, 5]
