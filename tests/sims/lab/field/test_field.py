@@ -37,6 +37,21 @@ def test_link_delay_is_seeded_and_keeps_stream_order():
     assert times == sorted(times)
 
 
+@pytest.mark.skipif(not hasattr(__import__("os"), "geteuid") or __import__("os").geteuid() != 0,
+                    reason="raising a process's priority needs root")
+def test_the_link_relay_runs_above_the_agents_priority():
+    """The relay process (the radio) starts at niceness RELAY_NICE, so busy processes that starve the agents do not
+    starve the links too."""
+    import subprocess
+    import sys
+
+    from sims.lab.field.run import RELAY_NICE, _relay_preexec
+
+    out = subprocess.run([sys.executable, "-c", "import os; print(os.getpriority(os.PRIO_PROCESS, 0))"],
+                         preexec_fn=_relay_preexec, capture_output=True, text=True, check=True).stdout
+    assert int(out) == RELAY_NICE < 0
+
+
 def test_link_loss_is_seeded_and_independent_of_the_datagrams_before():
     """The same seed loses the same datagrams; 20 % loss loses about a fifth, and a run of five is not always hit."""
     a, b = LinkDelay(0.0, 0.0, None, 5, loss=0.2), LinkDelay(0.0, 0.0, None, 5, loss=0.2)
