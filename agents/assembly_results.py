@@ -91,14 +91,17 @@ class AssemblyResults:
         converged, or when it ran no ADMM round in this window, the joint solution this agent holds (of every live agent's
         forms, or of those that came before the wait for them ended) gives the step's placements instead:
         an iterate on its way is no estimate (a neighbour without the set pulls it off the fixed point for
-        a while, and its rows reach this agent's table).
+        a while, and its rows reach this agent's table). In an exact window (every live agent's forms, its own
+        pairs as they are now) the joint solution is the answer, whatever rows arrive.
         """
         if self._step is None:
             return {}
-        if self._start.fallback and (not self.converged or not self._start.admm_ran):
-            # (without an ADMM round of its own here, the joint solution is this window's answer: rows that other
-            # agents' ADMM wrote into the gossip table while they ran without the set are iterates on their way,
-            # once 11 km off at 50 % loss)
+        if self._start.fallback and (self._exact() or not self.converged or not self._start.admm_ran):
+            # (in an exact window, or without an ADMM round of its own here, the joint solution is this window's
+            # answer: rows that other agents' ADMM wrote into the gossip table while they ran without the set are
+            # iterates on their way, once 11 km off at 50 % loss. An exact window runs rounds to answer such a
+            # neighbour; its table then held the neighbour's iterates, and a window revised in the background
+            # reported them converged, 5-78 mm off, on an 8-ring with 10 % loss and busy cores)
             return self._relative_to_own(self._rows_of(self._start.fallback))
         me = self._gossip.rows.get(self._index[self.name])
         if not self._consensus.ready or me is None or int(me[1]) != self._step:

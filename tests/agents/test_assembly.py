@@ -424,3 +424,24 @@ def test_a_parent_that_cannot_rebuild_a_delta_gets_the_records_whole():
         for key, (R, p) in root.items():
             if key[1] == 2:
                 assert np.allclose(a._start.seeds[key][1], p, atol=1e-5)
+
+
+def test_an_exact_window_answers_with_its_joint_solution_whatever_rows_a_busy_neighbour_sends(log):
+    """An exact window (every agent's forms) that ran ADMM rounds to answer a neighbour still without the set keeps
+    the joint solution as its estimate: the neighbour's iterate rows in the gossip table are not the answer."""
+    from protocols.pose_gossip import pose_row
+
+    agents, _ = _tree_agents(log)
+    _drive(agents, 1, log, 12)
+    root = agents["A0"]
+    assert root._exact() and root.converged
+    exact = root.estimates()
+    other = next(n for n in exact)
+    i = log.assemblies.index(other)
+    R, p = root._start.seeds[(other, 1)]
+    root._gossip.fill([pose_row(i, 1, root._round + 1, R, p + np.array([0.08, -0.05, 0.0]))], root._round + 1)
+    root._start.admm_ran = True  # (it ran rounds to answer that neighbour)
+    after = root.estimates()
+    assert set(after) == set(exact)
+    for name, pose in exact.items():
+        assert np.allclose(after[name].p, pose.p, atol=1e-9) and abs(after[name].theta - pose.theta) < 1e-9
