@@ -48,14 +48,7 @@ __all__ = ["Screening", "member_tests", "residual", "screen_by_margin", "screen_
 def residual(problems: Sequence[LocalProblem], poses: dict) -> float:
     """Sum of the costs of ``problems`` at ``poses`` (key -> ``(R (2, 2), p (3,))``); forms over a key that
     ``poses`` lacks are left out (they are not tied to the solution)."""
-    total = 0.0
-    for prob in problems:
-        if not all(k in poses for k in prob.keys):
-            continue
-        theta = np.array([np.arctan2(poses[k][0][1, 0], poses[k][0][0, 0]) for k in prob.keys])
-        position = np.array([np.asarray(poses[k][1], float) for k in prob.keys])
-        total += prob.cost(theta, position)
-    return float(total)
+    return FormSum(problems).residual(poses)
 
 
 def _owner(prob: LocalProblem):
@@ -117,7 +110,8 @@ def _member_tests(sums: FormSum, drop: frozenset, poses: dict, *, pose_dof: int 
     for owner, (t, m) in stat.items():
         if m > 0:
             d = max(m * share, 1.0)
-            out[owner] = (t, d, float(chdtrc(d / dispersion, max(t, 0.0) / dispersion)))  # (t < 0: rounding of a sum of squares)
+            # (t < 0 is the rounding of a sum of squares: chdtrc gives NaN there)
+            out[owner] = (t, d, float(chdtrc(d / dispersion, max(t, 0.0) / dispersion)))
     return out
 
 

@@ -77,7 +77,7 @@ class FormSum:
         cat = lambda parts, dtype=int: np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)  # noqa: E731
         self._flat, self._vals, self._owner = cat(flat), cat(vals, float), cat(owner)
         self._b_at, self._b_vals, self._b_owner = cat(b_at), cat(b_vals, float), cat(b_owner)
-        self._edges = (cat(first) if first else empty, cat(other) if other else empty)
+        self._edges = (cat(first), cat(other))
         self._c = np.array([float(prob.c_z) for prob in self.problems])
         # entry of M at (row, col) and whether both lie in the position block (the z cost uses M_pp too)
         self._row, self._col = np.divmod(self._flat, 3 * n) if n else (empty, empty)
