@@ -246,8 +246,7 @@ class CircleTracker:
         if not tracks or len(dets) == 0:
             return np.zeros((len(tracks), len(dets)))
         tc = np.array([t.circle for t in tracks])
-        grow = np.array([1.0, 1.0, 1.0 + cfg.buffer])
-        iou = circle_iou(tc * grow + [0, 0, 2.0], dets * grow + [0, 0, 2.0])
+        iou = self._buffered_iou(tc, dets)
         cost = np.where(iou >= min_iou, 1.0 - iou, _BLOCK)
         # a circle much smaller or larger than the track is another object (e.g. a sticker's square)
         ratio = np.minimum(tc[:, None, 2], dets[None, :, 2]) / np.maximum(tc[:, None, 2], dets[None, :, 2])
@@ -295,7 +294,8 @@ class CircleTracker:
             t.mean, t.cov = done[i] if reuse else self._predict(t, motion)
         dets = np.array([[c.u, c.v, c.r] for c in circles], dtype=float).reshape(-1, 3)
         scores = np.array([c.score for c in circles], dtype=float)
-        gate = self._gate(dets)  # (tracks, dets): pairs within the association gate, before matching
+        # (tracks, dets): pairs within the association gate before matching (only trust_uncontested asks)
+        gate = self._gate(dets) if cfg.trust_uncontested else None
         row = {id(t): i for i, t in enumerate(self.tracks)}
         nodes = [r.node if r is not None else None for r in reads]
         owner: dict[int, Track] = {}  # detection index -> track
@@ -362,14 +362,16 @@ class CircleTracker:
         self._retire_duplicates(owner)
         return self._outputs(circles, reads, owner)
 
+    def _buffered_iou(self, circles: np.ndarray, dets: np.ndarray) -> np.ndarray:
+        """IoU (T, N) of circles (T, 3) and detections (N, 3) with radii scaled by ``1 + buffer`` plus 2 px."""
+        grow = np.array([1.0, 1.0, 1.0 + self.config.buffer])
+        return circle_iou(circles * grow + [0, 0, 2.0], dets * grow + [0, 0, 2.0])
+
     def _gate(self, dets: np.ndarray) -> np.ndarray:
         """Which (track, detection) pairs lie within the association gate (buffered IoU >= ``match_iou``), (T, N) bool."""
-        cfg = self.config
         if not self.tracks or len(dets) == 0:
             return np.zeros((len(self.tracks), len(dets)), dtype=bool)
-        grow = np.array([1.0, 1.0, 1.0 + cfg.buffer])
-        tc = np.array([t.circle for t in self.tracks])
-        return circle_iou(tc * grow + [0, 0, 2.0], dets * grow + [0, 0, 2.0]) >= cfg.match_iou
+        return self._buffered_iou(np.array([t.circle for t in self.tracks]), dets) >= self.config.match_iou
 
     @staticmethod
     def _contested(gate: np.ndarray, i: int, j: int) -> bool:

@@ -156,12 +156,17 @@ def test_unconfirmed_track_shows_no_number():
     assert second[1].track is not None
 
 
+def _known(tr, circles, reads, frames=4):
+    """Run ``tr`` over the same detections and reads for ``frames`` frames (the ids confirmed); the last outputs."""
+    for _ in range(frames):
+        out = tr.update(circles, reads)
+    return out
+
+
 def test_track_jumping_to_a_neighbour_needs_a_fresh_read():
     """A track that reaches a barely overlapping detection (a neighbouring node) hides its id until a read agrees."""
     tr = CircleTracker()
-    for _ in range(4):
-        out = tr.update([_c(200, 200, 20)], [_read(7)])
-    assert out[0].node == 7
+    assert _known(tr, [_c(200, 200, 20)], [_read(7)])[0].node == 7
     out = tr.update([_c(226, 200, 20)], [None])  # within the enlarged radii, IoU of the plain circles < 0.4
     assert out[0].track == 1 and out[0].node is None
     out = tr.update([_c(226, 200, 20)], [_read(7)])
@@ -171,9 +176,8 @@ def test_track_jumping_to_a_neighbour_needs_a_fresh_read():
 def test_contested_jump_needs_a_fresh_read_even_when_trusting_uncontested_ones():
     """With trust_uncontested, a low-overlap match that another track also reaches still hides the id until a read agrees."""
     tr = CircleTracker(TrackerConfig(trust_uncontested=True))
-    for _ in range(4):  # node 7, and a neighbour below it whose tag is never read
-        out = tr.update([_c(200, 200, 20), _c(226, 236, 20)], [_read(7), None])
-    assert out[0].node == 7
+    # node 7, and a neighbour below it whose tag is never read
+    assert _known(tr, [_c(200, 200, 20), _c(226, 236, 20)], [_read(7), None])[0].node == 7
     # node 7 is missed; the only detection lies between its track and the neighbour's: both gates hold it
     out = tr.update([_c(226, 204, 20)], [None])  # within the enlarged radii, IoU of the plain circles < 0.4
     assert out[0].track == 1 and out[0].node is None
@@ -184,8 +188,7 @@ def test_contested_jump_needs_a_fresh_read_even_when_trusting_uncontested_ones()
 def test_uncontested_fast_move_keeps_the_id():
     """With trust_uncontested, a lone node that suddenly moves further than predicted (IoU < 0.4, no rival) keeps its id."""
     tr = CircleTracker(TrackerConfig(trust_uncontested=True))
-    for _ in range(4):
-        out = tr.update([_c(200, 200, 20)], [_read(7)])
+    _known(tr, [_c(200, 200, 20)], [_read(7)])
     out = tr.update([_c(226, 200, 20)], [None])  # the same jump as a neighbour's, but nothing competes
     assert out[0].track == 1 and out[0].node == 7
 
