@@ -151,7 +151,7 @@ class Screening:
     suspects: tuple = ()
 
 
-def screen_by_margin(problems: Sequence[LocalProblem], gauge: tuple, value=None, *, ratio: float = 10.0,
+def screen_by_margin(problems: Sequence[LocalProblem] | FormSum, gauge: tuple, value=None, *, ratio: float = 10.0,
                    floor: float = 100.0, max_excluded: int | None = None) -> Screening:
     r"""Remove the members whose data the others' contradict (leave-one-out residual margin test).
 
@@ -175,8 +175,8 @@ def screen_by_margin(problems: Sequence[LocalProblem], gauge: tuple, value=None,
 
     Parameters
     ----------
-    problems : sequence of LocalProblem
-        The window's forms over ``(member, step)`` keys.
+    problems : sequence of LocalProblem, or FormSum
+        The window's forms over ``(member, step)`` keys (or a :class:`decentral.admm.form_sum.FormSum` of them).
     gauge : tuple
         The gauge key ``(reference, step)``; the reference is never a candidate.
     value : (R, p), optional
@@ -207,7 +207,7 @@ def screen_by_margin(problems: Sequence[LocalProblem], gauge: tuple, value=None,
     >>> screen_by_margin(forms, ("A", 0), floor=1.0).excluded
     ('C',)
     """
-    sums = FormSum(problems)
+    sums = problems if isinstance(problems, FormSum) else FormSum(problems)
     problems = sums.problems
     members = sorted({k[0] for prob in problems for k in prob.keys} - {gauge[0]}, key=repr)
     limit = max(0, (len(members) + 1 - 1) // 2) if max_excluded is None else int(max_excluded)
@@ -318,7 +318,7 @@ def screen_members(problems: Sequence[LocalProblem], gauge: tuple, value=None, *
     first_total, first_tests = sums.residual(whole.poses), _member_tests(sums, frozenset(), whole.poses,
                                                                         dispersion=dispersion)
     if not _within(first_tests, alpha):  # (a consistent window skips the leave-one-out margin test: N solves)
-        margin = screen_by_margin(problems, gauge, value, max_excluded=max_excluded)
+        margin = screen_by_margin(sums, gauge, value, max_excluded=max_excluded)  # (the forms already laid out)
         if margin.excluded:  # a lie far above the noise: named by the residual margin
             return margin
     members = sorted({k[0] for prob in problems for k in prob.keys} - {gauge[0]}, key=repr)

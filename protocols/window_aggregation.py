@@ -64,6 +64,10 @@ class Owed(NamedTuple):
     indices: list[int]
     last: int
 
+    def held(self, step: int, members) -> bool:
+        """Whether ``members`` (of window ``step``, acknowledged or sent down by the parent) hold every owed record."""
+        return self.share.step == step and set(self.indices) <= set(members)
+
 
 class WindowAggregation:
     """The sharing of every window's cost forms at one agent (send and receive halves).
@@ -369,8 +373,8 @@ class WindowAggregation:
     def on_ack(self, message: FormAck) -> None:
         """The parent acknowledges the bundle up, or a child says it has the down bundle."""
         share, down, owed = self.share, self.down, self.owed
-        if (owed is not None and owed.share.step == message.step and self.index.get(message.sender) == owed.parent
-                and set(owed.indices) <= set(message.have.tolist())):
+        if owed is not None and self.index.get(message.sender) == owed.parent and owed.held(message.step,
+                                                                                           message.have.tolist()):
             self.owed = None
         if share is not None and share.step == message.step and self.index.get(message.sender) == share.agg.parent:
             share.agg.acknowledge(message.have.tolist(), self.round)
@@ -449,7 +453,7 @@ class WindowAggregation:
         else:
             records = rebuilt
         owed = self.owed
-        if down and owed is not None and owed.share.step == message.step and set(owed.indices) <= set(message.members.tolist()):
+        if down and owed is not None and owed.held(message.step, message.members.tolist()):
             self.owed = None  # a down bundle that holds them: the parent has them
         share, late = self.share, self.late
         if share is None and late is not None and late.step == message.step == self.step:
@@ -527,4 +531,3 @@ class WindowAggregation:
         # and whoever has finished the window answers with the solution)
         self._send_down(exclude=(self.index.get(message.sender),), start=message.start)
         return True
-

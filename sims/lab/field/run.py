@@ -80,6 +80,7 @@ def _relay_preexec() -> None:  # runs in the relay between fork and exec
     except OSError:
         pass  # not allowed (not root): the relay runs at the agents' priority, and the report's latency shows it
 
+
 def run_field(log: ObservationLog, launch: LaunchConfig = LaunchConfig(), fieldc: FieldConfig = FieldConfig(),
               workdir: str | os.PathLike | None = None, python: str | None = None) -> LaunchResult:
     """Run ``log`` as one agent process per namespace; return the reference agent's estimate.
