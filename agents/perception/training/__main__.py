@@ -6,6 +6,12 @@ every ``*.npz`` in SHARD_DIR (sorted by name) except those matching a ``--valida
 form the validation set; writes ``OUT/circles.onnx`` and/or ``OUT/circle_refine.onnx`` with their
 loss curves. The proposal network's input size is the shards' frame size.
 
+``python -m agents.perception.training quantize SHARD_DIR --model MODEL.onnx [-o OUT.onnx]
+[--samples N] [--seed S]`` writes the 8-bit copy of a second stage, calibrated on the training
+shards and checked on the validation ones (:mod:`agents.perception.training.quantize`), by default
+beside the model as ``<stem>_int8.onnx``, where the detector looks for it (the shipped
+``circle_refine_int8.onnx`` is this of ``circle_refine.onnx``); a report ``OUT.json`` beside it.
+
 ``python -m agents.perception.training label LABELS.json SHARD.npz`` turns a user's labelled frames
 (see :func:`agents.perception.training.data.shard_from_labels`) into a shard.
 
@@ -43,6 +49,20 @@ def _size(text: str) -> tuple[int, int]:
     return int(parts[0]), int(parts[1])
 
 
+def _quantize(args) -> int:
+    from agents.perception.training.data import load_shards
+    from agents.perception.training.quantize import quantize_refine
+
+    train_files, val_files = _split(args.shards, args.validation)
+    out = args.out if args.out is not None else args.model.with_name(f"{args.model.stem}_int8.onnx")
+    report = quantize_refine(args.model, load_shards(train_files), load_shards(val_files), out,
+                             samples=args.samples, seed=args.seed)
+    v = report["validation"]
+    print(f"{out}: {report['calibration_windows']} calibration windows; on {v['windows']} validation windows "
+          f"the corrections differ by at most {max(v['max']):.4f} radii (p99 {max(v['p99']):.4f})")
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m agents.perception.training", description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="command", required=True)
@@ -73,6 +93,15 @@ def main(argv=None) -> int:
                     help="name patterns of the validation shards (default: seeds ending in 9)")
     tr.add_argument("--oversample", nargs="+", default=[], metavar="PATTERN=N",
                     help="use the training shards matching PATTERN N times (e.g. 'table1-*=2')")
+    qu = sub.add_parser("quantize", help="the 8-bit copy of a second stage, calibrated on shards")
+    qu.add_argument("shards", type=Path)
+    qu.add_argument("--model", type=Path, required=True, help="the second stage to quantize (e.g. OUT/circle_refine.onnx)")
+    qu.add_argument("-o", "--out", type=Path, default=None,
+                    help="the quantized network (default: <model stem>_int8.onnx beside the model) and its report (.json)")
+    qu.add_argument("--samples", type=int, default=2048, help="calibration windows (default 2048)")
+    qu.add_argument("--seed", type=int, default=0)
+    qu.add_argument("--validation", nargs="+", default=["varied-*9.npz", "table1-*9.npz"],
+                    help="name patterns of the validation shards (default: seeds ending in 9)")
     lb = sub.add_parser("label", help="a shard from labelled frames (JSON)")
     lb.add_argument("labels", type=Path)
     lb.add_argument("shard", type=Path)
@@ -93,6 +122,8 @@ def main(argv=None) -> int:
             write_shard(args.shard, arrays)
             print(f"{args.shard}: {len(arrays['images'])} frames, {len(arrays['circles'])} circles")
             return 0
+        if args.command == "quantize":
+            return _quantize(args)
         if min(args.steps, args.refine_steps, args.batch, args.eval_every, args.width, *args.channels) < 1 or args.lr <= 0:
             raise InputError("--steps, --refine-steps, --batch, --eval-every, --width, --channels and --lr must be positive",
                              field="options")

@@ -245,3 +245,51 @@ def test_detector_takes_its_input_size_from_the_model(tmp_path):
     assert det.input_size == (384, 288)
     image = sequence(2003, 1)[0].image  # 1024 x 768
     assert all(np.isfinite([c.u, c.v, c.r]).all() for c in det.detect(image))
+
+
+def test_quantized_second_stage_is_written_beside_the_model_and_run_by_onnxruntime(tmp_path):
+    """`quantize` writes <stem>_int8.onnx beside the model (byte-identical for the same seed) and a report;
+    the detector runs it with onnxruntime, the float network with OpenCV or quantized=False."""
+    pytest.importorskip("onnx", reason="quantizing needs the onnx package (the `train` extra)")
+    pytest.importorskip("onnxruntime")
+    import shutil
+
+    from agents.perception.learned import MODEL_DIR, LearnedCircleDetector, LearnedConfig, second_stage_path
+    from agents.perception.training.__main__ import main
+
+    shards = tmp_path / "shards"
+    shards.mkdir()
+    _shards(shards, seeds=(2000, 2009))
+    model = tmp_path / "m" / "circle_refine.onnx"
+    model.parent.mkdir()
+    shutil.copy(MODEL_DIR / "circle_refine.onnx", model)
+    args = ["quantize", str(shards), "--model", str(model), "--samples", "64", "--validation", "varied-*9.npz"]
+    assert main(args) == 0
+    copy = model.with_name("circle_refine_int8.onnx")
+    report = json.loads(copy.with_suffix(".json").read_text())
+    assert report["calibration_windows"] == 64 and report["validation"]["windows"] == 64
+    assert max(report["validation"]["max"]) < 0.1  # radii: a broken calibration moves circles by far more
+    first = copy.read_bytes()
+    assert main(args) == 0 and copy.read_bytes() == first
+    assert not list(model.parent.glob("*.tmp"))
+
+    cfg = LearnedConfig(refine_model=model)
+    assert second_stage_path(cfg, "onnxruntime") == copy
+    assert second_stage_path(cfg, "opencv") == model
+    assert second_stage_path(LearnedConfig(refine_model=model, quantized=False), "onnxruntime") == model
+    assert LearnedCircleDetector(cfg).refine_path == copy
+
+
+def test_quantize_refuses_a_missing_model_with_one_line(tmp_path, capsys):
+    """A missing --model ends with exit status 2 and one line naming the file."""
+    pytest.importorskip("onnx", reason="quantizing needs the onnx package (the `train` extra)")
+    from agents.perception.training.__main__ import main
+
+    shards = tmp_path / "shards"
+    shards.mkdir()
+    _shards(shards, seeds=(2000, 2009))
+    missing = tmp_path / "nope.onnx"
+    assert main(["quantize", str(shards), "--model", str(missing), "--validation", "varied-*9.npz"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(missing) in err[0]
+    assert not list(tmp_path.glob("nope_int8*"))
