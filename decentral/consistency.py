@@ -25,7 +25,7 @@ from typing import Hashable, Sequence
 import numpy as np
 from scipy.special import chdtrc  # the chi-square survival function (scipy.stats costs 0.5 s more to import)
 
-from decentral.admm import LocalProblem
+from decentral.admm import JointSolution, LocalProblem
 from decentral.admm.form_sum import FormSum
 from decentral.attribution import attribute, optimum_residual
 
@@ -141,6 +141,10 @@ class Screening:
     suspects : tuple
         When the data stay inconsistent and several members' removals each explain it (a lie that only
         one member checks): those members, none of them excluded.
+    solution : JointSolution or None
+        The joint solution of ``kept`` where the screening already computed it (nobody excluded: the
+        whole window's, as :func:`decentral.admm.solve_joint` gives it within 1e-9), so the caller need
+        not solve the same forms again; None otherwise.
     """
 
     excluded: tuple
@@ -149,6 +153,7 @@ class Screening:
     left: dict = field(default_factory=dict)
     tests: dict = field(default_factory=dict)
     suspects: tuple = ()
+    solution: JointSolution | None = None
 
 
 def screen_by_margin(problems: Sequence[LocalProblem] | FormSum, gauge: tuple, value=None, *, ratio: float = 10.0,
@@ -358,4 +363,5 @@ def screen_members(problems: Sequence[LocalProblem], gauge: tuple, value=None, *
             kept = _without(problems, _over(problems, found.liar))
         elif found.suspects and not suspects:
             suspects = found.suspects
-    return Screening(tuple(excluded), kept, first_total, left, first_tests, suspects)
+    solution = whole if not excluded else None
+    return Screening(tuple(excluded), kept, first_total, left, first_tests, suspects, solution)

@@ -145,13 +145,15 @@ class WindowShare:
             try:
                 # a member whose data the others contradict is left out, with every form over its poses
                 members = {k[0] for prob in problems for k in prob.keys}
+                joint = None
                 if len(members) <= SCREEN_MAX_MEMBERS:
                     screening = screen_members(problems, (reference, first), value, classes=classes)
                     self.excluded, self.kept = screening.excluded, screening.kept
                     self.suspects = tuple(screening.suspects)
+                    joint = screening.solution  # (solved already when nobody was excluded)
                 else:
                     self.excluded, self.kept = (), problems
-                self.joint = solve_joint(self.kept, (reference, first), value)
+                self.joint = joint if joint is not None else solve_joint(self.kept, (reference, first), value)
             except np.linalg.LinAlgError:
                 return False
         return True

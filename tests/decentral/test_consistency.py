@@ -36,6 +36,21 @@ def test_honest_data_exclude_no_one():
         assert screening.excluded == () and len(screening.kept) == len(forms)
 
 
+def test_the_screenings_solution_is_the_joint_solution_of_what_it_kept():
+    """Nobody excluded: the screening hands over the whole window's solution, solve_joint's within 1e-9 (callers
+    need not solve the same forms twice); a member excluded: no solution is handed over."""
+    rng = np.random.default_rng(3)
+    forms = _ring(rng)
+    screening = screen_members(forms, ("A", 0))
+    assert screening.excluded == () and screening.solution is not None
+    direct = solve_joint(screening.kept, ("A", 0))
+    assert set(screening.solution.poses) == set(direct.poses)
+    for k, (R, p) in direct.poses.items():
+        assert np.allclose(screening.solution.poses[k][0], R, atol=1e-9)
+        assert np.allclose(screening.solution.poses[k][1], p, atol=1e-9)
+    assert screen_members(_ring(rng, lie=("C", 0.5)), ("A", 0)).solution is None
+
+
 def test_a_member_whose_detections_are_shifted_is_excluded_with_all_its_forms():
     """C reports every detection 0.5 m off: C is excluded, no kept form touches C, and the rest is consistent."""
     rng = np.random.default_rng(2)
