@@ -40,9 +40,9 @@ class Perception:
     Parameters
     ----------
     detector : CircleDetector or str, optional
-        A detector, or its name for :func:`~agents.perception.detectors.make_detector`: ``"hough"``
-        (the default, :class:`~agents.perception.hough.HoughCircleDetector`) or ``"rim"``
-        (:class:`~agents.perception.rim.RimCircleDetector`).
+        A detector, or its name for :func:`~agents.perception.detectors.make_detector`
+        (:data:`~agents.perception.detectors.DETECTORS`); default
+        :data:`~agents.perception.detectors.DEFAULT_DETECTOR`.
     identifier : Identifier, optional
         Default :func:`~agents.perception.apriltag3.make_identifier` (tag36h11): the AprilTag 3
         library inside each circle, OpenCV's reader where it reads nothing. Its reads pass

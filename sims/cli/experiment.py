@@ -1,6 +1,6 @@
 """``decentral experiment``: Liu et al.'s experiments reproduced on rendered frames (JSON + PNG).
 
-``decentral experiment table1 -o OUTDIR [--seeds 2] [--steps 60] [--clean]`` writes
+``decentral experiment table1 -o OUTDIR [--seeds 2] [--steps 60] [--clean] [--detector hough]`` writes
 ``OUTDIR/table1.json``, ``table1.md`` and ``table1.png`` (Table I: ours vs bearing vs AprilTag);
 ``decentral experiment reconfig -o OUTDIR [--steps 80]`` writes ``OUTDIR/reconfig.json`` and
 ``reconfig.png`` (Fig. 4: error over time as nodes are occluded and re-appear).
@@ -36,6 +36,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seeds", type=int, default=2, help="random seeds (table1; default 2)")
     parser.add_argument("--steps", type=int, default=None, help="steps per run (default: table1 60, reconfig 80)")
     parser.add_argument("--clean", action="store_true", help="render without noise, blur or exposure changes")
+    # (agents.perception.detectors.DETECTORS written out: importing it loads OpenCV)
+    parser.add_argument("--detector", choices=("hough", "learned", "rim", "symmetry"), default="hough",
+                        help="circle detector of the perception front end (default: hough)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -54,7 +57,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.name == "table1":
         with feedback.progress("table1", unit="stage") as bar:
-            result = run_table1(TableConfig(seeds=args.seeds, steps=args.steps or 60, clean=args.clean), progress=bar)
+            result = run_table1(TableConfig(seeds=args.seeds, steps=args.steps or 60, clean=args.clean,
+                                            detector=args.detector), progress=bar)
         write_json_atomic(out / "table1.json", result)
         md = table_markdown(result)
         write_atomic(out / "table1.md", lambda fh: fh.write(md))
@@ -66,7 +70,8 @@ def run(args: argparse.Namespace) -> int:
         feedback.summary(f"{args.seeds} seeds: {headline} -> {out / 'table1.json'}, table1.md, table1.png")
     else:
         with feedback.progress("reconfig", unit="stage") as bar:
-            result = run_reconfig(TableConfig(seeds=1, steps=args.steps or 80, clean=args.clean), progress=bar)
+            result = run_reconfig(TableConfig(seeds=1, steps=args.steps or 80, clean=args.clean,
+                                                detector=args.detector), progress=bar)
         write_json_atomic(out / "reconfig.json", result)
         _plot_atomic(plot_reconfig, result, out / "reconfig.png")
         steps = len(next(iter(result["series"].values()))["t"]) if result["series"] else 0

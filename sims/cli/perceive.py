@@ -36,11 +36,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--tag-table", metavar="TABLE.json", help='JSON object tag id -> node id (default: node id = tag id)')
     parser.add_argument("--min-radius", type=float, default=8.0, help="smallest node radius in pixels (default: 8)")
     parser.add_argument("--max-radius", type=float, default=160.0, help="largest node radius in pixels (default: 160)")
-    parser.add_argument("--detector", choices=("hough", "rim", "symmetry", "learned"), default="hough",
-                        help="circle detector: hough (fast; default: hough), rim (finds the rim where hough fits "
-                             "the tag on large low-contrast or partly hidden spheres; about 3x slower) or symmetry "
-                             "(colour-edge symmetry votes; about 3x slower) or learned (the shipped networks: proposals, then a "
-                             "second stage per circle)")
+    # (agents.perception.detectors' DETECTORS and DEFAULT_DETECTOR, written out: importing it loads OpenCV)
+    parser.add_argument("--detector", choices=("hough", "learned", "rim", "symmetry"), default="hough",
+                        help="circle detector: hough (default; no network), learned (the shipped networks: proposals, "
+                             "then a second stage per circle; the better on most floors), rim (finds the rim where hough "
+                             "fits the tag; about 3x hough's time) or symmetry (colour-edge symmetry votes; about 3x "
+                             "hough's time)")
     parser.add_argument("--motion", choices=("auto", "flow", "odometry", "none"), default="auto",
                         help="camera-motion compensation for tracking: auto (default: the observer's "
                              "odometry when --log-template has it, else image registration), flow (image "
@@ -48,9 +49,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--log-template", metavar="LOG.json", help="a decentral.log/1 whose detections to fill")
     parser.add_argument("--camera", metavar="ASSEMBLY/CAMERA", help="the camera of the frames in --log-template")
     parser.add_argument("--log-out", metavar="LOG_OUT.json", help="where to write the filled decentral.log/1")
-    parser.add_argument("--log-min-score", type=float, default=0.5,
-                        help="detections with a lower rim score stay out of --log-out (default: 0.5); so do "
-                             "circles not wholly inside the image")
+    parser.add_argument("--log-min-score", type=float, default=None,
+                        help="detections with a lower score stay out of --log-out (default: the detector's: 0.5 of "
+                             "the rim's support for hough, rim and symmetry, 0 for learned, whose own gates decided); "
+                             "so do circles not wholly inside the image")
 
 
 def _check_image_files(paths: Sequence[str], limits) -> None:
@@ -104,7 +106,8 @@ def run(args: argparse.Namespace) -> int:
     from sims.io.detections_json import assemble_log, write_detections
     from sims.io.validate import require_range
 
-    require_range(args.log_min_score, "--log-min-score", -1e6, 1e6)
+    if args.log_min_score is not None:
+        require_range(args.log_min_score, "--log-min-score", -1e6, 1e6)
     limits = current_limits()
     max_pixels = limits.max_pixels
     _check_image_files(args.frames, limits)
@@ -147,7 +150,10 @@ def run(args: argparse.Namespace) -> int:
 
             _, first = next(iter(iter_frames(args.frames, max_pixels)))
             sizes = {args.camera: (first.shape[1], first.shape[0])}
-            filled = assemble_log(log, {args.camera: frames}, min_score=args.log_min_score, image_sizes=sizes)
+            from agents.perception.detectors import LOG_MIN_SCORE
+
+            min_score = LOG_MIN_SCORE[args.detector] if args.log_min_score is None else args.log_min_score
+            filled = assemble_log(log, {args.camera: frames}, min_score=min_score, image_sizes=sizes)
         except InputError as err:
             raise err.located(args.log_template) from None
     write_detections(args.output, frames)

@@ -180,6 +180,7 @@ def _images(camera: RigCamera) -> Iterator[tuple[str, np.ndarray]]:
 
 def _perceive(camera: RigCamera, template: ObservationLog, matched: dict[int, int], options: dict):
     """Perceived identified detections of ``camera``'s matched frames: step index -> detections."""
+    from agents.perception.detectors import DEFAULT_DETECTOR, LOG_MIN_SCORE
     from sims.runners.perception_run import perceive_with_log
     from sims.io.detections_json import assemble_log
 
@@ -196,7 +197,8 @@ def _perceive(camera: RigCamera, template: ObservationLog, matched: dict[int, in
 
     contiguous = steps == list(range(steps[0], steps[0] + len(steps))) if steps else True
     perceived = perceive_with_log(chosen(), sub, camera.key, motion="auto" if contiguous else "flow", **options)
-    filled = assemble_log(sub, {camera.key: perceived.frames}, min_score=0.5, image_sizes=size)
+    min_score = LOG_MIN_SCORE[options.get("detector", DEFAULT_DETECTOR)]
+    filled = assemble_log(sub, {camera.key: perceived.frames}, min_score=min_score, image_sizes=size)
     return {j: filled.steps[n].detections.get(camera.key, ()) for n, j in enumerate(steps)}
 
 

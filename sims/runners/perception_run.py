@@ -15,6 +15,7 @@ from typing import Callable, Iterable, Iterator, Sequence
 
 import numpy as np
 
+from agents.perception.detectors import DEFAULT_DETECTOR
 from decentral.errors import InputError
 from decentral.observations import ObservationLog
 
@@ -44,7 +45,7 @@ def perceive_with_log(
     min_radius: float = 8.0,
     max_radius: float = 160.0,
     layout=None,
-    detector: str = "hough",
+    detector: str = DEFAULT_DETECTOR,
 ) -> PerceivedCamera:
     """Run perception over ``(name, image)`` pairs, frame k being step k of ``log`` seen by ``camera``.
 
@@ -52,7 +53,9 @@ def perceive_with_log(
     ``"auto"`` (odometry when the log has any for the camera's assembly, else flow: odometry is
     free, registration costs about 2 ms per frame) or ``"none"``; ``layout`` the
     :class:`~agents.perception.sphere_tags.StickerLayout` (default: the renderer's); ``detector`` the
-    circle detector's name (``"hough"``, the default, or ``"rim"``; :func:`agents.perception.make_detector`).
+    circle detector's name (:data:`agents.perception.detectors.DETECTORS`, default
+    :data:`~agents.perception.detectors.DEFAULT_DETECTOR`;
+    :func:`agents.perception.make_detector`).
     """
     from agents.perception import Perception, make_detector
     from agents.perception.motion import odometry_homography
@@ -128,7 +131,7 @@ def perceive_paths(
     min_radius: float = 8.0,
     max_radius: float = 160.0,
     motion: str = "auto",
-    detector: str = "hough",
+    detector: str = DEFAULT_DETECTOR,
     log=None,
     camera: str | None = None,
     max_pixels: int | None = None,

@@ -9,6 +9,10 @@ Two sources, both with exact truth and reproducible from their seeds:
 - ``hard``: :func:`sims.lab.experiments.hard_scenes.hard_sequence` scenes (near and large spheres,
   spheres cut by the frame's edge, clumps of spheres hiding one another, rescaled, tinted and
   patched floors, dim to harsh light), seeds from :data:`TRAIN_HARD_SEEDS` upwards.
+- ``mottled``: :func:`sims.lab.experiments.mottled_scenes.mottled_frames` (tagged discs on blotchy floors
+  of many blotch sizes and tints, a quarter of the frames without any disc), seeds from
+  :data:`TRAIN_MOTTLED_SEEDS` upwards; the held-out ones
+  (:data:`~sims.lab.experiments.mottled_scenes.HELD_OUT_MOTTLED_SEEDS`) are refused.
 - ``table1``: the 3-D renderer's ``table1`` scenario (tower assemblies on a table), simulation and
   render seeds from :data:`TRAIN_TABLE1_SEEDS` upwards (the experiments and benchmarks use seeds
   0-9).
@@ -39,12 +43,15 @@ from agents.perception.training.data import shard_from_frames, write_shard
 from decentral.errors import InputError
 from sims.lab.experiments.varied_scenes import HELD_OUT_SEEDS, sequence
 
-__all__ = ["TRAIN_HARD_SEEDS", "TRAIN_TABLE1_SEEDS", "TRAIN_VARIED_SEEDS", "hard_shard", "table1_shard", "varied_shard"]
+__all__ = ["TRAIN_HARD_SEEDS", "TRAIN_MOTTLED_SEEDS", "TRAIN_TABLE1_SEEDS", "TRAIN_VARIED_SEEDS", "hard_shard",
+           "mottled_shard", "table1_shard", "varied_shard"]
 
 #: first scene seed of the varied training scenes (0-31 tuned the hand-made detectors, 1000-1007 held out)
 TRAIN_VARIED_SEEDS = 2000
 #: first seed of the harder training scenes (:mod:`sims.lab.experiments.hard_scenes`; its own generator)
 TRAIN_HARD_SEEDS = 5000
+#: first seed of the mottled-floor training scenes (:mod:`sims.lab.experiments.mottled_scenes`)
+TRAIN_MOTTLED_SEEDS = 6000
 #: first seed of the table1 training runs (the experiments and benchmarks use 0-9)
 TRAIN_TABLE1_SEEDS = 100
 
@@ -64,6 +71,16 @@ def hard_shard(seed: int, frames: int, **kw) -> dict[str, np.ndarray]:
 
     return shard_from_frames(((f.image, [(s.u, s.v, s.r, vis) for s, vis in zip(f.spheres, f.visible)])
                               for f in hard_sequence(seed, frames)), **kw)
+
+
+def mottled_shard(seed: int, frames: int, **kw) -> dict[str, np.ndarray]:
+    """A shard of ``frames`` frames of mottled scene ``seed`` (never a held-out one)."""
+    from sims.lab.experiments.mottled_scenes import HELD_OUT_MOTTLED_SEEDS, mottled_frames
+
+    if seed in HELD_OUT_MOTTLED_SEEDS:
+        raise InputError(f"mottled scene {seed} is held out for evaluation; choose another seed", field="seed")
+    return shard_from_frames(((f.image, [(*c, vis) for c, vis in zip(f.circles, f.visible)])
+                              for f in mottled_frames(seed, frames)), **kw)
 
 
 def table1_shard(seed: int, steps: int, *, scenario: str = "table1", **kw) -> dict[str, np.ndarray]:
@@ -102,6 +119,8 @@ def main(argv=None) -> int:
     ap.add_argument("--varied-frames", type=int, default=10, help="frames per varied scene (default 10)")
     ap.add_argument("--hard", type=_range, default=range(0), help="harder scene seeds FIRST:STOP")
     ap.add_argument("--hard-frames", type=int, default=10, help="frames per harder scene (default 10)")
+    ap.add_argument("--mottled", type=_range, default=range(0), help="mottled-floor scene seeds FIRST:STOP")
+    ap.add_argument("--mottled-frames", type=int, default=10, help="frames per mottled scene (default 10)")
     ap.add_argument("--table1", type=_range, default=range(0), help="table1 run seeds FIRST:STOP")
     ap.add_argument("--table1-steps", type=int, default=30, help="steps per table1 run (default 30)")
     ap.add_argument("--input-size", type=_size, default=None, metavar="WxH",
@@ -116,7 +135,8 @@ def main(argv=None) -> int:
     kw = {"input_size": args.input_size}
     out = Path(args.outdir)
     out.mkdir(parents=True, exist_ok=True)
-    jobs = [("varied", s) for s in args.varied] + [("hard", s) for s in args.hard] + [("table1", s) for s in args.table1]
+    jobs = [("varied", s) for s in args.varied] + [("hard", s) for s in args.hard] + \
+        [("mottled", s) for s in args.mottled] + [("table1", s) for s in args.table1]
     for i, (kind, seed) in enumerate(jobs):
         if i % args.stride != args.offset:
             continue
@@ -128,6 +148,8 @@ def main(argv=None) -> int:
                 arrays = varied_shard(seed, args.varied_frames, **kw)
             elif kind == "hard":
                 arrays = hard_shard(seed, args.hard_frames, **kw)
+            elif kind == "mottled":
+                arrays = mottled_shard(seed, args.mottled_frames, **kw)
             else:
                 arrays = table1_shard(seed, args.table1_steps, **kw)
         except InputError as exc:

@@ -27,23 +27,23 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: detections scoring below this (rim support) stay out of the perceived log: partly hidden rims
-LOG_MIN_SCORE = 0.5
 #: the second "ours" row places an assembly only when its relative yaw is this well determined (rad)
 CONFIDENT_YAW_STD = 0.3
 
-__all__ = ["LOG_MIN_SCORE", "TableConfig", "run_table1", "run_reconfig", "table_markdown", "plot_table1", "plot_reconfig"]
+__all__ = ["TableConfig", "run_table1", "run_reconfig", "table_markdown", "plot_table1", "plot_reconfig"]
 
 
 @dataclass(frozen=True)
 class TableConfig:
-    """Seeds and steps of a run, the estimators' noise model, and the render knobs (defaults: noisy)."""
+    """Seeds and steps of a run, the estimators' noise model, the render knobs (defaults: noisy) and the circle
+    detector (:data:`agents.perception.detectors.DETECTORS`)."""
 
     seeds: int = 2
     steps: int = 60
     window: int = 5
     bearing_window: int = 20
     clean: bool = False
+    detector: str = "hough"  # (agents.perception.detectors.DEFAULT_DETECTOR)
 
 
 def _noise():
@@ -53,13 +53,14 @@ def _noise():
     return NoiseModel(sigma_pixel=1.0, sigma_radius=0.7, sigma_odom_p=0.002, sigma_odom_theta=0.002)
 
 
-def _render_and_perceive(sim, seed: int, clean: bool):
+def _render_and_perceive(sim, seed: int, clean: bool, detector: str):
     """Render every camera of ``sim``, perceive it with the log, and read OpenCV tags in the circles.
 
     Returns (perceived log, per-camera frames, perception seconds per frame, AprilTag reads per
     camera (step -> {node: corners}), AprilTag seconds per frame).
     """
     from agents.perception import AprilTagIdentifier
+    from agents.perception.detectors import LOG_MIN_SCORE
     from agents.perception.types import Circle
     from sims.runners.perception_run import perceive_with_log
     from sims.io.detections_json import assemble_log
@@ -73,7 +74,7 @@ def _render_and_perceive(sim, seed: int, clean: bool):
     perceived, seconds, tag_reads, tag_seconds = {}, [], {}, []
     aruco = AprilTagIdentifier()
     for key, frames in images.items():
-        run = perceive_with_log(frames, sim.log, key)
+        run = perceive_with_log(frames, sim.log, key, detector=detector)
         perceived[key] = run.frames
         seconds.extend(run.seconds)
         per_step = []
@@ -86,7 +87,8 @@ def _render_and_perceive(sim, seed: int, clean: bool):
             tag_seconds.append(time.process_time() - start)
         tag_reads[key] = per_step
     sizes = {key: frames[0][1].shape[1::-1] for key, frames in images.items()}
-    log = assemble_log(sim.log, perceived, min_score=LOG_MIN_SCORE, image_sizes=sizes)
+    # detections the detector scores low stay out of the log (partly hidden rims; agents.perception.detectors)
+    log = assemble_log(sim.log, perceived, min_score=LOG_MIN_SCORE[detector], image_sizes=sizes)
     return log, perceived, seconds, tag_reads, tag_seconds
 
 
@@ -121,7 +123,7 @@ def run_table1(config: TableConfig = TableConfig(), progress=None) -> dict:
 
     for seed in range(config.seeds):
         sim = simulate(get_scenario("table1", steps=config.steps), seed=seed)
-        log, frames, secs, tag_reads, tag_secs = _render_and_perceive(sim, seed, config.clean)
+        log, frames, secs, tag_reads, tag_secs = _render_and_perceive(sim, seed, config.clean, config.detector)
         tell(seed, "frames rendered and perceived")
         t_perc = float(np.sum(secs))
         for frs in frames.values():
@@ -214,7 +216,7 @@ def run_reconfig(config: TableConfig = TableConfig(seeds=1, steps=80), progress=
     from sims.simulation.scenarios import get_scenario, simulate
 
     sim = simulate(get_scenario("reconfig", steps=config.steps), seed=0)
-    log, frames, _, _, _ = _render_and_perceive(sim, 0, config.clean)
+    log, frames, _, _, _ = _render_and_perceive(sim, 0, config.clean, config.detector)
     if progress is not None:
         progress(1, 2, stage="frames rendered and perceived")
     est = estimate_log(log, EstimatorConfig(window=config.window, noise=_noise()))

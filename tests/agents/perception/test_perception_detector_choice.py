@@ -31,6 +31,23 @@ def test_default_is_the_hough_detector_and_rim_is_opt_in():
         make_detector("canny")
 
 
+def test_the_commands_offer_every_detector_and_default_to_the_librarys_default():
+    """perceive and experiment spell the detector names out (importing the detectors loads OpenCV): the same names
+    and the same default as agents.perception.detectors."""
+    import argparse
+
+    from agents.perception.detectors import DEFAULT_DETECTOR, DETECTORS
+    from sims.cli import experiment, perceive
+    from sims.lab.experiments.table1 import TableConfig
+
+    for module in (perceive, experiment):
+        parser = argparse.ArgumentParser()
+        module.add_arguments(parser)
+        action = next(a for a in parser._actions if a.dest == "detector")
+        assert sorted(action.choices) == sorted(DETECTORS) and action.default == DEFAULT_DETECTOR
+    assert TableConfig().detector == DEFAULT_DETECTOR
+
+
 def test_default_detector_finds_the_rendered_nodes_of_table1():
     """On rendered table1 frames the default detector finds at least 3 in 4 unoccluded nodes within a tenth
     of their radius (centre and radius), and every circle of a node's size lies on a node."""

@@ -194,9 +194,9 @@ def test_uncontested_fast_move_keeps_the_id():
 
 
 def test_perception_trusts_uncontested_jumps_only_with_a_detector_that_finds_neighbours():
-    """Perception's default tracker keeps ids through uncontested jumps for the learned detector, not the default one."""
+    """Perception's default tracker keeps ids through uncontested jumps for the learned detector, not for hough."""
     assert Perception("learned").tracker.config.trust_uncontested
-    assert not Perception().tracker.config.trust_uncontested
+    assert not Perception("hough").tracker.config.trust_uncontested
 
 
 def _feed(tracker, circles, node_of):

@@ -176,6 +176,23 @@ def test_hard_scenes_are_reproducible_and_cut_spheres_at_the_frame_edge():
     assert cut > 0
 
 
+def test_mottled_scenes_are_reproducible_have_empty_floors_and_keep_their_held_out_seeds_out(tmp_path):
+    """Mottled frames repeat from their seed; some frames hold no disc; every truth circle is a drawn disc
+    (bright against its surroundings where fully visible); held-out seeds are refused as training data."""
+    from sims.lab.experiments.detector_data import main as render_shards
+    from sims.lab.experiments.mottled_scenes import HELD_OUT_MOTTLED_SEEDS, mottled_frames
+
+    a, b = mottled_frames(6001, 6, width=320, height=240), mottled_frames(6001, 6, width=320, height=240)
+    assert all(np.array_equal(x.image, y.image) and np.array_equal(x.circles, y.circles) for x, y in zip(a, b))
+    frames = [f for seed in range(6000, 6008) for f in mottled_frames(seed, 4, width=320, height=240)]
+    assert any(len(f.circles) == 0 for f in frames) and any(len(f.circles) > 0 for f in frames)
+    for f in frames:
+        assert f.image.shape == (240, 320, 3) and len(f.circles) == len(f.visible)
+        assert ((f.visible >= 0) & (f.visible <= 1)).all()
+    assert render_shards([str(tmp_path), "--mottled", f"{HELD_OUT_MOTTLED_SEEDS[0]}:{HELD_OUT_MOTTLED_SEEDS[0] + 1}"]) == 2
+    assert not list(tmp_path.glob("*.npz"))
+
+
 def test_shipped_networks_load_back_into_torch_for_fine_tuning(tmp_path):
     """The shipped ONNX networks, loaded back into the torch networks, give onnxruntime's outputs (eval mode)."""
     pytest.importorskip("torch", reason="training needs PyTorch (the `train` extra)")
