@@ -1,13 +1,14 @@
 """``decentral train-detector``: retrain the learned circle detector on rendered scenes and/or labelled frames.
 
-Renders the training shards that are not yet in ``OUT/shards`` (varied scenes, harder scenes and
-``table1`` runs by seed, :mod:`sims.lab.experiments.detector_data`; the held-out varied scenes are refused), adds shards of
-the user's own labelled frames (``--labels``, see
+Renders the training shards that are not yet in ``OUT/shards`` (varied scenes, harder scenes,
+mottled floors and ``table1`` runs by seed, :mod:`sims.lab.experiments.detector_data`; the held-out
+scenes are refused), adds shards of the user's own labelled frames (``--labels``, see
 :func:`agents.perception.training.data.shard_from_labels`), then trains both networks on the CPU
 (``python -m agents.perception.training train``; PyTorch from the ``train`` extra; on a CUDA GPU
-where torch finds one) and writes
-``OUT/circles.onnx``, ``OUT/circle_refine.onnx`` and their loss curves. Use the result with
-``LearnedConfig(model=..., refine_model=...)``.
+where torch finds one) and writes ``OUT/circles.onnx``, ``OUT/circle_refine.onnx`` and their loss
+curves, and the second stage's 8-bit copy ``OUT/circle_refine_int8.onnx``
+(``python -m agents.perception.training quantize``), which the detector runs with onnxruntime. Use
+the result with ``LearnedConfig(model=OUT/"circles.onnx", refine_model=OUT/"circle_refine.onnx")``.
 """
 
 from __future__ import annotations
@@ -37,6 +38,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--varied-frames", type=int, default=10, help="frames per varied scene (default: 10)")
     parser.add_argument("--hard", type=_range, default=range(5000, 5200), metavar="FIRST:STOP",
                         help="harder scene seeds to render (near, far, edge-cut, clumped spheres; default: 5000:5200)")
+    parser.add_argument("--mottled", type=_range, default=range(6000, 6100), metavar="FIRST:STOP",
+                        help="mottled-floor scene seeds to render (tagged discs on blotchy floors; default: 6000:6100)")
     parser.add_argument("--table1", type=_range, default=range(100, 109), metavar="FIRST:STOP",
                         help="table1 run seeds to render (default: 100:109)")
     parser.add_argument("--table1-steps", type=int, default=30, help="steps per table1 run (default: 30)")
@@ -65,6 +68,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--varied-frames and --table1-steps must be positive", field="--varied-frames")
     render = ["--varied", f"{args.varied.start}:{args.varied.stop}", "--varied-frames", str(args.varied_frames),
               "--hard", f"{args.hard.start}:{args.hard.stop}", "--hard-frames", str(args.varied_frames),
+              "--mottled", f"{args.mottled.start}:{args.mottled.stop}", "--mottled-frames", str(args.varied_frames),
               "--table1", f"{args.table1.start}:{args.table1.stop}", "--table1-steps", str(args.table1_steps)]
     from agents.perception.training.__main__ import _size
 
@@ -85,6 +89,11 @@ def run(args: argparse.Namespace) -> int:
         write_shard(shards / f"labels-{k}.npz",
                     shard_from_labels(labels, input_size=_size(size)))
     init = [] if args.init is None else ["--init", str(args.init)]
-    return train_main(["train", str(shards), "-o", str(args.out), "--steps", str(args.steps),
-                       "--refine-steps", str(args.refine_steps), "--seed", str(args.seed), "--device", args.device, *init,
-                       "--validation", "varied-*9.npz", "hard-*49.npz", "table1-*8.npz", "--oversample", "table1-*=2"])
+    validation = ["--validation", "varied-*9.npz", "hard-*49.npz", "mottled-*9.npz", "table1-*8.npz"]
+    status = train_main(["train", str(shards), "-o", str(args.out), "--steps", str(args.steps),
+                         "--refine-steps", str(args.refine_steps), "--seed", str(args.seed), "--device", args.device,
+                         *init, *validation, "--oversample", "table1-*=2"])
+    if status != 0:
+        return status
+    return train_main(["quantize", str(shards), "--model", str(args.out / "circle_refine.onnx"), "--seed", str(args.seed),
+                       *validation])

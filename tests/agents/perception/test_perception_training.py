@@ -146,17 +146,21 @@ def test_only_the_training_modules_import_torch():
 
 @pytest.mark.slow
 def test_train_detector_command_renders_and_trains(tmp_path):
-    """`decentral train-detector` renders shards, fine-tunes both shipped networks for a few steps and writes both ONNX files."""
+    """`decentral train-detector` renders shards, fine-tunes both shipped networks for a few steps and writes both ONNX
+    files and the second stage's 8-bit copy."""
     pytest.importorskip("torch", reason="training needs PyTorch (the `train` extra)")
     from agents.perception.learned import MODEL_DIR
     from sims.cli.main import main
 
     out = tmp_path / "det"
     assert main(["train-detector", str(out), "--varied", "2008:2010", "--varied-frames", "1", "--table1", "100:100",
-                 "--hard", "5049:5050", "--steps", "2", "--refine-steps", "2", "--init", str(MODEL_DIR)]) == 0
+                 "--hard", "5049:5050", "--mottled", "6008:6010", "--steps", "2", "--refine-steps", "2",
+                 "--init", str(MODEL_DIR)]) == 0
     assert (out / "circles.onnx").is_file() and (out / "circle_refine.onnx").is_file()
+    assert (out / "circle_refine_int8.onnx").is_file()
     assert json.loads((out / "circles_training.json").read_text())["init"].endswith("circles.onnx")
-    assert sorted(p.name for p in (out / "shards").glob("*.npz")) == ["hard-5049.npz", "varied-2008.npz",
+    assert sorted(p.name for p in (out / "shards").glob("*.npz")) == ["hard-5049.npz", "mottled-6008.npz",
+                                                                        "mottled-6009.npz", "varied-2008.npz",
                                                                         "varied-2009.npz"]
 
 
