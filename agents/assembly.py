@@ -46,6 +46,7 @@ import numpy as np
 
 from agents.agent_config import AgentConfig, OwnStep
 from agents.assembly_results import AssemblyResults
+from agents.exclusion_revisions import ExclusionRevisions
 from agents.window_start import WindowStart
 from decentral.admm import ConsensusState, LocalProblem, PairState
 from decentral.geometry import rot2
@@ -117,6 +118,9 @@ class AssemblyAgent(AssemblyResults):
         #: members whose data the others' contradicted in the last window this agent solved (left out of it)
         self.excluded: tuple = ()
         self.suspects: tuple = ()  # inconsistent data, liar not identifiable: one of these (decentral.consistency)
+        # the last exact windows it solved, answered again when a later window excludes a member they kept
+        self._answered = ExclusionRevisions(config.window)
+        self._revised: list[tuple[int, dict, dict]] = []  # (step, poses relative to it, unplaced) not yet taken
         # the sharing of every window's cost forms (tree or broadcast), its records and the neighbours' tree places
         limit = config.max_yaw_std if config.noise.weighting == "information" else np.inf
         self._sharing = WindowAggregation(config.name, config.assemblies, config.reference,
@@ -413,6 +417,9 @@ class AssemblyAgent(AssemblyResults):
         self.excluded, self.suspects = tuple(share.excluded), tuple(share.suspects)
         if joint is None:
             return  # no forms, or the gauge's value at this window is unknown here: the ADMM goes on
+        if share.agg.complete:
+            self._answer_again_without(self.excluded)
+            self._answered.record(self._step, max(0, self._step - self.config.window + 1), share)
         seeds = joint.poses
         # every agent's forms: the seeds are the joint estimate of this step (a fixed point of the ADMM),
         # and the centralized estimator's placement test can be run on them
@@ -466,6 +473,27 @@ class AssemblyAgent(AssemblyResults):
         joint = self._sharing.joint(share)
         if joint is not None:
             self._start.fallback = self._placed(joint.poses, self._sharing.placeable(share, joint))
+
+    def _answer_again_without(self, excluded: tuple) -> None:
+        """Earlier exact windows that kept a member this window excludes, answered again without it
+        (:class:`agents.exclusion_revisions.ExclusionRevisions`; taken with :meth:`take_revisions`)."""
+        if not excluded:
+            return
+        limit = self._sharing.placement_limit
+        for step, share in self._answered.revise(excluded, self.config.reference):
+            joint = share.joint
+            placeable = share.placeable_keys(joint, self.name, step, limit)
+            rows = {self._index[name]: pose_row(self._index[name], step, 0, R, p)
+                    for (name, k), (R, p) in joint.poses.items()
+                    if k == step and name in self._index and ((name, k) in placeable or name == self.name)}
+            unplaced = share.unplaced(joint, self.config.assemblies, self.name, step, limit)
+            self._revised.append((step, self._relative_to_own(rows), unplaced))
+
+    def take_revisions(self) -> list[tuple[int, dict, dict]]:
+        """Steps answered again since the last call, ``(step, poses relative to this agent, unplaced reasons)``
+        (and forget them)."""
+        out, self._revised = self._revised, []
+        return out
 
     def _placed(self, poses: dict, placeable) -> dict[str, tuple]:
         """This step's poses of a joint solution ``(assembly, step) -> (R, p)`` that ``placeable`` names, and its own."""

@@ -68,7 +68,8 @@ def window_of(message: Message) -> int | None:
 
 @dataclass(frozen=True)
 class Revision:
-    """A step answered provisionally whose window then converged in the background.
+    """A step answered again: its window converged in the background after a provisional answer, or a later
+    window excluded a member whose data it kept (:mod:`agents.exclusion_revisions`).
 
     Attributes
     ----------
@@ -79,13 +80,16 @@ class Revision:
     unplaced : dict
         Assembly -> why it is not placed.
     rounds : int
-        Rounds the window took in all, from its step's arrival.
+        Rounds the window took in all, from its step's arrival (``"excluded"``: 0, no round of its own).
+    reason : str
+        ``"background"`` or ``"excluded"``.
     """
 
     step: int
     poses: dict
     unplaced: dict
     rounds: int
+    reason: str = "background"
 
 
 @dataclass(frozen=True)
@@ -197,8 +201,10 @@ class LocalAgent:
         return twin
 
     def take_revisions(self) -> list[Revision]:
-        """Steps answered provisionally whose window has since converged in the background (and forget them)."""
+        """Steps answered provisionally whose window has since converged in the background, and steps answered
+        again without a member a later window excluded, in that order (and forget them)."""
         out, self._revisions = self._revisions, []
+        out += [Revision(step, poses, unplaced, 0, "excluded") for step, poses, unplaced in self.agent.take_revisions()]
         return out
 
     def receive(self, messages, round_index: int | None = None) -> None:

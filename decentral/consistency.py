@@ -42,7 +42,7 @@ ALPHA = 1e-4
 #: logs (seeds 1-20, 240 windows); it holds on seeds 21-40 (tests/sims/runners/test_lies_simulated.py)
 DISPERSION = 12.0
 
-__all__ = ["Screening", "member_tests", "residual", "screen_by_margin", "screen_members"]
+__all__ = ["Screening", "member_tests", "residual", "screen_by_margin", "screen_members", "without_members"]
 
 
 def residual(problems: Sequence[LocalProblem], poses: dict) -> float:
@@ -248,6 +248,12 @@ def _over(problems: Sequence[LocalProblem], member) -> frozenset:
 
 def _without(problems: Sequence[LocalProblem], drop: frozenset) -> list:
     return [prob for i, prob in enumerate(problems) if i not in drop]
+
+
+def without_members(problems: Sequence[LocalProblem], members) -> list:
+    """The forms of ``problems`` over no pose of any of ``members`` (what is left once they are excluded)."""
+    drop = frozenset().union(*(_over(problems, m) for m in members))
+    return _without(problems, drop)
 
 
 def screen_members(problems: Sequence[LocalProblem], gauge: tuple, value=None, *, alpha: float = ALPHA,

@@ -9,13 +9,14 @@ window's wire messages (its bundles, acknowledgement and joint solution) are pac
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 from typing import Any, Mapping
 
 import numpy as np
 
 from decentral.admm import LocalProblem, solve_joint
-from decentral.consistency import screen_members
+from decentral.consistency import screen_members, without_members
 
 #: windows of at most this many members are screened for a member whose data the others contradict (the
 #: tests cost about 14 joint solves a window: 22 ms for 12 members, 46 ms for 16, one core; larger windows are
@@ -139,9 +140,8 @@ class WindowShare:
         odometry nor detections, forms missing); the ADMM then goes on from its own state."""
         self.joint, self.solved_for, self.placeable = None, self._held(), None
         problems = self.problems()
-        pin = self.pin
-        if problems and (pin is not None and int(pin[0]) == first or first == 0):
-            value = (rot2(float(pin[4])), np.array(pin[1:4])) if pin is not None and int(pin[0]) == first else None
+        known, value = self._gauge(first)
+        if problems and known:
             try:
                 # a member whose data the others contradict is left out, with every form over its poses
                 members = {k[0] for prob in problems for k in prob.keys}
@@ -157,6 +157,35 @@ class WindowShare:
             except np.linalg.LinAlgError:
                 return False
         return True
+
+    def _gauge(self, first: int) -> tuple[bool, tuple | None]:
+        """Whether the gauge's value at window start ``first`` is known here (at step 0, the identity; else from
+        the reference's ``pin``), and that value ``(R, p)`` (None: the identity)."""
+        pin = self.pin
+        if pin is not None and int(pin[0]) == first:
+            return True, (rot2(float(pin[4])), np.array(pin[1:4]))
+        return first == 0, None
+
+    def without(self, members, reference: str, first: int) -> "WindowShare | None":
+        """This window solved again without every form over a pose of ``members`` (members a later window
+        excluded): a copy whose ``kept``, ``excluded`` and ``joint`` say so (its placement computed afresh),
+        gauge as in :meth:`solve`; None where :meth:`solve` kept nothing or the rest does not tie the
+        gauge's variables."""
+        known, value = self._gauge(first)
+        if self.kept is None or not known:
+            return None
+        rest = without_members(self.kept, members)
+        if not rest:
+            return None
+        try:
+            joint = solve_joint(rest, (reference, first), value)
+        except np.linalg.LinAlgError:
+            return None
+        again = copy.copy(self)
+        again.kept, again.joint, again.solved_for = rest, joint, self._held()
+        again.excluded = tuple(self.excluded) + tuple(sorted(members, key=repr))
+        again.placeable = again.yaw_std = None
+        return again
 
     def placeable_keys(self, joint, name: str, step: int, limit: float) -> frozenset:
         """``(assembly, step)`` keys the centralized placement test places on ``joint`` relative to ``name`` at

@@ -254,7 +254,8 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
                 per_agent[rev.step][n] = rev.poses
                 if n == reference:
                     est_steps[rev.step] = EstimateStep(log.steps[rev.step].t, rev.poses, rev.unplaced)
-                    revised.append({"step": rev.step, "rounds": rev.rounds, "at_step": len(est_steps)})
+                    revised.append({"step": rev.step, "rounds": rev.rounds, "at_step": len(est_steps),
+                                    "reason": rev.reason})
     for k in range(len(log.steps)):
         t = now()
         per_step.append({})

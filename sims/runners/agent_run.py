@@ -20,8 +20,10 @@ Each finished step is appended at once as one JSON line to ``stream`` (if given)
 "lagged", "counters", "closed_at"}`` with the transport's cumulative counts, the frame latencies of the window
 (median, p90, max, ms) and the agent's protocol counters, so that a process killed with SIGKILL has
 still reported every step it finished. A step answered provisionally whose window then converged in
-the background (:mod:`agents.runtime`) is written again, converged, with ``revised_after_s`` (seconds
-after its first record): a later line of a step replaces the earlier one.
+the background, or answered again without a member a later window excluded (:mod:`agents.runtime`,
+:mod:`agents.exclusion_revisions`), is written again, converged, with ``revised_after_s`` (seconds
+after its first record) and ``revised_because`` (``"background"`` or ``"excluded"``): a later line of
+a step replaces the earlier one.
 
 - **a late start**: a process that starts after its START first asks its peers for the run's clock
   (:class:`PeerClock`) and follows the START two of them agree on, from the step under way.
@@ -287,7 +289,7 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
                 continue
             records[at] = dict(records[at], poses=poses_to_dict(dict(sorted(rev.poses.items()))),
                                unplaced=dict(rev.unplaced), converged=True, rounds=rev.rounds,
-                               revised_after_s=round(clock() - records[at]["closed_at"], 4))
+                               revised_after_s=round(clock() - records[at]["closed_at"], 4), revised_because=rev.reason)
             write(records[at])
 
     adopted = []  # (wall time, the START given, the peers' START adopted)
@@ -386,7 +388,8 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
         "rounds_per_step": [r["rounds"] for r in records],
         "converged_per_step": [r["converged"] for r in records],
         # steps answered provisionally whose window converged in the background, and how long after the answer
-        "revised": [{"step": r["step"], "after_s": r["revised_after_s"]} for r in records if "revised_after_s" in r],
+        "revised": [{"step": r["step"], "after_s": r["revised_after_s"], "reason": r.get("revised_because", "background")}
+                    for r in records if "revised_after_s" in r],
         "missing": sorted(a for a in names if a != name and a not in heard),
         "round_period": pace.round_period,
         "lagged": lagged,  # times the process fell more than 20 half rounds behind and jumped

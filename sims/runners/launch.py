@@ -463,7 +463,8 @@ def _compose(log, reference, records, config, incarnations, timed_out, failures)
         "converged_per_step": [bool(by_step[k]["converged"]) if k in by_step else False for k in range(len(log.steps))],
         "rounds_per_step": [int(by_step[k]["rounds"]) if k in by_step else 0 for k in range(len(log.steps))],
         # the reference's steps answered provisionally whose window converged in the background (agents.runtime)
-        "revised": [{"step": k, "after_s": by_step[k]["revised_after_s"]} for k in ran
+        "revised": [{"step": k, "after_s": by_step[k]["revised_after_s"],
+                     "reason": by_step[k].get("revised_because", "background")} for k in ran
                     if "revised_after_s" in by_step[k]],
         "missing": sorted(n for n in log.assemblies if n != reference and n not in heard),
         # members whose data the others contradicted, left out of the reference's joint solution

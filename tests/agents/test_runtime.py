@@ -22,6 +22,7 @@ class _Stub:
         self.ticks = []
         self.handled = []
         self.windows_independent = False  # (the background window has its own tests)
+        self.revised = []  # (step, poses, unplaced) answered again without an excluded member
 
     def on_step(self, own, round_index=None):
         pass
@@ -46,6 +47,10 @@ class _Stub:
 
     def settle_provisional(self):
         pass
+
+    def take_revisions(self):
+        out, self.revised = self.revised, []
+        return out
 
 
 def _busy(round_index, done=False):
@@ -145,6 +150,18 @@ class _Forking(_Stub):
         twin = _Forking(self.name)
         twin.converged = self.converged
         return twin
+
+
+def test_steps_the_agent_answered_again_without_an_excluded_member_are_revisions_taken_once():
+    """What the agent answered again (a later window excluded a member) comes out as revisions of those steps,
+    reason "excluded", once."""
+    local = LocalAgent(_Stub())
+    local.on_step(OwnStep(step=0, t=0.0, config={}))
+    local.agent.revised = [(0, {"A1": "again"}, {"A2": "unobserved"})]
+    revisions = local.take_revisions()
+    assert [(r.step, r.poses, r.unplaced, r.reason) for r in revisions] == [(0, {"A1": "again"}, {"A2": "unobserved"},
+                                                                             "excluded")]
+    assert local.take_revisions() == []
 
 
 def test_an_unconverged_window_goes_on_in_the_background_and_revises_its_step():

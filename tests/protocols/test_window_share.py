@@ -67,3 +67,25 @@ def test_the_solution_message_holds_the_newest_poses_and_the_graph_only_when_giv
     assert sent.indices("members") == [0, 1] and sent.indices("placeable") == [0, 1]
     assert np.allclose(sent.pose_of()[1][0], [-1.0, 0.0, 0.0], atol=1e-6) and sent.edge_set() == {(1, 0)}
     assert len(share.solution_message("A0", share.joint, index, {0, 1}, None, 9, 2).edges) == 0
+
+
+def test_a_window_solved_again_without_a_member_leaves_out_its_forms_and_places_afresh():
+    """without(["A2"]): a copy solved from the forms over no pose of A2 (A1 still 1 m behind A0, A2 gone and
+    unplaced); the window itself keeps its solution and placement; nothing left, or no gauge value: None."""
+    agg = TreeAggregation(0, 3, root=True, parent=None)
+    a1 = quadratic_form([("A1", 0), ("A0", 0)], visual=(np.zeros(3, int), np.ones(3, int), Q, Q + [1.0, 0, 0], np.ones(3)))
+    a2 = quadratic_form([("A2", 0), ("A0", 0)], visual=(np.zeros(3, int), np.ones(3, int), Q, Q + [2.0, 0, 0], np.ones(3)))
+    agg.add({0: [], 1: [(((1, 0), (0, 0)), a1)], 2: [(((2, 0), (0, 0)), a2)]})
+    share = WindowShare(step=0, agg=agg)
+    assert share.solve("A0", 0)
+    placed = share.placeable_keys(share.joint, "A0", 0, np.inf)
+    assert ("A2", 0) in placed
+    again = share.without({"A2"}, "A0", 0)
+    assert again is not None and again.excluded == ("A2",) and again is not share
+    assert set(again.joint.poses) == {("A0", 0), ("A1", 0)}
+    assert np.allclose(again.joint.poses[("A1", 0)][1], [-1.0, 0.0, 0.0], atol=1e-9)
+    assert ("A2", 0) not in again.placeable_keys(again.joint, "A0", 0, np.inf)
+    assert "A2" in again.unplaced(again.joint, ("A0", "A1", "A2"), "A0", 0, np.inf)
+    assert share.excluded == () and ("A2", 0) in share.joint.poses and share.placeable_keys(None, "A0", 0, np.inf) is placed
+    assert share.without({"A1", "A2"}, "A0", 0) is None  # (the gauge alone: nothing to solve)
+    assert _share(step=2).without({"A2"}, "A0", 2) is None  # (no gauge value at this window here)
