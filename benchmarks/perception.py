@@ -15,6 +15,10 @@ Two sets of frames:
   share of facing tags read, wrong ids, CPU time per frame.
 - ``rendered``: the 3-D renderer's ``table1`` and ``multi`` scenarios (seed 0), images only and with
   the log's camera model (see docs/perception.md).
+- ``mottled``: the held-out scenes of :mod:`sims.lab.experiments.mottled_scenes` (tagged discs on
+  blotchy floors, a quarter of the frames with no disc; ``--frames`` frames each, at most 10),
+  each detector of ``--detectors`` alone: strict recall of the discs at least 90 % visible and 12 px
+  across, false circles per frame (no disc within a radius of the circle's centre), CPU per frame.
 
 Times: CPU seconds of this process (``time.process_time``; BLAS and OpenCV pinned to one thread, so
 one core's work) and wall seconds; each sequence runs ``--repeats`` times and per frame the smallest
@@ -24,7 +28,8 @@ AprilTag 3 on the same frames, and OpenCV's ``HoughCircles(HOUGH_GRADIENT_ALT)``
 detector).
 
 Usage: ``python benchmarks/perception.py [--scenes varied rendered] [--frames 30] [--repeats 3]
-[--detectors hough rim symmetry] [--scenes-max N] [--out DIR]``; writes ``perception_varied.{json,md}`` and/or ``perception.{json,png}`` under ``--out``
+[--detectors hough rim symmetry] [--scenes-max N] [--out DIR]``; writes ``perception_varied.{json,md}``,
+``perception.{json,png}`` and/or ``perception_mottled.json`` under ``--out``
 (default ``out/benchmarks``; pass ``--out benchmarks/results`` to replace the committed results).
 """
 
@@ -383,6 +388,45 @@ def _print_scene(r: dict) -> None:
         f"{1000 * v['cpu_seconds_median']:.0f} ms CPU" for d, v in r["detectors"].items()), flush=True)
 
 
+def run_mottled(args) -> dict:
+    """The held-out mottled floors: each detector alone (recall, false circles per frame, CPU per frame)."""
+    from agents.perception import make_detector
+    from sims.lab.experiments.mottled_scenes import HELD_OUT_MOTTLED_SEEDS, mottled_frames
+
+    frames = [f for seed in HELD_OUT_MOTTLED_SEEDS for f in mottled_frames(seed, min(args.frames, 10))]
+    result = {"benchmark": "perception_mottled",
+              "parameters": {"seeds": list(HELD_OUT_MOTTLED_SEEDS), "frames_per_seed": min(args.frames, 10),
+                             "detectors": list(args.detectors), "image": [1024, 768], "threads": 1,
+                             "repeats": args.repeats, "recall": "centre within max(2 px, 0.1 r), radius within 10 %, "
+                                                               "discs >= 90 % visible and >= 12 px radius",
+                             "false": "no disc within one radius of the circle's centre"},
+              "machine": machine(), "detectors": {}}
+    for name in args.detectors:
+        det = make_detector(name)
+        hit = whole = false = 0
+        seconds = []
+        for f in frames:
+            best = np.inf
+            for _ in range(args.repeats):
+                cpu = time.process_time()
+                circles = det.detect(f.image)
+                best = min(best, time.process_time() - cpu)
+            seconds.append(best)
+            false += sum(all(np.hypot(c.u - u, c.v - v) > r for u, v, r in f.circles) for c in circles)
+            for (u, v, r), vis in zip(f.circles, f.visible):
+                if vis >= 0.9 and r >= 12:
+                    whole += 1
+                    hit += any(np.hypot(c.u - u, c.v - v) <= max(2.0, 0.1 * r) and abs(c.r - r) <= 0.1 * r
+                               for c in circles)
+        result["detectors"][name] = {"recall": hit / max(whole, 1), "discs": whole, "frames": len(frames),
+                                     "false_circles_per_frame": false / len(frames),
+                                     "cpu_ms_median": 1000 * float(np.median(seconds))}
+        d = result["detectors"][name]
+        print(f"mottled, {name}: recall {d['recall']:.3f} of {whole}, {d['false_circles_per_frame']:.2f} false circles "
+              f"a frame, {d['cpu_ms_median']:.1f} ms CPU", flush=True)
+    return result
+
+
 def run_rendered(args) -> dict:
     """The 3-D renderer's table1 and multi scenarios (seed 0), both configurations, one detector."""
     result = {"benchmark": "perception", "parameters": {"scenarios": ["table1", "multi"], "seed": 0, "steps": args.steps,
@@ -405,7 +449,7 @@ def run_rendered(args) -> dict:
 
 def main(argv=None) -> None:
     ap = parser(__doc__)
-    ap.add_argument("--scenes", nargs="+", choices=("varied", "rendered"), default=["varied"],
+    ap.add_argument("--scenes", nargs="+", choices=("varied", "rendered", "mottled"), default=["varied"],
                     help="which frames (default: varied)")
     ap.add_argument("--frames", type=int, default=30, help="frames per varied scene (default 30)")
     ap.add_argument("--tuning", action="store_true", help="also report the tuning seeds of the varied scenes")
@@ -427,6 +471,8 @@ def main(argv=None) -> None:
         table = _table(result)
         write_atomic(output(args.out, "perception_varied", ".md"), lambda fh: fh.write(table))
         print(table)
+    if "mottled" in args.scenes:
+        save("perception_mottled", run_mottled(args), args.out)
     if "rendered" in args.scenes:
         result = run_rendered(args)
         save("perception", result, args.out)

@@ -1,13 +1,15 @@
-"""The circle detectors by name: ``"hough"`` (the default), ``"learned"``, ``"rim"`` and ``"symmetry"``.
+"""The circle detectors by name: ``"learned"`` (the default), ``"hough"``, ``"rim"`` and ``"symmetry"``.
 
-``"hough"`` is :class:`~agents.perception.hough.HoughCircleDetector`: no network, about 15-30 ms of
-CPU per 1024 x 768 frame, good on the rendered frames, poor on floors it was not tuned on.
 ``"learned"`` is :class:`~agents.perception.learned.LearnedCircleDetector`: two small networks
 shipped with the package (proposals, then a second stage per circle), run by onnxruntime (OpenCV's
-``dnn`` where it is missing); the better on the held-out varied floors (recall 0.97 against 0.55)
-and the rendered ``table1`` frames (0.986 against 0.951, radius error p90 1 % against 3 %, 41
-against 34 frames/s for the whole front end), but it proposes circles on blotchy floors it was not
-trained on (docs/perception.md). ``"rim"`` is
+``dnn`` where it is missing); the better on every measured set but one (docs/perception.md): held-out
+varied floors (recall 0.97 against 0.55), mottled floors (0.90 against 0.54, fewer false circles),
+the rendered ``table1`` frames (0.96 against 0.95, radius error p90 1 % against 3 %, 40 against 34
+frames/s for the whole front end) and Table I end to end (0.012 against 0.034 m); on the rendered
+``multi`` frames (a low camera, spheres on the horizon) it finds fewer (0.37 against 0.47).
+``"hough"`` is :class:`~agents.perception.hough.HoughCircleDetector` (the default before): no
+network, about 15-30 ms of CPU per 1024 x 768 frame, good on the rendered frames, poor on floors it
+was not tuned on. ``"rim"`` is
 :class:`~agents.perception.rim.RimCircleDetector`: it reports the sphere's outline where the default
 fits the tag (large spheres coloured like the floor, a tag near the limb, partly hidden spheres), at
 about five times the cost. ``"symmetry"`` is :class:`~agents.perception.symmetry_detector.SymmetryCircleDetector`:
@@ -30,7 +32,7 @@ __all__ = ["DEFAULT_DETECTOR", "DETECTORS", "LOG_MIN_SCORE", "make_detector"]
 DETECTORS = ("hough", "rim", "symmetry", "learned")
 #: the detector used where none is named (``perceive``, :class:`~agents.perception.pipeline.Perception`,
 #: the perception runs and experiments)
-DEFAULT_DETECTOR = "hough"
+DEFAULT_DETECTOR = "learned"
 #: per detector, the score below which a detection stays out of a filled log (``perceive --log-out``, the
 #: experiments, ``build-log``): hough's, rim's and symmetry's score is the rim's support (0.5: partly hidden
 #: rims and off-centre fits stay out); the learned detector's is its heatmap peak, and its circles have

@@ -1,6 +1,6 @@
 """``decentral experiment``: Liu et al.'s experiments reproduced on rendered frames (JSON + PNG).
 
-``decentral experiment table1 -o OUTDIR [--seeds 2] [--steps 60] [--clean] [--detector hough]`` writes
+``decentral experiment table1 -o OUTDIR [--seeds 2] [--steps 60] [--clean] [--detector learned]`` writes
 ``OUTDIR/table1.json``, ``table1.md`` and ``table1.png`` (Table I: ours vs bearing vs AprilTag);
 ``decentral experiment reconfig -o OUTDIR [--steps 80]`` writes ``OUTDIR/reconfig.json`` and
 ``reconfig.png`` (Fig. 4: error over time as nodes are occluded and re-appear).
@@ -37,8 +37,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--steps", type=int, default=None, help="steps per run (default: table1 60, reconfig 80)")
     parser.add_argument("--clean", action="store_true", help="render without noise, blur or exposure changes")
     # (agents.perception.detectors.DETECTORS written out: importing it loads OpenCV)
-    parser.add_argument("--detector", choices=("hough", "learned", "rim", "symmetry"), default="hough",
-                        help="circle detector of the perception front end (default: hough)")
+    parser.add_argument("--detector", choices=("learned", "hough", "rim", "symmetry"), default="learned",
+                        help="circle detector of the perception front end (default: learned)")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -37,11 +37,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--min-radius", type=float, default=8.0, help="smallest node radius in pixels (default: 8)")
     parser.add_argument("--max-radius", type=float, default=160.0, help="largest node radius in pixels (default: 160)")
     # (agents.perception.detectors' DETECTORS and DEFAULT_DETECTOR, written out: importing it loads OpenCV)
-    parser.add_argument("--detector", choices=("hough", "learned", "rim", "symmetry"), default="hough",
-                        help="circle detector: hough (default; no network), learned (the shipped networks: proposals, "
-                             "then a second stage per circle; the better on most floors), rim (finds the rim where hough "
-                             "fits the tag; about 3x hough's time) or symmetry (colour-edge symmetry votes; about 3x "
-                             "hough's time)")
+    parser.add_argument("--detector", choices=("learned", "hough", "rim", "symmetry"), default="learned",
+                        help="circle detector: learned (default: the shipped networks, proposals then a second stage "
+                             "per circle), hough (no network; good on clean floors, poor elsewhere), rim (finds the rim "
+                             "where hough fits the tag; about 3x hough's time) or symmetry (colour-edge symmetry votes; "
+                             "about 3x hough's time)")
     parser.add_argument("--motion", choices=("auto", "flow", "odometry", "none"), default="auto",
                         help="camera-motion compensation for tracking: auto (default: the observer's "
                              "odometry when --log-template has it, else image registration), flow (image "

@@ -147,3 +147,20 @@ def test_auto_motion_uses_the_logs_odometry_not_registration(tmp_path, monkeypat
     assert main(["perceive", *frames, "-o", str(out), "--log-template", str(run / "log.json"),
                  "--camera", "A0/cam0", "--log-out", str(log_out)]) == 0
     assert len(used) == len(frames) - 1
+
+
+def test_the_commands_offer_every_detector_and_default_to_the_librarys_default():
+    """perceive and experiment spell the detector names out (importing the detectors loads OpenCV): the same names
+    and the same default as agents.perception.detectors."""
+    import argparse
+
+    from agents.perception.detectors import DEFAULT_DETECTOR, DETECTORS
+    from sims.cli import experiment, perceive
+    from sims.lab.experiments.table1 import TableConfig
+
+    for module in (perceive, experiment):
+        parser = argparse.ArgumentParser()
+        module.add_arguments(parser)
+        action = next(a for a in parser._actions if a.dest == "detector")
+        assert sorted(action.choices) == sorted(DETECTORS) and action.default == DEFAULT_DETECTOR
+    assert TableConfig().detector == DEFAULT_DETECTOR

@@ -43,7 +43,7 @@ class TableConfig:
     window: int = 5
     bearing_window: int = 20
     clean: bool = False
-    detector: str = "hough"  # (agents.perception.detectors.DEFAULT_DETECTOR)
+    detector: str = "learned"  # (agents.perception.detectors.DEFAULT_DETECTOR)
 
 
 def _noise():

@@ -115,7 +115,7 @@ def test_fallback_mask_spares_the_fallback_reader():
 def test_perception_skips_the_fallback_only_for_confidently_carried_circles():
     """Once a node's id is confident, frames whose tag the library cannot read skip the fallback; a new node's do not."""
     spare = _CountingReader()
-    p = Perception(identifier=AprilTag3Identifier(fallback=spare))
+    p = Perception("hough", identifier=AprilTag3Identifier(fallback=spare))  # (the drawn discs and nothing else)
     for k in range(5):  # the tag is read in 5 frames: the track's id is confident
         dets, _ = p.process(frame([SceneNode(200 + 2 * k, 200, 40, tag=11, tag_size=0.75)], seed=k))
         assert [d.node for d in dets] == [11]

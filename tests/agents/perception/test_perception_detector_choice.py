@@ -20,32 +20,18 @@ MIN_RECALL = 0.75
 NODE_SIZED = 0.6
 
 
-def test_default_is_the_hough_detector_and_rim_is_opt_in():
-    """Perception() and make_detector() build the Hough detector; "rim" builds the rim detector; others fail."""
-    assert isinstance(Perception().detector, HoughCircleDetector)
-    assert isinstance(make_detector(), HoughCircleDetector)
+def test_default_is_the_learned_detector_and_the_others_are_opt_in():
+    """Perception() and make_detector() build the learned detector; "hough" and "rim" build theirs; others fail."""
+    from agents.perception.learned import LearnedCircleDetector
+
+    assert isinstance(Perception().detector, LearnedCircleDetector)
+    assert isinstance(make_detector(), LearnedCircleDetector)
+    assert isinstance(make_detector("hough"), HoughCircleDetector)
     assert isinstance(Perception("rim").detector, RimCircleDetector)
     rim = make_detector("rim", 10.2, 90.5)
     assert isinstance(rim, RimCircleDetector) and (rim.config.min_radius, rim.config.max_radius) == (10, 91)
     with pytest.raises(ValueError, match="unknown detector"):
         make_detector("canny")
-
-
-def test_the_commands_offer_every_detector_and_default_to_the_librarys_default():
-    """perceive and experiment spell the detector names out (importing the detectors loads OpenCV): the same names
-    and the same default as agents.perception.detectors."""
-    import argparse
-
-    from agents.perception.detectors import DEFAULT_DETECTOR, DETECTORS
-    from sims.cli import experiment, perceive
-    from sims.lab.experiments.table1 import TableConfig
-
-    for module in (perceive, experiment):
-        parser = argparse.ArgumentParser()
-        module.add_arguments(parser)
-        action = next(a for a in parser._actions if a.dest == "detector")
-        assert sorted(action.choices) == sorted(DETECTORS) and action.default == DEFAULT_DETECTOR
-    assert TableConfig().detector == DEFAULT_DETECTOR
 
 
 def test_default_detector_finds_the_rendered_nodes_of_table1():

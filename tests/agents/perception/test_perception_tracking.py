@@ -15,8 +15,9 @@ def _read(node):
 
 
 def test_id_kept_through_a_five_frame_tag_dropout():
-    """On rendered frames, a node whose tag is unreadable for 5 frames keeps its id and track."""
-    p = Perception()
+    """On rendered frames, a node whose tag is unreadable for 5 frames keeps its id and track (hough: the tracker's
+    test, on the detector that finds the one drawn disc and nothing else on this floor)."""
+    p = Perception("hough")
     ids, tracks = [], []
     for k in range(14):
         tag = None if 5 <= k < 10 else 77
