@@ -481,13 +481,9 @@ class AssemblyAgent(AssemblyResults):
             return
         limit = self._sharing.placement_limit
         for step, share in self._answered.revise(excluded, self.config.reference):
-            joint = share.joint
-            placeable = share.placeable_keys(joint, self.name, step, limit)
-            rows = {self._index[name]: pose_row(self._index[name], step, 0, R, p)
-                    for (name, k), (R, p) in joint.poses.items()
-                    if k == step and name in self._index and ((name, k) in placeable or name == self.name)}
-            unplaced = share.unplaced(joint, self.config.assemblies, self.name, step, limit)
-            self._revised.append((step, self._relative_to_own(rows), unplaced))
+            placed = self._placed(share.joint.poses, share.placeable_keys(share.joint, self.name, step, limit), step)
+            unplaced = share.unplaced(share.joint, self.config.assemblies, self.name, step, limit)
+            self._revised.append((step, self._relative_to_own(self._rows_of(placed, step)), unplaced))
 
     def take_revisions(self) -> list[tuple[int, dict, dict]]:
         """Steps answered again since the last call, ``(step, poses relative to this agent, unplaced reasons)``
@@ -495,10 +491,12 @@ class AssemblyAgent(AssemblyResults):
         out, self._revised = self._revised, []
         return out
 
-    def _placed(self, poses: dict, placeable) -> dict[str, tuple]:
-        """This step's poses of a joint solution ``(assembly, step) -> (R, p)`` that ``placeable`` names, and its own."""
-        return {name: pose for (name, step), pose in poses.items()
-                if step == self._step and ((name, step) in placeable or name == self.name)}
+    def _placed(self, poses: dict, placeable, step: int | None = None) -> dict[str, tuple]:
+        """The poses at ``step`` (default: this step) of a joint solution ``(assembly, step) -> (R, p)`` that
+        ``placeable`` names, and its own."""
+        step = self._step if step is None else step
+        return {name: pose for (name, k), pose in poses.items()
+                if k == step and ((name, k) in placeable or name == self.name)}
 
     def _pair_phase(self) -> None:
         """Phase 0: each owned pair iterates once the target's consensus of its iteration has arrived."""

@@ -117,9 +117,11 @@ class AssemblyResults:
                     if i == self._index[self.name] or (self.config.assemblies[i], self._step) in self._start.placeable}
         return self._relative_to_own(rows)
 
-    def _rows_of(self, poses: dict[str, tuple]) -> dict[int, np.ndarray]:
-        """Poses ``assembly -> (R, p)`` of this step as gossip-table rows (index, step, round, x, y, z, yaw)."""
-        return {self._index[name]: pose_row(self._index[name], self._step, 0, R, p) for name, (R, p) in poses.items()}
+    def _rows_of(self, poses: dict[str, tuple], step: int | None = None) -> dict[int, np.ndarray]:
+        """Poses ``assembly -> (R, p)`` of ``step`` (default: this step) as gossip-table rows (index, step, round,
+        x, y, z, yaw)."""
+        step = self._step if step is None else step
+        return {self._index[name]: pose_row(self._index[name], step, 0, R, p) for name, (R, p) in poses.items()}
 
     def _relative_to_own(self, rows: dict[int, np.ndarray]) -> dict[str, PlanarPose]:
         """Rows of this step (root frames in the gauge) as poses in this agent's root frame (eq. (19))."""
