@@ -85,7 +85,10 @@ def quantize_refine(model: str | os.PathLike, data: Shards, val: Shards, out: st
     if samples < 1:
         raise InputError("must be positive", field="--samples")
     calibration = _windows(data, samples, seed)
-    name = _session(model).get_inputs()[0].name
+    try:
+        name = _session(model).get_inputs()[0].name
+    except Exception as exc:  # onnxruntime raises its own types for a file that is no network
+        raise InputError(f"cannot load the model ({str(exc).splitlines()[0][:200]})", source=str(model)) from None
 
     class _Reader(CalibrationDataReader):
         def __init__(self):
@@ -97,10 +100,14 @@ def quantize_refine(model: str | os.PathLike, data: Shards, val: Shards, out: st
     out.parent.mkdir(parents=True, exist_ok=True)
     pre, tmp = out.with_suffix(".pre.tmp"), out.with_suffix(".onnx.tmp")
     try:
-        quant_pre_process(str(model), str(pre), skip_symbolic_shape=True)
-        quantize_static(str(pre), str(tmp), _Reader(), quant_format=QuantFormat.QOperator,
-                        activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8,
-                        per_channel=True, reduce_range=True)
+        try:
+            quant_pre_process(str(model), str(pre), skip_symbolic_shape=True)
+            quantize_static(str(pre), str(tmp), _Reader(), quant_format=QuantFormat.QOperator,
+                            activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8,
+                            per_channel=True, reduce_range=True)
+        except Exception as exc:  # onnx and onnxruntime raise their own types for a file that is no such network
+            raise InputError(f"cannot quantize this model ({exc.__class__.__name__}: {str(exc).splitlines()[0][:200]})",
+                             source=str(model)) from None
         report = {"model": model.name, "quantized": out.name, "calibration_windows": int(samples), "seed": int(seed),
                   "format": "QOperator, uint8 activations, int8 per-channel 7-bit weights (reduce_range)",
                   "validation": refine_agreement(model, tmp, _windows(val, samples, seed + 1))}

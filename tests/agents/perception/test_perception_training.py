@@ -301,16 +301,19 @@ def test_quantized_second_stage_is_written_beside_the_model_and_run_by_onnxrunti
     assert LearnedCircleDetector(cfg).refine_path == copy
 
 
-def test_quantize_refuses_a_missing_model_with_one_line(tmp_path, capsys):
-    """A missing --model ends with exit status 2 and one line naming the file."""
+def test_quantize_refuses_a_missing_or_broken_model_with_one_line(tmp_path, capsys):
+    """A missing --model, or a file that is no network, ends with exit status 2, one line naming the file and
+    nothing written."""
     pytest.importorskip("onnx", reason="quantizing needs the onnx package (the `train` extra)")
     from agents.perception.training.__main__ import main
 
     shards = tmp_path / "shards"
     shards.mkdir()
     _shards(shards, seeds=(2000, 2009))
-    missing = tmp_path / "nope.onnx"
-    assert main(["quantize", str(shards), "--model", str(missing), "--validation", "varied-*9.npz"]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and str(missing) in err[0]
-    assert not list(tmp_path.glob("nope_int8*"))
+    missing, junk = tmp_path / "nope.onnx", tmp_path / "junk.onnx"
+    junk.write_bytes(b"not a network")
+    for model in (missing, junk):
+        assert main(["quantize", str(shards), "--model", str(model), "--validation", "varied-*9.npz"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and str(model) in err[0]
+        assert not list(tmp_path.glob(f"{model.stem}_int8*"))
