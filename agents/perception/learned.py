@@ -39,8 +39,8 @@ from agents.perception.onnx_shape import onnx_input_shape
 from agents.perception.types import Circle
 from decentral.errors import InputError
 
-__all__ = ["MODEL_DIR", "LearnedCircleDetector", "LearnedConfig", "decode", "model_input_size", "resolve_backend",
-           "second_stage_path"]
+__all__ = ["MODEL_DIR", "LearnedCircleDetector", "LearnedConfig", "OnnxNet", "decode", "model_input_size",
+           "quantized_path", "resolve_backend", "second_stage_path"]
 
 #: folder of the shipped networks (package data)
 MODEL_DIR = Path(__file__).resolve().parent / "models"
@@ -116,19 +116,24 @@ def resolve_backend(backend: str) -> str:
     return "onnxruntime"
 
 
+def quantized_path(model: str | os.PathLike) -> Path:
+    """Where the 8-bit copy of second stage ``model`` lies: ``<stem>_int8.onnx`` beside it."""
+    model = Path(model)
+    return model.with_name(f"{model.stem}_int8.onnx")
+
+
 def second_stage_path(config: LearnedConfig, backend: str) -> Path | None:
     """The second-stage file ``backend`` runs: the 8-bit copy beside ``refine_model`` (see
     :attr:`LearnedConfig.quantized`) with onnxruntime where it exists, else ``refine_model`` itself."""
     if config.refine_model is None:
         return None
-    path = Path(config.refine_model)
-    copy = path.with_name(f"{path.stem}_int8.onnx")
+    path, copy = Path(config.refine_model), quantized_path(config.refine_model)
     if config.quantized and resolve_backend(backend) == "onnxruntime" and copy.is_file():
         return copy
     return path
 
 
-class _Net:
+class OnnxNet:
     """One ONNX network behind either backend: ``run(x)`` for an (N, C, H, W) float32 batch."""
 
     def __init__(self, path, backend: str, threads: int):
@@ -207,12 +212,12 @@ class LearnedCircleDetector:
         self.config = cfg = config or LearnedConfig()
         if not 0.0 < cfg.threshold < 1.0 or cfg.refine_passes < 0 or cfg.threads < 1:
             raise InputError("threshold must lie in (0, 1), refine_passes >= 0, threads >= 1", field="LearnedConfig")
-        self.net = _Net(cfg.model, cfg.backend, cfg.threads)
+        self.net = OnnxNet(cfg.model, cfg.backend, cfg.threads)
         #: (width, height) of the proposal network's input, from the model file
         self.input_size = model_input_size(cfg.model)
         #: the second-stage file in use (the 8-bit copy or the float network), None without one
         self.refine_path = None if cfg.refine_passes == 0 else second_stage_path(cfg, cfg.backend)
-        self.refiner = None if self.refine_path is None else _Net(self.refine_path, cfg.backend, cfg.threads)
+        self.refiner = None if self.refine_path is None else OnnxNet(self.refine_path, cfg.backend, cfg.threads)
         # as for the other detectors: the per-frame arrays (the resized frame, the network's input,
         # the crops) come from and go back to the heap instead of faulting fresh pages in every
         # frame (agents.perception.heap): 34.8 -> 32.7 ms per table1 frame for the whole front end

@@ -30,6 +30,10 @@ from pathlib import Path
 from decentral.errors import InputError
 
 
+#: the default name patterns of the validation shards (seeds ending in 9)
+VALIDATION = ["varied-*9.npz", "table1-*9.npz"]
+
+
 def _split(folder: Path, patterns: list[str]) -> tuple[list[Path], list[Path]]:
     files = sorted(folder.glob("*.npz"))
     if not files:
@@ -50,11 +54,12 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def _quantize(args) -> int:
+    from agents.perception.learned import quantized_path
     from agents.perception.training.data import load_shards
     from agents.perception.training.quantize import quantize_refine
 
     train_files, val_files = _split(args.shards, args.validation)
-    out = args.out if args.out is not None else args.model.with_name(f"{args.model.stem}_int8.onnx")
+    out = args.out if args.out is not None else quantized_path(args.model)
     report = quantize_refine(args.model, load_shards(train_files), load_shards(val_files), out,
                              samples=args.samples, seed=args.seed)
     v = report["validation"]
@@ -89,7 +94,7 @@ def main(argv=None) -> int:
                     help="proposal network: stem and pyramid channels at strides 2-32 (default 16 32 64 96 128)")
     tr.add_argument("--max-minutes", type=float, default=0.0,
                     help="stop each network's training after this many minutes (wall; default 0: no limit)")
-    tr.add_argument("--validation", nargs="+", default=["varied-*9.npz", "table1-*9.npz"],
+    tr.add_argument("--validation", nargs="+", default=VALIDATION,
                     help="name patterns of the validation shards (default: seeds ending in 9)")
     tr.add_argument("--oversample", nargs="+", default=[], metavar="PATTERN=N",
                     help="use the training shards matching PATTERN N times (e.g. 'table1-*=2')")
@@ -100,7 +105,7 @@ def main(argv=None) -> int:
                     help="the quantized network (default: <model stem>_int8.onnx beside the model) and its report (.json)")
     qu.add_argument("--samples", type=int, default=2048, help="calibration windows (default 2048)")
     qu.add_argument("--seed", type=int, default=0)
-    qu.add_argument("--validation", nargs="+", default=["varied-*9.npz", "table1-*9.npz"],
+    qu.add_argument("--validation", nargs="+", default=VALIDATION,
                     help="name patterns of the validation shards (default: seeds ending in 9)")
     lb = sub.add_parser("label", help="a shard from labelled frames (JSON)")
     lb.add_argument("labels", type=Path)

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from agents.perception.learned import OnnxNet
 from agents.perception.training.data import Shards, refine_batch
 from decentral.errors import InputError
 
@@ -41,13 +42,10 @@ def _windows(data: Shards, n: int, seed: int) -> np.ndarray:
     return refine_batch(data, idx, rng)[0]
 
 
-def _session(path: str | os.PathLike):
-    import onnxruntime as ort
-
-    so = ort.SessionOptions()
-    so.intra_op_num_threads = 1
-    so.inter_op_num_threads = 1
-    return ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"])
+def _outputs(path: str | os.PathLike, x: np.ndarray) -> np.ndarray:
+    """The network at ``path`` (onnxruntime, one thread) on windows ``x``, 64 at a time: (n, 3) float64."""
+    net = OnnxNet(path, "onnxruntime", 1)
+    return np.concatenate([net.run(x[i:i + 64]) for i in range(0, len(x), 64)]).astype(np.float64)
 
 
 def refine_agreement(model: str | os.PathLike, quantized: str | os.PathLike, x: np.ndarray) -> dict:
@@ -56,10 +54,7 @@ def refine_agreement(model: str | os.PathLike, quantized: str | os.PathLike, x: 
     Returns the largest, 99th-percentile and median absolute difference per output (du / r, dv / r,
     log radius ratio), in radii, and the number of windows.
     """
-    a, b = _session(model), _session(quantized)
-    ya = np.concatenate([a.run(None, {a.get_inputs()[0].name: x[i:i + 64]})[0] for i in range(0, len(x), 64)])
-    yb = np.concatenate([b.run(None, {b.get_inputs()[0].name: x[i:i + 64]})[0] for i in range(0, len(x), 64)])
-    d = np.abs(ya.astype(np.float64) - yb)
+    d = np.abs(_outputs(model, x) - _outputs(quantized, x))
     return {"windows": int(len(x)), "max": d.max(axis=0).round(5).tolist(),
             "p99": np.percentile(d, 99, axis=0).round(5).tolist(), "median": np.median(d, axis=0).round(5).tolist()}
 
@@ -80,15 +75,10 @@ def quantize_refine(model: str | os.PathLike, data: Shards, val: Shards, out: st
         raise InputError(f"quantizing needs the onnx package (pip install 'decentral[train]'): {exc}",
                          field="onnx") from None
     model, out = Path(model), Path(out)
-    if not model.is_file():
-        raise InputError("model file not found", source=str(model))
     if samples < 1:
         raise InputError("must be positive", field="--samples")
+    name = OnnxNet(model, "onnxruntime", 1).input  # (a missing file or one that is no network: an InputError naming it)
     calibration = _windows(data, samples, seed)
-    try:
-        name = _session(model).get_inputs()[0].name
-    except Exception as exc:  # onnxruntime raises its own types for a file that is no network
-        raise InputError(f"cannot load the model ({str(exc).splitlines()[0][:200]})", source=str(model)) from None
 
     class _Reader(CalibrationDataReader):
         def __init__(self):
