@@ -17,8 +17,9 @@ Two sets of frames:
   the log's camera model (see docs/perception.md).
 - ``mottled``: the held-out scenes of :mod:`sims.lab.experiments.mottled_scenes` (tagged discs on
   blotchy floors, a quarter of the frames with no disc; ``--frames`` frames each, at most 10),
-  each detector of ``--detectors`` alone: strict recall of the discs at least 90 % visible and 12 px
-  across, false circles per frame (no disc within a radius of the circle's centre), CPU per frame.
+  each detector of ``--detectors`` alone, scored as the varied scenes are
+  (:mod:`sims.lab.experiments.perception_scores`; discs counted when at least 90 % visible): strict
+  recall, false and double circles per frame, CPU per frame.
 
 Times: CPU seconds of this process (``time.process_time``; BLAS and OpenCV pinned to one thread, so
 one core's work) and wall seconds; each sequence runs ``--repeats`` times and per frame the smallest
@@ -391,20 +392,20 @@ def _print_scene(r: dict) -> None:
 def run_mottled(args) -> dict:
     """The held-out mottled floors: each detector alone (recall, false circles per frame, CPU per frame)."""
     from agents.perception import make_detector
+    from agents.perception.types import TrackedCircle
     from sims.lab.experiments.mottled_scenes import HELD_OUT_MOTTLED_SEEDS, mottled_frames
+    from sims.lab.experiments.perception_scores import SequenceScore, score_frame
 
     frames = [f for seed in HELD_OUT_MOTTLED_SEEDS for f in mottled_frames(seed, min(args.frames, 10))]
     result = {"benchmark": "perception_mottled",
               "parameters": {"seeds": list(HELD_OUT_MOTTLED_SEEDS), "frames_per_seed": min(args.frames, 10),
                              "detectors": list(args.detectors), "image": [1024, 768], "threads": 1,
-                             "repeats": args.repeats, "recall": "centre within max(2 px, 0.1 r), radius within 10 %, "
-                                                               "discs >= 90 % visible and >= 12 px radius",
-                             "false": "no disc within one radius of the circle's centre"},
+                             "repeats": args.repeats,
+                             "scores": "sims.lab.experiments.perception_scores, discs counted when >= 90 % visible"},
               "machine": machine(), "detectors": {}}
     for name in args.detectors:
         det = make_detector(name)
-        hit = whole = false = 0
-        seconds = []
+        score, seconds = SequenceScore(), []
         for f in frames:
             best = np.inf
             for _ in range(args.repeats):
@@ -412,18 +413,13 @@ def run_mottled(args) -> dict:
                 circles = det.detect(f.image)
                 best = min(best, time.process_time() - cpu)
             seconds.append(best)
-            false += sum(all(np.hypot(c.u - u, c.v - v) > r for u, v, r in f.circles) for c in circles)
-            for (u, v, r), vis in zip(f.circles, f.visible):
-                if vis >= 0.9 and r >= 12:
-                    whole += 1
-                    hit += any(np.hypot(c.u - u, c.v - v) <= max(2.0, 0.1 * r) and abs(c.r - r) <= 0.1 * r
-                               for c in circles)
-        result["detectors"][name] = {"recall": hit / max(whole, 1), "discs": whole, "frames": len(frames),
-                                     "false_circles_per_frame": false / len(frames),
-                                     "cpu_ms_median": 1000 * float(np.median(seconds))}
-        d = result["detectors"][name]
-        print(f"mottled, {name}: recall {d['recall']:.3f} of {whole}, {d['false_circles_per_frame']:.2f} false circles "
-              f"a frame, {d['cpu_ms_median']:.1f} ms CPU", flush=True)
+            score_frame(score, f, [TrackedCircle(c, None, None, None) for c in circles], min_visible=0.9)
+        result["detectors"][name] = d = {"recall": score.matched / max(score.counted, 1), "discs": score.counted,
+                                         "frames": len(frames), "false_circles_per_frame": score.false_circles / len(frames),
+                                         "double_circles_per_frame": score.double_circles / len(frames),
+                                         "cpu_ms_median": 1000 * float(np.median(seconds))}
+        print(f"mottled, {name}: recall {d['recall']:.3f} of {d['discs']}, {d['false_circles_per_frame']:.2f} false "
+              f"circles a frame, {d['cpu_ms_median']:.1f} ms CPU", flush=True)
     return result
 
 

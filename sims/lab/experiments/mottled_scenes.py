@@ -21,10 +21,21 @@ import numpy as np
 
 from sims.lab.experiments.synthetic_scene import Bar, SceneConfig, SceneNode, draw_scene, visible_fraction
 
-__all__ = ["HELD_OUT_MOTTLED_SEEDS", "MottledFrame", "mottled_floor", "mottled_frames"]
+__all__ = ["HELD_OUT_MOTTLED_SEEDS", "Disc", "MottledFrame", "mottled_floor", "mottled_frames"]
 
 #: mottled scenes kept out of training, for measuring false circles on floors of this kind
 HELD_OUT_MOTTLED_SEEDS = tuple(range(7000, 7016))
+
+
+@dataclass(frozen=True)
+class Disc:
+    """One disc's truth as the perception scores read it (:mod:`sims.lab.experiments.perception_scores`):
+    ``id`` its index in the frame, circle ``(u, v, r)`` in pixels."""
+
+    id: int
+    u: float
+    v: float
+    r: float
 
 
 @dataclass(frozen=True)
@@ -35,6 +46,11 @@ class MottledFrame:
     image: np.ndarray
     circles: np.ndarray
     visible: np.ndarray
+
+    @property
+    def spheres(self) -> tuple[Disc, ...]:
+        """The discs as :func:`sims.lab.experiments.perception_scores.score_frame` reads a frame's spheres."""
+        return tuple(Disc(i, *map(float, c)) for i, c in enumerate(self.circles))
 
 
 def mottled_floor(width: int, height: int, rng: np.random.Generator) -> np.ndarray:

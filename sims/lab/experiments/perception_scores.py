@@ -1,4 +1,6 @@
-"""Scoring perception output against the truth of :mod:`sims.lab.experiments.varied_scenes` frames.
+"""Scoring perception output against the truth of :mod:`sims.lab.experiments.varied_scenes` frames (and of
+any frame whose ``spheres`` have ``id, u, v, r`` and whose ``visible`` gives their visible fractions, such as
+:class:`sims.lab.experiments.mottled_scenes.MottledFrame`).
 
 Definitions (one frame at a time, then summed over a sequence):
 
