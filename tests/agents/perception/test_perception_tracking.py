@@ -164,14 +164,18 @@ def _known(tr, circles, reads, frames=4):
     return out
 
 
+def _id_hidden_until_a_read_agrees(tr, circle, node):
+    """The low-overlap match ``circle`` keeps track 1 but hides its id; a read of ``node`` shows it again."""
+    out = tr.update([circle], [None])
+    assert out[0].track == 1 and out[0].node is None
+    assert tr.update([circle], [_read(node)])[0].node == node
+
+
 def test_track_jumping_to_a_neighbour_needs_a_fresh_read():
     """A track that reaches a barely overlapping detection (a neighbouring node) hides its id until a read agrees."""
     tr = CircleTracker()
     assert _known(tr, [_c(200, 200, 20)], [_read(7)])[0].node == 7
-    out = tr.update([_c(226, 200, 20)], [None])  # within the enlarged radii, IoU of the plain circles < 0.4
-    assert out[0].track == 1 and out[0].node is None
-    out = tr.update([_c(226, 200, 20)], [_read(7)])
-    assert out[0].node == 7
+    _id_hidden_until_a_read_agrees(tr, _c(226, 200, 20), 7)  # within the enlarged radii, IoU of the plain circles < 0.4
 
 
 def test_contested_jump_needs_a_fresh_read_even_when_trusting_uncontested_ones():
@@ -180,10 +184,7 @@ def test_contested_jump_needs_a_fresh_read_even_when_trusting_uncontested_ones()
     # node 7, and a neighbour below it whose tag is never read
     assert _known(tr, [_c(200, 200, 20), _c(226, 236, 20)], [_read(7), None])[0].node == 7
     # node 7 is missed; the only detection lies between its track and the neighbour's: both gates hold it
-    out = tr.update([_c(226, 204, 20)], [None])  # within the enlarged radii, IoU of the plain circles < 0.4
-    assert out[0].track == 1 and out[0].node is None
-    out = tr.update([_c(226, 204, 20)], [_read(7)])
-    assert out[0].node == 7
+    _id_hidden_until_a_read_agrees(tr, _c(226, 204, 20), 7)  # within the enlarged radii, IoU of the plain circles < 0.4
 
 
 def test_uncontested_fast_move_keeps_the_id():
