@@ -16,6 +16,10 @@ Two sources, both with exact truth and reproducible from their seeds:
 - ``table1``: the 3-D renderer's ``table1`` scenario (tower assemblies on a table), simulation and
   render seeds from :data:`TRAIN_TABLE1_SEEDS` upwards (the experiments and benchmarks use seeds
   0-9).
+- ``ring``: the 3-D renderer's ``multi`` scenario (cameras at the spheres' height, so spheres stand on
+  the horizon against the wall behind them), each seed drawing its own ring (3-8 assemblies, spacing,
+  chords), wall colour and brightness, and light; seeds from :data:`TRAIN_RING_SEEDS` upwards (the
+  experiments and benchmarks render seeds 0-9 with the default wall).
 
 A shard (``<source>-<seed>.npz``) holds, for ``n`` frames and ``m`` circles in all:
 
@@ -43,8 +47,8 @@ from agents.perception.training.data import shard_from_frames, write_shard
 from decentral.errors import InputError
 from sims.lab.experiments.varied_scenes import HELD_OUT_SEEDS, sequence
 
-__all__ = ["TRAIN_HARD_SEEDS", "TRAIN_MOTTLED_SEEDS", "TRAIN_TABLE1_SEEDS", "TRAIN_VARIED_SEEDS", "hard_shard",
-           "mottled_shard", "table1_shard", "varied_shard"]
+__all__ = ["TRAIN_HARD_SEEDS", "TRAIN_MOTTLED_SEEDS", "TRAIN_RING_SEEDS", "TRAIN_TABLE1_SEEDS", "TRAIN_VARIED_SEEDS",
+           "hard_shard", "mottled_shard", "ring_shard", "table1_shard", "varied_shard"]
 
 #: first scene seed of the varied training scenes (0-31 tuned the hand-made detectors, 1000-1007 held out)
 TRAIN_VARIED_SEEDS = 2000
@@ -54,6 +58,8 @@ TRAIN_HARD_SEEDS = 5000
 TRAIN_MOTTLED_SEEDS = 6000
 #: first seed of the table1 training runs (the experiments and benchmarks use 0-9)
 TRAIN_TABLE1_SEEDS = 100
+#: first seed of the ring training runs (the ``multi`` scenario; the experiments and benchmarks use 0-9)
+TRAIN_RING_SEEDS = 300
 
 
 def varied_shard(seed: int, frames: int, **kw) -> dict[str, np.ndarray]:
@@ -94,6 +100,32 @@ def table1_shard(seed: int, steps: int, *, scenario: str = "table1", **kw) -> di
                               for _, _, fr in render_frames(sim, seed, RenderConfig())), **kw)
 
 
+def ring_shard(seed: int, steps: int, **kw) -> dict[str, np.ndarray]:
+    """A shard of every camera's frames of ring run ``seed`` (``steps`` steps of a ``multi`` ring).
+
+    The seed draws the ring (3-8 assemblies 1.2-2.2 m apart, chords or none), the wall behind the
+    horizon (brightness 0.25-0.95 at the top, darker or equal at the bottom; a tint) and the light.
+    """
+    from sims.simulation.render.frame_files import render_frames
+    from sims.simulation.render.renderer import RenderConfig
+    from sims.simulation.scenarios import get_scenario, simulate
+
+    if seed < TRAIN_RING_SEEDS:
+        raise InputError(f"ring runs below {TRAIN_RING_SEEDS} are the experiments' and benchmarks'; choose another",
+                         field="seed")
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(3, 9))
+    scenario = get_scenario("multi", steps=steps, n_assemblies=n, spacing=float(rng.uniform(1.2, 2.2)),
+                            chord_every=int(rng.choice([0, 0, 2, 3])) if n > 3 else 0)
+    top = float(rng.uniform(0.25, 0.95))
+    render = RenderConfig(wall_levels=(top, top * float(rng.uniform(0.7, 1.0))),
+                          wall_tint=tuple(float(x) for x in rng.uniform(0.7, 1.0, 3)),
+                          light=(float(rng.uniform(-0.6, 0.6)), float(rng.uniform(-0.6, 0.6)), 1.0))
+    sim = simulate(scenario, seed=seed)
+    return shard_from_frames(((fr.image, [(n["su"], n["sv"], n["sr"], n["visible"]) for n in fr.nodes])
+                              for _, _, fr in render_frames(sim, seed, render)), **kw)
+
+
 def _range(text: str) -> range:
     try:
         a, b = (int(x) for x in text.split(":"))
@@ -123,6 +155,8 @@ def main(argv=None) -> int:
     ap.add_argument("--mottled-frames", type=int, default=10, help="frames per mottled scene (default 10)")
     ap.add_argument("--table1", type=_range, default=range(0), help="table1 run seeds FIRST:STOP")
     ap.add_argument("--table1-steps", type=int, default=30, help="steps per table1 run (default 30)")
+    ap.add_argument("--ring", type=_range, default=range(0), help="ring (multi scenario) run seeds FIRST:STOP")
+    ap.add_argument("--ring-steps", type=int, default=6, help="steps per ring run (default 6)")
     ap.add_argument("--input-size", type=_size, default=None, metavar="WxH",
                     help="the frames' size in the shards: the proposal network's input (default: the shipped network's)")
     ap.add_argument("--stride", type=int, default=1, help="render every STRIDE-th seed of the ranges ...")
@@ -136,7 +170,8 @@ def main(argv=None) -> int:
     out = Path(args.outdir)
     out.mkdir(parents=True, exist_ok=True)
     jobs = [("varied", s) for s in args.varied] + [("hard", s) for s in args.hard] + \
-        [("mottled", s) for s in args.mottled] + [("table1", s) for s in args.table1]
+        [("mottled", s) for s in args.mottled] + [("table1", s) for s in args.table1] + \
+        [("ring", s) for s in args.ring]
     for i, (kind, seed) in enumerate(jobs):
         if i % args.stride != args.offset:
             continue
@@ -150,6 +185,8 @@ def main(argv=None) -> int:
                 arrays = hard_shard(seed, args.hard_frames, **kw)
             elif kind == "mottled":
                 arrays = mottled_shard(seed, args.mottled_frames, **kw)
+            elif kind == "ring":
+                arrays = ring_shard(seed, args.ring_steps, **kw)
             else:
                 arrays = table1_shard(seed, args.table1_steps, **kw)
         except InputError as exc:

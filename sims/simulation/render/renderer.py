@@ -52,6 +52,10 @@ class RenderConfig:
     tag_half_angle : float
         Half the angular size [rad] of a sticker seen from the sphere's centre (must be
         < pi / tags_around); 0.33 rad makes a 4 cm tag on a 12 cm sphere.
+    wall_levels : tuple of 2 floats
+        Brightness (0-1) of the plain wall above the horizon at the image's top and bottom rows.
+    wall_tint : tuple of 3 floats
+        The wall's colour, as factors (0-1) of its brightness in B, G, R.
     """
 
     strut_radius: float = 0.018
@@ -64,6 +68,8 @@ class RenderConfig:
     floor_seed_metres: float = 16.0
     tags_around: int = 8
     tag_half_angle: float = 0.33
+    wall_levels: tuple = (0.85, 0.7)
+    wall_tint: tuple = (0.95, 0.93, 0.9)
 
     def __post_init__(self):
         for f in fields(self):
@@ -72,6 +78,10 @@ class RenderConfig:
                 raise ValueError(f"{f.name} must be a finite non-negative number, got {v!r}")
         if self.jpeg_quality > 100:
             raise ValueError("jpeg_quality must be in 0..100")
+        for name, size in (("wall_levels", 2), ("wall_tint", 3)):
+            v = np.asarray(getattr(self, name), dtype=float)
+            if v.shape != (size,) or not np.all((v >= 0) & (v <= 1)):
+                raise ValueError(f"{name} must be {size} numbers in [0, 1], got {getattr(self, name)!r}")
         StickerLayout.around(self.tags_around, self.tag_half_angle)  # raises if the stickers overlap
 
     @classmethod
@@ -157,11 +167,11 @@ class Renderer:
         colour = floor.astype(np.float32) * np.float32(0.9 / 255.0)
         # above the horizon: a plain wall, lighter towards the top; the horizon row varies with u, so
         # fill whole rows that lie entirely above it and mask only the rows it crosses
-        sky_rows = np.linspace(0.85, 0.7, H, dtype=np.float32)
+        sky_rows = np.linspace(*self.config.wall_levels, H, dtype=np.float32)
         up = ~np.isfinite(depth)
         rows = np.flatnonzero(up.any(axis=1))
         if len(rows):
-            tint = np.array([0.95, 0.93, 0.9], np.float32)
+            tint = np.array(self.config.wall_tint, np.float32)
             block = colour[rows]
             block[up[rows]] = (sky_rows[rows][:, None] * np.ones(W, np.float32))[up[rows]][:, None] * tint
             colour[rows] = block

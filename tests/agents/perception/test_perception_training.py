@@ -197,6 +197,24 @@ def test_mottled_scenes_are_reproducible_have_empty_floors_and_keep_their_held_o
     assert not list(tmp_path.glob("*.npz"))
 
 
+def test_ring_shards_are_reproducible_vary_their_wall_and_keep_the_experiments_runs_out(tmp_path):
+    """A ring shard (the ``multi`` scenario, cameras at the spheres' height) repeats from its seed, seeds
+    draw different walls above the horizon, its circles lie in the frames, and the seeds the experiments
+    and benchmarks render (below TRAIN_RING_SEEDS) are refused."""
+    from sims.lab.experiments.detector_data import TRAIN_RING_SEEDS, main as render_shards, ring_shard
+
+    a, b = ring_shard(TRAIN_RING_SEEDS, 1, input_size=(192, 144)), ring_shard(TRAIN_RING_SEEDS, 1, input_size=(192, 144))
+    assert all(np.array_equal(a[k], b[k]) for k in a)
+    c = ring_shard(TRAIN_RING_SEEDS + 1, 1, input_size=(192, 144))
+    assert not np.allclose(a["images"][:, 0].mean(axis=(0, 1)), c["images"][:, 0].mean(axis=(0, 1)), atol=2)  # top rows: wall
+    for shard in (a, c):
+        frame, u, v, r = shard["circles"][:, :4].T
+        full = shard["scale"][frame.astype(int)] * np.array([192, 144])[:, None]
+        assert len(frame) and (u >= -r).all() and (u <= full[0] + r).all() and (v <= full[1] + r).all()
+    assert render_shards([str(tmp_path), "--ring", f"{TRAIN_RING_SEEDS - 1}:{TRAIN_RING_SEEDS}"]) == 2
+    assert not list(tmp_path.glob("*.npz"))
+
+
 def test_shipped_networks_load_back_into_torch_for_fine_tuning(tmp_path):
     """The shipped ONNX networks, loaded back into the torch networks, give onnxruntime's outputs (eval mode)."""
     pytest.importorskip("torch", reason="training needs PyTorch (the `train` extra)")

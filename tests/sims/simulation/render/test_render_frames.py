@@ -9,7 +9,6 @@ from sims.simulation.render.effects import motion_kernel
 from sims.simulation.render.frame_files import write_frames
 from sims.simulation.render.renderer import RenderConfig, Renderer
 from sims.simulation.scenarios import get_scenario, simulate
-from sims.simulation.world.camera import silhouette_circle
 
 
 def _render(world, *, config=None, k=0, seed=0):
@@ -92,6 +91,24 @@ def test_effects_are_reproducible_and_seeded():
     frames = [Renderer(world, RenderConfig(), np.random.default_rng(0)).render(rig, 1, np.random.default_rng(s)).image
               for s in (3, 3, 4)]
     assert np.array_equal(frames[0], frames[1]) and not np.array_equal(frames[0], frames[2])
+
+
+def test_wall_settings_change_the_wall_only():
+    """``wall_levels`` / ``wall_tint`` paint the wall above the horizon (top and bottom rows at the given
+    brightness times the tint); the floor and the sphere stay as they were. Values outside [0, 1] are refused."""
+    world = tiny_world([(5, (1.2, 0.0, 0.34))])
+    _, _, (plain, _, _) = _render(world)
+    _, _, (dark, _, _) = _render(world, config=RenderConfig.clean(wall_levels=(0.3, 0.2), wall_tint=(1.0, 0.5, 0.8)))
+    wall = ~np.isfinite(plain.depth) & (plain.ids == -1)
+    assert wall[0].all() and wall.any(axis=1).sum() > 10
+    assert np.allclose(dark.colour[~wall], plain.colour[~wall])
+    assert np.allclose(dark.colour[0, 0], 0.3 * np.array([1.0, 0.5, 0.8]), atol=1e-6)
+    last = np.flatnonzero(wall.all(axis=1))[-1]  # the lowest row that is wall from edge to edge
+    expected = 0.3 + (0.2 - 0.3) * last / (len(wall) - 1)
+    assert np.allclose(dark.colour[last, 0], expected * np.array([1.0, 0.5, 0.8]), atol=1e-6)
+    for bad in ({"wall_levels": (0.3,)}, {"wall_levels": (1.2, 0.5)}, {"wall_tint": (1.0, 0.5, -0.1)}):
+        with pytest.raises(ValueError, match="wall_"):
+            RenderConfig(**bad)
 
 
 def test_motion_kernel_is_a_normalized_line():
