@@ -12,8 +12,12 @@ the same latency (:func:`sims.runners.admm_run.run_admm` with the links' latency
 round budget). Needs Linux and root (``ip netns``; ``iptables`` for loss).
 
 Usage: ``python benchmarks/field.py [--out DIR] [--sizes 5 8] [--transports udp zmq] [--delays 0 0.01
-0.05 0.2] [--losses 0 0.1] [--busy 0 2] [--steps 12] [--rate 0.4] [--round-period 0.025]``
-(``--quick``: one small cell per transport). Writes ``field.json`` and ``field.png``.
+0.05 0.2] [--losses 0 0.1] [--busy 0 2] [--parity-groups 4 0] [--repeats R] [--steps 12] [--rate 0.4]
+[--round-period 0.025]`` (``--quick``: one small cell per transport). ``--parity-groups``: the UDP
+transport's data datagrams per parity datagram (``decentral agent --parity-group``; 0: none), each a
+cell of its own; ``--repeats``: each cell again with the next link and agent seeds (a shared machine's
+load moves these figures by tens of points from run to run), summarized per cell in ``summary``
+(median and range over the repeats). Writes ``field.json`` and ``field.png``.
 """
 
 from __future__ import annotations
@@ -36,6 +40,9 @@ def build_parser():
     ap.add_argument("--jitter", type=float, default=0.2, help="relative jitter of the delay (default 0.2)")
     ap.add_argument("--losses", type=float, nargs="+", default=[0.0, 0.1])
     ap.add_argument("--busy", type=int, nargs="+", default=[0, 2], help="busy processes per core")
+    ap.add_argument("--parity-groups", type=int, nargs="+", default=[4],
+                    help="udp: data datagrams per parity datagram, each a cell (0: none; default 4)")
+    ap.add_argument("--repeats", type=int, default=1, help="runs of each cell, seeds SEED, SEED+1, ...")
     ap.add_argument("--steps", type=int, default=12)
     ap.add_argument("--rate", type=float, default=0.4, help="log seconds per wall second")
     ap.add_argument("--round-period", type=float, default=0.025)
@@ -84,12 +91,15 @@ def _cell_metrics(central, est, records, reference):
     }
 
 
-def _simulated(log, central, delay, jitter, loss, budget, round_period, seed):
-    """The simulated runner at the same latency, jitter, loss and round budget: its convergence share."""
+def _simulated(log, central, delay, jitter, loss, budget, round_period, seed, transport):
+    """The simulated runner at the same latency, jitter, loss and round budget: its convergence share.
+
+    Over UDP the loss is per datagram, as the field's relays lose datagrams (``AdmmRunConfig.mtu``)."""
     from sims.runners.admm_run import AdmmRunConfig, run_admm
 
     cfg = AdmmRunConfig(window=5, loss=loss, latency=delay * (1 - jitter), jitter=2 * jitter * delay,
-                        round_period=round_period, max_rounds=budget, fast_forward=False)
+                        round_period=round_period, max_rounds=budget, fast_forward=False,
+                        mtu=1200 if transport == "udp" else 0)
     run = run_admm(log, config=cfg, seed=seed)
     return {"converged_steps": int(sum(run.converged)), "status": run.stats["status"]}
 
@@ -113,15 +123,16 @@ def main(argv=None) -> int:
     if path.exists() and not args.force:
         print(f"field.py: {path} exists (give --force to replace it)", file=sys.stderr)
         return 2
-    cells = [(n, tr, d, loss, busy) for n in args.sizes for tr in args.transports for d in args.delays
-             for loss in args.losses for busy in args.busy]
+    cells = [(n, tr, par, d, loss, busy, args.seed + r) for n in args.sizes for tr in args.transports
+             for par in (args.parity_groups if tr == "udp" else [None]) for d in args.delays
+             for loss in args.losses for busy in args.busy for r in range(args.repeats)]
     if args.quick:
         args.steps = 8
-        cells = [(4, tr, 0.03, 0.2, 0) for tr in args.transports]
+        cells = [(4, tr, 4 if tr == "udp" else None, 0.03, 0.2, 0, args.seed) for tr in args.transports]
     payload = {"benchmark": "field", "machine": machine(),
                "parameters": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}, "cells": []}
     logs = {}
-    for n, tr, delay, loss, busy in cells:
+    for n, tr, parity, delay, loss, busy, seed in cells:
         if n not in logs:
             sim = simulate(get_scenario("multi", n_assemblies=n, steps=args.steps), seed=args.seed)
             t0 = time.perf_counter()
@@ -130,24 +141,47 @@ def main(argv=None) -> int:
         log, central, central_s = logs[n]
         load = os.getloadavg()[0]
         t0 = time.perf_counter()
+        extra = ("--parity-group", str(parity)) if parity is not None else ()
         result = run_field(log, LaunchConfig(rate=args.rate, round_period=args.round_period, transport=tr,
-                                             seed=args.seed),
-                           FieldConfig(delay=delay, jitter=args.jitter, loss=loss, busy_per_core=busy, seed=args.seed))
+                                             seed=seed, extra_args=extra),
+                           FieldConfig(delay=delay, jitter=args.jitter, loss=loss, busy_per_core=busy, seed=seed))
         wall = time.perf_counter() - t0
-        row = {"n": n, "transport": tr, "delay": delay, "loss": loss, "busy_per_core": busy, "loadavg_before": load,
+        row = {"n": n, "transport": tr, "parity_group": parity, "delay": delay, "loss": loss, "busy_per_core": busy,
+               "seed": seed, "loadavg_before": load,
                "wall_seconds": wall, "centralized_seconds": central_s, "timed_out": result.timed_out,
                **_cell_metrics(central, result.estimate, result.records, log.assemblies[0])}
         budget = rounds_per_step(log, args.rate, args.round_period)
-        row["simulated"] = _simulated(log, central, delay, args.jitter, loss, budget, args.round_period, args.seed)
+        row["simulated"] = _simulated(log, central, delay, args.jitter, loss, budget, args.round_period, seed, tr)
         payload["cells"].append(row)
-        print(f"n={n} {tr} delay={delay * 1e3:.0f}ms loss={loss:.0%} busy={busy}: placed {row['placed_share']:.0%} "
+        print(f"n={n} {tr}{'' if parity is None else f' parity {parity}'} seed {seed} delay={delay * 1e3:.0f}ms loss={loss:.0%} busy={busy}: placed {row['placed_share']:.0%} "
               f"(+1 step {row['placed_share_one_step_late']:.0%}), converged {row['converged_steps']}/{row['steps']} "
               f"(sim {row['simulated']['converged_steps']}), max gap conv {row['gap_converged_mm']['max']:.2f} mm, "
               f"latency p90 {row['frame_latency_ms']['p90_of_p90s']} ms, {row['status']}, load {load:.1f}",
               file=sys.stderr, flush=True)
+    payload["summary"] = summarize(payload["cells"])
     save("field", payload, args.out)
     plot(payload, output(args.out, "field", ".png"), save_figure)
     return 0
+
+
+_CELL = ("n", "transport", "parity_group", "delay", "loss", "busy_per_core")
+
+
+def summarize(cells: list[dict]) -> list[dict]:
+    """Per cell (all but the seed): median, least and most over its repeats of the placement shares and
+    steps converged, and the largest gap of a converged step to the centralized estimate."""
+    import numpy as np
+
+    out = []
+    for key in sorted({tuple(c[k] for k in _CELL) for c in cells}, key=str):
+        rows = [c for c in cells if tuple(c[k] for k in _CELL) == key]
+        stat = lambda xs: {"median": float(np.median(xs)), "min": float(min(xs)), "max": float(max(xs))}  # noqa: E731
+        out.append({**dict(zip(_CELL, key)), "repeats": len(rows),
+                    "placed_share": stat([c["placed_share"] for c in rows]),
+                    "placed_share_one_step_late": stat([c["placed_share_one_step_late"] for c in rows]),
+                    "converged_steps": stat([c["converged_steps"] for c in rows]),
+                    "gap_converged_mm_max": max(c["gap_converged_mm"]["max"] for c in rows)})
+    return out
 
 
 def plot(payload: dict, path: Path, save_figure) -> None:
@@ -156,20 +190,24 @@ def plot(payload: dict, path: Path, save_figure) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    import numpy as np
+
     cells = payload["cells"]
     fig, axes = plt.subplots(1, 4, figsize=(17, 3.8))
-    keys = sorted({(c["n"], c["transport"], c["loss"], c["busy_per_core"]) for c in cells})
-    for key in keys:
-        rows = sorted((c for c in cells if (c["n"], c["transport"], c["loss"], c["busy_per_core"]) == key),
-                      key=lambda c: c["delay"])
-        x = [1e3 * c["delay"] for c in rows]
-        label = f"n={key[0]} {key[1]} loss {key[2]:.0%} busy {key[3]}"
+    line = ("n", "transport", "parity_group", "loss", "busy_per_core")
+    for key in sorted({tuple(c[k] for k in line) for c in cells}, key=str):
+        rows = [c for c in cells if tuple(c[k] for k in line) == key]
+        delays = sorted({c["delay"] for c in rows})
+        med = lambda f: [float(np.median([f(c) for c in rows if c["delay"] == d])) for d in delays]  # noqa: E731
+        x = [1e3 * d for d in delays]
+        label = (f"n={key[0]} {key[1]}{'' if key[2] is None else f' parity {key[2]}'} loss {key[3]:.0%} "
+                 f"busy {key[4]}")
         style = "-" if key[1] == "udp" else "--"
-        axes[0].plot(x, [c["placed_share"] for c in rows], style, marker="o", label=label)
-        axes[1].plot(x, [c["converged_steps"] / c["steps"] for c in rows], style, marker="o")
-        axes[2].plot(x, [c["bytes_per_window"] / 1e3 for c in rows], style, marker="o")
-        axes[3].plot(x, [c["frame_latency_ms"]["p90_of_p90s"] or 0 for c in rows], style, marker="o")
-    for ax, title in zip(axes, ("placed / centralized's placements", "steps converged (share)",
+        axes[0].plot(x, med(lambda c: c["placed_share"]), style, marker="o", label=label)
+        axes[1].plot(x, med(lambda c: c["converged_steps"] / c["steps"]), style, marker="o")
+        axes[2].plot(x, med(lambda c: c["bytes_per_window"] / 1e3), style, marker="o")
+        axes[3].plot(x, med(lambda c: c["frame_latency_ms"]["p90_of_p90s"] or 0), style, marker="o")
+    for ax, title in zip(axes, ("placed / centralized's placements (median of repeats)", "steps converged (share)",
                                 "kB per window (all agents)", "frame latency p90 [ms]")):
         ax.set_xlabel("one-way delay [ms]")
         ax.set_title(title, fontsize=9)

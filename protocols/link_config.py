@@ -62,6 +62,11 @@ class LinkConfig:
         Probability that a copy arrives with one byte flipped (rejected by the receiver's CRC check).
     bandwidth : float
         Cap in bytes per second (``inf`` = no cap); copies queue behind each other.
+    mtu : int
+        0 (default): ``drop`` is the chance that a copy is lost, whatever its size. Otherwise ``drop`` is
+        the chance that each datagram of the UDP transport with this ``mtu`` is lost, and a copy is lost
+        when its datagrams cannot be put back together (:func:`protocols.datagrams.frame_arrival`,
+        parity included): a radio loses packets, so larger frames are lost more often.
     """
 
     drop: float = 0.0
@@ -70,6 +75,15 @@ class LinkConfig:
     duplicate: float = 0.0
     corrupt: float = 0.0
     bandwidth: float = math.inf
+    mtu: int = 0
+
+    def frame_loss(self, size: int) -> float:
+        """Probability that a copy of ``size`` bytes is lost on this link."""
+        if not self.mtu or not self.drop:
+            return self.drop
+        from protocols.datagrams import frame_arrival
+
+        return 1.0 - frame_arrival(size, self.drop, self.mtu)
 
     def __post_init__(self) -> None:
         for name in ("drop", "duplicate", "corrupt"):
@@ -80,6 +94,8 @@ class LinkConfig:
                 raise InputError(f"must be a finite non-negative time, got {v!r}", field=name)
         if not (isinstance(self.bandwidth, (int, float)) and self.bandwidth > 0):
             raise InputError(f"must be positive bytes per second, got {self.bandwidth!r}", field="bandwidth")
+        if not (isinstance(self.mtu, int) and (self.mtu == 0 or 64 <= self.mtu <= 65507)):
+            raise InputError(f"must be 0 or a datagram size of 64-65507 bytes, got {self.mtu!r}", field="mtu")
 
 
 @dataclass(frozen=True)

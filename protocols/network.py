@@ -9,7 +9,8 @@ as dropped, reason ``"corrupt"``; an intact frame whose body is not a valid mess
 sent at time ``t``: (1) is refused if ``a`` is down at ``t`` (``"sender_down"``) or a partition
 active at ``t`` separates ``a`` from ``b`` (``"partition"``); (2) queues behind earlier copies on the
 link if the link has a bandwidth cap ``W`` bytes/s: it starts at ``s = max(t, free_at)`` and occupies
-the link for ``size / W`` seconds; (3) is lost with probability ``drop`` (``"loss"``), else corrupted
+the link for ``size / W`` seconds; (3) is lost with probability ``drop`` (``"loss"``; with the link's
+``mtu``, ``drop`` is per datagram and larger frames are lost more often), else corrupted
 with probability ``corrupt``; (4) arrives at ``s + size / W + latency + U(0, jitter)`` (reordering
 falls out of the jitter); (5) is duplicated with probability ``duplicate`` (the copy gets its own
 jitter); (6) is dropped at arrival if ``b`` is down then (``"receiver_down"``). Time is in seconds;
@@ -172,7 +173,7 @@ class SimulatedNetwork(BatchedPath, Transport):
         start = max(now, self._free_at.get((a, b), -math.inf))
         tx = size / cfg.bandwidth if math.isfinite(cfg.bandwidth) else 0.0
         self._free_at[(a, b)] = start + tx
-        if u_drop < cfg.drop:
+        if u_drop < cfg.frame_loss(size):
             self._ledger.drop(keys, size, "loss")
             return
         if u_corrupt < cfg.corrupt:

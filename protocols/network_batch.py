@@ -153,6 +153,7 @@ class BatchedPath:
         k = idx.size
         params = self._link_params(s, r)  # drop, corrupt, duplicate, latency, jitter, bandwidth (k,) each
         drop_p, corrupt_p, dup_p, latency, jitter, bandwidth = params
+        drop_p = self._frame_loss(s, r, size, drop_p)
         u = np.zeros((k, 6))
         random = (drop_p > 0) | (corrupt_p > 0) | (dup_p > 0) | (jitter > 0)
         if random.any():
@@ -271,6 +272,17 @@ class BatchedPath:
                     for arr, name in zip(out, names):
                         arr[q] = float(getattr(cfg, name))
         return tuple(out)
+
+    def _frame_loss(self, s: np.ndarray, r: np.ndarray, size: np.ndarray, drop_p: np.ndarray) -> np.ndarray:
+        """Per-copy loss: ``drop_p`` itself, or from it per datagram on links with an ``mtu`` (:meth:`LinkConfig.frame_loss`)."""
+        base, links = self.config.link, self.config.links
+        if not base.mtu and not any(cfg.mtu for cfg in links.values()):
+            return drop_p
+        agents = self.config.agents
+        out = drop_p.copy()
+        for q, (a, b) in enumerate(zip(s.tolist(), r.tolist())):
+            out[q] = links.get((agents[a], agents[b]), base).frame_loss(int(size[q]))
+        return out
 
     def _drop_many(self, s: np.ndarray, r: np.ndarray, kid: int, size: np.ndarray, reason: str) -> None:
         if s.size:

@@ -10,8 +10,10 @@ timeouts, newest-value-wins). Here a lost datagram is just a lost frame; the fra
 - **Frames**: every frame is the signed envelope of :mod:`protocols.auth` (:class:`~protocols.auth.Signer`
   on the way out, :class:`~protocols.auth.Gate` on the way in: signature, sender, epoch and sequence
   number, replays refused), cut into datagrams of at most ``mtu`` bytes (:mod:`protocols.datagrams`) so
-  that no datagram is fragmented by IP; a frame whose pieces do not all arrive within ``reassembly``
-  seconds is lost (counted ``incomplete``). Frames above ``max_frame_bytes`` are refused.
+  that no datagram is fragmented by IP, with one parity datagram per ``parity_group`` pieces so that a
+  frame survives one lost datagram in each group (a radio loses datagrams, and a frame of many pieces
+  would otherwise be lost whenever any one of them is); a frame whose pieces cannot be put together
+  within ``reassembly`` seconds is lost (counted ``incomplete``). Frames above ``max_frame_bytes`` are refused.
 - **Faults and books**: receive-side faults (``drop``, ``duplicate``, ``latency``, ``jitter``) are drawn
   per link as :class:`~protocols.zmq_transport.ZmqTransport` and the simulated network draw them
   (:mod:`protocols.receive_faults`, six draws per admitted copy); the counting convention is
@@ -32,7 +34,7 @@ from nacl.signing import SigningKey
 from decentral.errors import InputError, ProtocolError
 from protocols.admission import SuspectBudget, admit
 from protocols.auth import Gate, Rejected, Signer
-from protocols.datagrams import Reassembler, split_frame
+from protocols.datagrams import PARITY_GROUP, Reassembler, split_frame
 from protocols.link_config import LinkConfig
 from protocols.messages import Message
 from protocols.peers import Peer, check_address, check_local_keys
@@ -80,6 +82,9 @@ class UdpTransport(Transport):
         Bind a local agent elsewhere than its peers-file address (port 0: a free port).
     mtu : int
         Largest datagram sent (bytes, header included).
+    parity_group : int
+        Data datagrams per parity datagram of a frame cut into pieces (:mod:`protocols.datagrams`; 0: no
+        parity). The default, 4, sends a quarter more bytes for such frames.
     window : int
         Replay window per sender.
     max_frame_bytes : int
@@ -99,7 +104,7 @@ class UdpTransport(Transport):
 
     def __init__(self, keys: Mapping[str, SigningKey], peers: Mapping[str, Peer], *,
                  rng: np.random.Generator | None = None, faults: LinkConfig = LinkConfig(),
-                 bind: Mapping[str, str] | None = None, mtu: int = 1200, window: int = 4096,
+                 bind: Mapping[str, str] | None = None, mtu: int = 1200, parity_group: int = PARITY_GROUP, window: int = 4096,
                  max_frame_bytes: int = DEFAULT_MAX_FRAME, reassembly: float = 2.0, max_batch: int = 2000,
                  max_age: float | None = None, suspect_rate: float = 200.0):
         if not keys:
@@ -107,6 +112,7 @@ class UdpTransport(Transport):
         self._peers = dict(peers)
         check_local_keys(self._peers, keys)
         self._mtu, self._max_frame, self._max_batch = int(mtu), int(max_frame_bytes), int(max_batch)
+        self._parity = int(parity_group)
         self._ledger = Ledger()
         self._held = HeldCopies(ReceiveFaults(faults, {}, rng), self._ledger)
         self._max_age = max_age
@@ -168,7 +174,7 @@ class UdpTransport(Transport):
             raise ProtocolError(f"sender {message.sender!r} is not a local agent of this transport")
         self._check_open()
         frame = self._signers[message.sender].seal(message, float(now))
-        pieces = split_frame(frame, self._mtu, self._frame_id) if len(frame) <= self._max_frame else None
+        pieces = split_frame(frame, self._mtu, self._frame_id, self._parity) if len(frame) <= self._max_frame else None
         self._frame_id = (self._frame_id + 1) & 0xFFFFFFFF
 
         def send_one(b: str) -> str | None:

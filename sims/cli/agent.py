@@ -52,6 +52,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--transport", choices=("zmq", "udp"), default=DEFAULT_TRANSPORT,
                         help="udp: signed datagrams, a lost packet is a lost frame; zmq: ZeroMQ over TCP, a lost "
                              "packet stalls the frames behind it (default: %(default)s); the same for every agent")
+    parser.add_argument("--parity-group", type=int, default=4, metavar="N",
+                        help="udp: one parity datagram per N datagrams of a frame, so that a frame survives one lost "
+                             "datagram in each group (0: none; default: 4); the same for every agent")
     feedback.add_strict(parser)
     parser.add_argument("--stream", metavar="FILE",
                         help="append each finished step to FILE as one JSON line at once (survives a kill)")
@@ -62,15 +65,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 DEFAULT_TRANSPORT = "udp"
 
 
-def open_transport(kind: str, name: str, key, peers: dict, seed: int, faults, clock_tolerance: float | None = None):
+def open_transport(kind: str, name: str, key, peers: dict, seed: int, faults, clock_tolerance: float | None = None,
+                   parity_group: int = 4):
     """The real transport ``kind`` (``zmq`` or ``udp``) for agent ``name`` over ``peers``, refusing frames
-    beyond ``clock_tolerance`` seconds as stale."""
+    beyond ``clock_tolerance`` seconds as stale (UDP: one parity datagram per ``parity_group``)."""
     import numpy as np
 
     if kind == "udp":
         from protocols.udp_transport import UdpTransport
 
-        return UdpTransport({name: key}, peers, rng=np.random.default_rng(seed), faults=faults, max_age=clock_tolerance)
+        return UdpTransport({name: key}, peers, rng=np.random.default_rng(seed), faults=faults, max_age=clock_tolerance,
+                            parity_group=parity_group)
     from protocols.zmq_transport import ZmqTransport
 
     return ZmqTransport({name: key}, peers, rng=np.random.default_rng(seed), faults=faults, max_age=clock_tolerance)
@@ -91,6 +96,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"must be >= 1, got {args.window}", field="--window")
     if not 0.0 <= args.loss < 1.0:
         raise InputError(f"must be in [0, 1), got {args.loss}", field="--loss")
+    if not 0 <= args.parity_group <= 64:
+        raise InputError(f"must be 0 (no parity) to 64, got {args.parity_group}", field="--parity-group")
     if not (math.isfinite(args.clock_tolerance) and args.clock_tolerance > 0):
         raise InputError(f"must be a positive number of seconds, got {args.clock_tolerance}", field="--clock-tolerance")
     from protocols.peers import KEY_FORMAT, PEERS_FORMAT
@@ -120,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, _sigterm)
     faults = LinkConfig(drop=args.loss)
     transport = open_transport(args.transport, args.name, key, {n: peers[n] for n in part.assemblies}, args.seed,
-                               faults, clock_tolerance=args.clock_tolerance)
+                               faults, clock_tolerance=args.clock_tolerance, parity_group=args.parity_group)
     stream = open(args.stream, "a", encoding="utf-8") if args.stream else None
     try:
         if args.start == "-":

@@ -28,7 +28,7 @@ ESTIMATORS = {
 
 #: options that apply only with ``--mode admm`` (attribute -> default); argparse leaves them None when not given
 ADMM_DEFAULTS = {"loss": 0.0, "seed": 0, "share_forms": "every", "aggregation": "tree", "max_rounds": 300,
-                 "strict": False, "latency": 0.0005, "jitter": 0.001, "round_period": 0.01}
+                 "strict": False, "latency": 0.0005, "jitter": 0.001, "round_period": 0.01, "mtu": 0}
 #: options that apply only to the centralized mode (attribute -> default)
 CENTRAL_DEFAULTS = {"estimator": "windowed", "solver": "low-rank"}
 
@@ -68,6 +68,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="joint estimate or one agent per assembly with consensus-ADMM (default: centralized)")
     parser.add_argument("--loss", type=float, default=None,
                         help=f"admm: probability that a message is dropped (default: {ADMM_DEFAULTS['loss']})")
+    parser.add_argument("--mtu", type=int, default=None,
+                        help="admm: --loss is the loss of each datagram of this many bytes (the UDP transport's, "
+                             "parity included: large messages are lost more often, as on a radio; agents use 1200) "
+                             "instead of each message (default: 0, per message)")
     parser.add_argument("--seed", type=int, default=None,
                         help=f"admm: seed of the simulated network (default: {ADMM_DEFAULTS['seed']})")
     parser.add_argument("--share-forms", choices=("every", "first", "never"), default=None,
@@ -138,6 +142,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"must be in [0, 1), got {args.loss}", field="--loss")
     if args.max_rounds < 1:
         raise InputError(f"must be >= 1, got {args.max_rounds}", field="--max-rounds")
+    if args.mtu and not 64 <= args.mtu <= 65507:
+        raise InputError(f"must be 0 or a datagram size of 64-65507 bytes, got {args.mtu}", field="--mtu")
     if args.seed < 0:
         raise InputError(f"must be >= 0, got {args.seed}", field="--seed")
     check_output(args.output, [args.log])
@@ -181,7 +187,7 @@ def _run_admm(log, args, noise, reference, progress):
         raise InputError(f"must be in (0, 60) s, got {args.round_period}", field="--round-period")
     config = AdmmRunConfig(window=args.window, noise=noise, loss=args.loss, share_forms=args.share_forms,
                            aggregation=args.aggregation, max_rounds=args.max_rounds, latency=args.latency,
-                           jitter=args.jitter, round_period=args.round_period)
+                           jitter=args.jitter, round_period=args.round_period, mtu=args.mtu)
     return run_admm(log, reference, config, seed=args.seed, progress=progress).estimate
 
 

@@ -50,6 +50,10 @@ class AdmmRunConfig:
         ADMM parameters.
     loss, duplicate : float
         Per-copy drop and duplication probabilities of every link.
+    mtu : int
+        0 (default): ``loss`` is per copy. Otherwise ``loss`` is per datagram of this size, as the UDP
+        transport cuts frames (parity included; :attr:`protocols.link_config.LinkConfig.mtu`), so that a
+        simulation predicts processes on a radio that loses packets.
     latency, jitter : float
         Link delay and its uniform jitter (s); jitter beyond half a round period reorders and delays.
     round_period : float
@@ -82,6 +86,7 @@ class AdmmRunConfig:
     admm: AdmmConfig = field(default_factory=AdmmConfig)
     loss: float = 0.0
     duplicate: float = 0.0
+    mtu: int = 0
     latency: float = 0.0005
     jitter: float = 0.001
     round_period: float = 0.01
@@ -211,7 +216,8 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
     names = tuple(log.assemblies)
     net = SimulatedNetwork(NetworkConfig(
         agents=names,
-        link=LinkConfig(drop=config.loss, latency=config.latency, jitter=config.jitter, duplicate=config.duplicate),
+        link=LinkConfig(drop=config.loss, latency=config.latency, jitter=config.jitter, duplicate=config.duplicate,
+                        mtu=config.mtu),
         partitions=config.partitions, crashes=config.crashes, round_period=config.round_period,
     ), np.random.default_rng(seed))
     rule = _rule(config)
@@ -315,6 +321,7 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
         "mode": "admm",
         "window": config.window,
         "loss": config.loss,
+        "mtu": config.mtu,
         "duplicate": config.duplicate,
         "seed": seed,
         "rounds_per_step": rounds,

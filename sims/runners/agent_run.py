@@ -177,15 +177,19 @@ def process_agent_config(part: ObservationLog, name: str, reference: str, window
                        share_timeout=rule.share_timeout(AgentConfig.share_timeout))
 
 
-def _counts(transport: Transport, name: str) -> dict:
+def _counts(transport: Transport, name: str, kinds: bool = False) -> dict:
+    """What ``name`` sent (messages, bytes; with ``kinds``, per message kind too), refused and dropped so far."""
     stats = transport.stats()
     mine = stats.per_sender.get(name)
-    return {
+    out = {
         "messages": int(mine.sent) if mine is not None else 0,
         "bytes": int(mine.bytes_sent) if mine is not None else 0,
         "rejected": dict(getattr(stats, "rejected", {}) or {}),
         "dropped": dict(stats.drop_reasons),
     }
+    if kinds:  # the transport carries this agent's messages only
+        out["per_kind"] = {kind: (int(c.sent), int(c.bytes_sent)) for kind, c in sorted(stats.per_kind.items())}
+    return out
 
 
 def run_agent(part: ObservationLog, name: str, transport: Transport, config: AgentConfig, pace: Pace,
@@ -365,7 +369,7 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
         close(current)
     names = part.assemblies
     steps = tuple(EstimateStep(r["t"], poses_of(r["poses"]), r["unplaced"]) for r in records)
-    final = _counts(transport, name)
+    final = _counts(transport, name, kinds=True)
     unplaced = count_reasons(step.unplaced for step in steps)
     status, status_counts = run_status([r["converged"] for r in records], placed_steps(steps), unplaced,
                                        not_run=n - len(records),
@@ -381,8 +385,10 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
         "skipped": first,  # steps that were over when it started (a late start or a restart)
         "adopted_start": [{"at": a, "given": g, "peers": p} for a, g, p in adopted],
         "processes": 1,
-        "messages": {"total": final["messages"], "per_agent": {name: final["messages"]}},
-        "bytes": {"total": final["bytes"], "per_agent": {name: final["bytes"]}},
+        "messages": {"total": final["messages"], "per_agent": {name: final["messages"]},
+                     "per_kind": {kind: n for kind, (n, _) in final["per_kind"].items()}},
+        "bytes": {"total": final["bytes"], "per_agent": {name: final["bytes"]},
+                  "per_kind": {kind: b for kind, (_, b) in final["per_kind"].items()}},
         "rejected": final["rejected"],
         "dropped": final["dropped"],
         "rounds_per_step": [r["rounds"] for r in records],

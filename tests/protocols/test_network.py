@@ -79,6 +79,32 @@ def test_loss_rate_matches_configuration(p):
     assert stats.binomtest(lost, n, p).pvalue > 1e-4
 
 
+def test_per_datagram_loss_loses_large_frames_more_often_as_the_udp_transport_would():
+    """With ``mtu``, ``drop`` is the loss of each datagram: a small message is lost with ``drop``, an 18 KB
+    one as often as its datagrams cannot be put back together with their parity
+    (``frame_arrival``; 99.9 % binomial interval); without ``mtu`` both are lost with ``drop``."""
+    from protocols.baselines.flood import RawStep
+    from protocols.datagrams import frame_arrival
+
+    def lost_share(link, n_ids, copies=3000):
+        network = net(3, link=link, agents=("A0", "A1"))
+        big = RawStep(sender="A0", receiver="A1", round=0, t=0.0, ids=np.arange(n_ids), uvr=np.zeros((n_ids, 3)),
+                      odometry=np.zeros(0))
+        for k in range(copies):
+            network.send(big, 0.001 * k)
+        return network.stats().drop_reasons.get("loss", 0) / copies, big.size_bytes
+
+    for link in (LinkConfig(drop=0.1, mtu=1200), LinkConfig(drop=0.1)):
+        for n_ids in (5, 560):
+            share, size = lost_share(link, n_ids)
+            p = 1 - frame_arrival(size, 0.1, 1200) if link.mtu else 0.1
+            lo, hi = stats.binomtest(int(round(share * 3000)), 3000, p).proportion_ci(0.999)
+            assert lo <= p <= hi or abs(share - p) < 0.01, (link, n_ids, share, p)
+    assert lost_share(LinkConfig(drop=0.1, mtu=1200), 560)[0] > 0.25  # an 18 KB frame: about 0.32
+    with pytest.raises(InputError):
+        LinkConfig(mtu=20)
+
+
 def test_duplication_rate_matches_configuration():
     """The fraction of delivered copies that are duplicates agrees with the duplicate probability."""
     network = net(5, link=LinkConfig(duplicate=0.2))

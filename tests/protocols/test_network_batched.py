@@ -75,6 +75,16 @@ def test_batched_path_reproduces_the_per_message_path():
     assert sa == sb
 
 
+def test_batched_path_applies_per_datagram_loss_as_the_per_message_path():
+    """With an ``mtu`` on the links (per-datagram loss), both paths still lose the same copies."""
+    plan = traffic(2, 30)
+    cfg = config(link=LinkConfig(drop=0.3, latency=0.02, jitter=0.05, mtu=200),
+                 links={("A1", "A2"): LinkConfig(drop=0.2, mtu=100)})
+    a, sa = per_message(cfg, plan)
+    b, sb = batched(cfg, plan)
+    assert sa["drop_reasons"]["loss"] > 0 and a == b and sa == sb
+
+
 def test_batched_path_honours_partitions_crashes_and_bandwidth():
     """Refusals (partition, sender down), receiver-down drops, overrides and bandwidth queues match."""
     cfg = config(

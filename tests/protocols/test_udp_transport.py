@@ -117,6 +117,48 @@ def test_reassembler_bounds_frames_in_progress_and_expires_them():
     assert parts.expire(5.0) == 3  # one pushed out by the per-source bound, two timed out
 
 
+def test_parity_rebuilds_one_lost_datagram_per_group_in_any_order():
+    """With one parity datagram per four pieces (interleaved groups), a frame loses nothing when each group
+    misses at most one of its datagrams, whatever arrives first; two losses in one group lose the frame.
+    The parity that arrives after its frame is complete is not counted as an incomplete frame."""
+    rng = np.random.default_rng(3)
+    frame = rng.bytes(20_000)
+    parts = split_frame(frame, 1200, 9)
+    count = -(-len(frame) // (1200 - 17))
+    groups = -(-count // 4)
+    assert len(parts) == count + groups
+    one_per_group = [[i for i in range(k * groups, (k + 1) * groups) if i < count] for k in range(4)]  # i mod groups
+    for lost in [[i] for i in range(len(parts))] + one_per_group:
+        r = Reassembler(max_frame_bytes=100_000)
+        order = [j for j in rng.permutation(len(parts)) if j not in lost]
+        got = [f for j in order if (f := r.add("s", parts[j], 0.0)) is not None]
+        assert got == [frame] and r.expire(10.0) == 0
+    r = Reassembler(max_frame_bytes=100_000)
+    assert all(r.add("s", p, 0.0) is None for j, p in enumerate(parts) if j not in (0, groups))  # both in group 0
+    assert r.expire(10.0) == 1
+
+
+def test_pieces_that_disagree_with_their_header_are_refused():
+    """A piece whose frame length or count differs from its frame's first piece is malformed, not a crash."""
+    from protocols.auth import Rejected
+    from protocols.datagrams import HEADER
+
+    parts = split_frame(b"z" * 5000, 1200, 4)
+    _, version, fid, index, count, groups, length = HEADER.unpack_from(parts[1])
+    forged = HEADER.pack(b"DG", version, fid, index, count, groups, length + 1) + parts[1][HEADER.size:]
+    r = Reassembler(max_frame_bytes=100_000)
+    assert r.add("s", parts[0], 0.0) is None
+    with pytest.raises(Rejected, match="changed"):
+        r.add("s", forged, 0.0)
+    short = split_frame(b"q" * 3000, 1200, 5)
+    _, version, fid, index, count, groups, length = HEADER.unpack_from(short[0])
+    lie = [HEADER.pack(b"DG", version, fid, i, count, groups, length + 5000) + p[HEADER.size:] for i, p in enumerate(short)]
+    r = Reassembler(max_frame_bytes=100_000)
+    with pytest.raises(Rejected, match="length"):
+        for piece in lie[:count]:
+            r.add("s", piece, 0.0)
+
+
 def test_ipc_address_has_no_datagram_form():
     """An ipc:// peer address is an input error for the datagram transport."""
     with pytest.raises(InputError):

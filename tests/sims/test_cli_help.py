@@ -20,6 +20,14 @@ def test_perceive_lists_every_tag_family_the_identifier_knows():
     assert f"AprilTag family: {', '.join(FAMILIES)} (default: tag36h11)" in command_help("perceive")
 
 
+def test_agent_parity_default_is_the_transports():
+    """`agent --parity-group` (a literal, so that the command starts without the transport) defaults to
+    the datagram transport's own PARITY_GROUP and says so."""
+    from protocols.datagrams import PARITY_GROUP
+
+    assert f"(0: none; default: {PARITY_GROUP})" in command_help("agent")
+
+
 @pytest.mark.parametrize("command,option,default", [
     ("localize", "--loss", "0.0"), ("localize", "--seed", "0"), ("localize", "--sigma-pixel", "1.0"),
     ("localize", "--sigma-radius", "0.5"), ("localize", "--sigma-odom-p", "0.005"),

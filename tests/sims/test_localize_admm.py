@@ -227,6 +227,20 @@ def test_cli_admm_mode_writes_the_contract_estimate_with_counts(tmp_path):
     assert len(doc["steps"]) == 2 and "A1" in doc["steps"][-1]["poses"]
 
 
+def test_cli_loss_per_datagram_is_recorded_and_a_bad_mtu_is_one_line(tmp_path, capsys):
+    """`--mtu 1200` makes --loss the loss of each datagram (recorded in stats); a datagram size that no
+    transport could use, or --mtu without --mode admm, is refused with exit 2 naming --mtu."""
+    sim = _sim(2, 2)
+    log_path, out = tmp_path / "log.json", tmp_path / "est.json"
+    write_log(log_path, sim.log)
+    assert main(["localize", str(log_path), "-o", str(out), "--mode", "admm", "--loss", "0.2", "--mtu", "1200"]) == 0
+    assert json.loads(out.read_text())["stats"]["mtu"] == 1200
+    capsys.readouterr()
+    for extra in (["--mode", "admm", "--mtu", "10"], ["--mtu", "1200"]):
+        assert main(["localize", str(log_path), "-o", str(tmp_path / "x.json"), *extra]) == 2
+        assert "--mtu" in capsys.readouterr().err
+
+
 def test_a_stray_tag_is_skipped_once_every_configuration_is_in():
     """A detection no assembly owns (a stray tag) every step: exact, and once the agent holds every
     assembly's configuration (no loss: after the first announcements) it is skipped (docs/formats.md) and no
