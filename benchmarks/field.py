@@ -123,9 +123,10 @@ def main(argv=None) -> int:
     if path.exists() and not args.force:
         print(f"field.py: {path} exists (give --force to replace it)", file=sys.stderr)
         return 2
-    cells = [(n, tr, par, d, loss, busy, args.seed + r) for n in args.sizes for tr in args.transports
-             for par in (args.parity_groups if tr == "udp" else [None]) for d in args.delays
-             for loss in args.losses for busy in args.busy for r in range(args.repeats)]
+    # repeats outermost: the machine's load drifts, and each repeat meets every cell at about the same load
+    cells = [(n, tr, par, d, loss, busy, args.seed + r) for r in range(args.repeats) for n in args.sizes
+             for tr in args.transports for par in (args.parity_groups if tr == "udp" else [None]) for d in args.delays
+             for loss in args.losses for busy in args.busy]
     if args.quick:
         args.steps = 8
         cells = [(4, tr, 4 if tr == "udp" else None, 0.03, 0.2, 0, args.seed) for tr in args.transports]
