@@ -424,6 +424,8 @@ class AssemblyAgent(AssemblyResults):
         # every agent's forms: the seeds are the joint estimate of this step (a fixed point of the ADMM),
         # and the centralized estimator's placement test can be run on them
         self._start.complete = share.agg.complete  # every (live) agent's forms
+        if share.agg.complete:
+            self._start.without = frozenset(n for i, n in enumerate(self.config.assemblies) if i not in share.agg.records)
         # (a set without some agent's forms is still the centralized problem of the data that arrived: its
         # placements answer the step if the ADMM has not converged when the next sensor step comes; without
         # them a window whose peer is down placed no one when that came before the wait for the forms ended)
@@ -449,6 +451,7 @@ class AssemblyAgent(AssemblyResults):
         newest = {(names[i], step): (rot2(theta), p) for i, (p, theta) in solution.pose_of().items()
                   if i < len(names)}
         self._start.complete = True
+        self._start.without = frozenset(names) - {names[i] for i in solution.indices("members") if i < len(names)}
         ref = self._index[self.config.reference]
         placeable = set(solution.indices("placeable")) | {ref}
         # placed relative to the reference; relative to this agent when it is placed itself

@@ -50,6 +50,12 @@ class AssemblyResults:
         return bool(self._start.complete) or self.config.share_forms != "every"
 
     @property
+    def without(self) -> tuple[str, ...]:
+        """Agents whose forms this window's complete set lacked (given up on as down), sorted: a converged
+        window is then the joint estimate of the others' data only."""
+        return tuple(sorted(self._start.without)) if self._start.complete else ()
+
+    @property
     def ready(self) -> bool:
         """Whether its consensus poses are in the pinned gauge."""
         return self._consensus.ready

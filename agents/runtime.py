@@ -83,6 +83,8 @@ class Revision:
         Rounds the window took in all, from its step's arrival (``"excluded"``: 0, no round of its own).
     reason : str
         ``"background"`` or ``"excluded"``.
+    without : tuple of str
+        Agents whose forms the converged window lacked (given up on as down; :attr:`AssemblyAgent.without`).
     """
 
     step: int
@@ -90,6 +92,7 @@ class Revision:
     unplaced: dict
     rounds: int
     reason: str = "background"
+    without: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -242,7 +245,7 @@ class LocalAgent:
             if bg.done and bg.converged and not bg._revised:
                 bg._revised = True
                 self._revisions.append(Revision(bg.step, dict(bg.window_estimate), dict(bg.window_unplaced),
-                                                bg.rounds))
+                                                bg.rounds, without=tuple(getattr(bg.agent, "without", ()))))
         return out
 
     def _end_of_round(self) -> None:

@@ -28,6 +28,9 @@ class WindowStart:
         Target -> detections its pair used when this window's own forms were shared.
     admm_ran : bool
         The agent has run an ADMM round in this window (its estimate is then the consensus once converged).
+    without : frozenset of str
+        Agents whose forms a complete set lacked (given up on as down: not heard for two windows). Its
+        joint solution is the centralized estimate of the others' data, not of all the data.
     fallback : dict
         Assembly -> ``(R, p)`` at this step of what the joint solution places (of every live agent's
         forms, or of those that came before the wait for them ended): the step's answer unless this agent
@@ -42,3 +45,4 @@ class WindowStart:
     form_sig: dict | None = None
     fallback: dict = field(default_factory=dict)
     admm_ran: bool = False
+    without: frozenset = frozenset()

@@ -144,6 +144,14 @@ class AdmmRun:
     bytes_per_step: tuple[dict, ...] = ()
 
 
+def _note_without(without: dict, step: int, names) -> None:
+    """Record (or clear, when ``names`` is empty) the agents a converged step's forms lacked."""
+    if names:
+        without[step] = sorted(names)
+    else:
+        without.pop(step, None)
+
+
 def own_step(log: ObservationLog, name: str, k: int) -> OwnStep:
     """What assembly ``name``'s own sensors give at step ``k`` of ``log`` (nothing of the others)."""
     step = log.steps[k]
@@ -251,6 +259,7 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
     suspects: set[str] = set()
     agent_converged: list[dict[str, bool]] = []  # per step: live agent -> its window converged (or was revised)
     revised: list[dict] = []  # the reference's revised steps (stats["revised"])
+    without: dict[int, list] = {}  # the reference's converged steps whose forms lacked some agents' (given up on)
 
     def take_revisions() -> None:
         """Windows that converged in the background replace their steps' provisional answers."""
@@ -262,6 +271,7 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
                     est_steps[rev.step] = EstimateStep(log.steps[rev.step].t, rev.poses, rev.unplaced)
                     revised.append({"step": rev.step, "rounds": rev.rounds, "at_step": len(est_steps),
                                     "reason": rev.reason})
+                    _note_without(without, rev.step, rev.without)
     for k in range(len(log.steps)):
         t = now()
         per_step.append({})
@@ -301,6 +311,8 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
         per_agent.append({n: hosts[n].agent.window_estimate for n in live})
         ref_poses = hosts[reference].agent.window_estimate if reference in live else {}
         if reference in live:  # members whose data the others contradicted (decentral.consistency)
+            if hosts[reference].agent.converged:
+                _note_without(without, k, getattr(hosts[reference].agent.agent, "without", ()))
             excluded |= set(getattr(hosts[reference].agent.agent, "excluded", ()))
             suspects |= set(getattr(hosts[reference].agent.agent, "suspects", ()))
         why = (hosts[reference].agent.window_unplaced if reference in live
@@ -315,7 +327,9 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
     seconds = time.perf_counter() - start
     total_rounds = int(sum(rounds))
     unplaced = count_reasons(step.unplaced for step in est_steps)
-    status, status_counts = run_status(converged, placed_steps(est_steps), unplaced, revised=len(revised))
+    without = {k: v for k, v in without.items() if converged[k]}
+    status, status_counts = run_status(converged, placed_steps(est_steps), unplaced, revised=len(revised),
+                                       without=len(without))
     stats = {
         "estimator": "consensus-admm",
         "mode": "admm",
@@ -331,6 +345,8 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
         # steps answered provisionally whose window then converged in the background (agents.runtime): the
         # reference's revisions, with the rounds the window took and the step under way when it converged
         "revised": revised,
+        # converged steps whose window lacked some agents' forms (given up on as down): the others' data only
+        "converged_without": [{"step": k, "without": v} for k, v in sorted(without.items())],
         "agents": {
             n: {
                 "converged": agents[n].converged,

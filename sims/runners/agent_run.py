@@ -269,6 +269,8 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
         poses = poses_to_dict(dict(sorted(local.window_estimate.items())))
         record = {"step": step, "t": part.steps[step].t, "poses": poses, "unplaced": dict(local.window_unplaced),
                   "converged": local.converged,
+                  # a converged window whose forms lacked these agents' (given up on as down): the others' data only
+                  "without": list(getattr(local.agent, "without", ())) if local.converged else [],
                   "rounds": local.rounds, "window_seconds": took, "counts": _counts(transport, name), "heard": sorted(heard),
                   "latency_ms": _quantiles(latencies), "lagged": lagged,
                   "excluded": list(getattr(local.agent, "excluded", ())),
@@ -292,7 +294,7 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
             if at is None:
                 continue
             records[at] = dict(records[at], poses=poses_to_dict(dict(sorted(rev.poses.items()))),
-                               unplaced=dict(rev.unplaced), converged=True, rounds=rev.rounds,
+                               unplaced=dict(rev.unplaced), converged=True, rounds=rev.rounds, without=list(rev.without),
                                revised_after_s=round(clock() - records[at]["closed_at"], 4), revised_because=rev.reason)
             write(records[at])
 
@@ -373,7 +375,8 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
     unplaced = count_reasons(step.unplaced for step in steps)
     status, status_counts = run_status([r["converged"] for r in records], placed_steps(steps), unplaced,
                                        not_run=n - len(records),
-                                       revised=sum(1 for r in records if "revised_after_s" in r))
+                                       revised=sum(1 for r in records if "revised_after_s" in r),
+                                       without=sum(1 for r in records if r["converged"] and r.get("without")))
     stats = {
         "unplaced": unplaced,
         "status": status,
@@ -396,6 +399,9 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
         # steps answered provisionally whose window converged in the background, and how long after the answer
         "revised": [{"step": r["step"], "after_s": r["revised_after_s"], "reason": r.get("revised_because", "background")}
                     for r in records if "revised_after_s" in r],
+        # converged steps whose window lacked some agents' forms (given up on as down): the others' data only
+        "converged_without": [{"step": r["step"], "without": r["without"]} for r in records
+                              if r["converged"] and r.get("without")],
         "missing": sorted(a for a in names if a != name and a not in heard),
         "round_period": pace.round_period,
         "lagged": lagged,  # times the process fell more than 20 half rounds behind and jumped

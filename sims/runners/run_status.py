@@ -19,6 +19,9 @@ the same verdict, computed here from what each step's window did:
 - ``revised`` (where the runner reports it, ``run_status(..., revised=)``): steps answered provisionally when the next sensor step
   came whose window then converged in the background (:mod:`agents.runtime`): counted as converged,
   at most one sensor step late;
+- ``without_members`` (where the runner reports it, ``run_status(..., without=)``): of the converged
+  steps, those whose window's forms lacked some agent's (given up on as down after two silent windows):
+  the joint estimate of the others' data, not of all of it; such a run is ``degraded``;
 - one entry per reason of an assembly-step left unplaced (:data:`decentral.unplaced.REASONS`,
   e.g. ``no_consensus``), as in ``stats.unplaced``.
 
@@ -40,7 +43,8 @@ EXIT_DEGRADED = 4
 
 
 def run_status(converged: Sequence[bool], placed: Sequence[bool], unplaced: Mapping[str, int] | None = None, *,
-               not_run: int = 0, timed_out: bool = False, revised: int | None = None) -> tuple[str, dict[str, int]]:
+               not_run: int = 0, timed_out: bool = False, revised: int | None = None,
+               without: int | None = None) -> tuple[str, dict[str, int]]:
     """The verdict and the counts per reason of a run (see the module docstring).
 
     Parameters
@@ -57,6 +61,9 @@ def run_status(converged: Sequence[bool], placed: Sequence[bool], unplaced: Mapp
         Whether the run was cut short.
     revised : int, optional
         Of the converged steps, those revised one step late (counted as ``revised``; omitted: not reported).
+    without : int, optional
+        Of the converged steps, those whose forms lacked some agent's (``without_members``; omitted: not
+        reported).
 
     Returns
     -------
@@ -82,9 +89,11 @@ def run_status(converged: Sequence[bool], placed: Sequence[bool], unplaced: Mapp
         counts[str(reason)] = int(n)
     if revised is not None:
         counts["revised"] = int(revised)
+    if without is not None:
+        counts["without_members"] = int(without)
     if timed_out:
         return "timeout", counts
-    return ("ok" if not off and not not_run else "degraded"), counts
+    return ("ok" if not off and not not_run and not without else "degraded"), counts
 
 
 def status_warning(status: str, counts: Mapping[str, int], steps: int) -> str | None:
@@ -104,6 +113,9 @@ def status_warning(status: str, counts: Mapping[str, int], steps: int) -> str | 
                      f"provisional: the joint solution of the forms held; {counts.get('unanswered', 0)} placed no one)")
     if counts.get("revised"):
         parts.append(f"{counts['revised']} revised one step late (converged in the background)")
+    if counts.get("without_members"):
+        parts.append(f"{counts['without_members']} converged without some agents' forms (given up on as down: "
+                     "the joint estimate of the others' data)")
     if counts.get("not_run"):
         parts.append(f"{counts['not_run']} of {steps} steps never ran (agent down, late or cut short)")
     reasons = {k: v for k, v in counts.items() if k not in _OWN and v}
@@ -113,7 +125,7 @@ def status_warning(status: str, counts: Mapping[str, int], steps: int) -> str | 
     return f"status {status}: " + ("; ".join(parts) if parts else "cut short")
 
 
-_OWN = ("unconverged", "provisional", "unanswered", "not_run", "revised")
+_OWN = ("unconverged", "provisional", "unanswered", "not_run", "revised", "without_members")
 
 
 def placed_steps(steps: Iterable) -> list[bool]:

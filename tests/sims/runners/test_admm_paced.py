@@ -53,3 +53,27 @@ def test_a_cold_start_at_half_loss_reports_the_joint_estimate_not_a_runaway_iter
     assert mismatched == 0 and dp < POS_TOL and dth < YAW_TOL, (dp, np.degrees(dth))
     dp, _, mismatched = estimate_gap(central, run.estimate)
     assert mismatched == 0 and dp < 0.2
+
+
+def test_steps_converged_without_a_member_given_up_on_say_so():
+    """A2 is down from step 2 to step 9 (20 rounds a step): once given up on, the others' windows converge
+    without its forms (the joint estimate of their data, tens of mm from the centralized estimate of all the
+    data). Those steps are named in ``converged_without`` (A2), counted as ``without_members``, the run is
+    ``degraded`` and its warning says why; no step converged with every agent's forms names anyone."""
+    from sims.runners.run_status import status_warning
+
+    sim = simulate(get_scenario("multi", n_assemblies=4, steps=10), seed=1)
+    t0, t1 = 2 * ROUNDS * PERIOD + PERIOD / 4, 9 * ROUNDS * PERIOD + PERIOD / 4
+    run = run_admm(sim.log, config=AdmmRunConfig(crashes=(Crash("A2", t0, t1),), max_rounds=ROUNDS,
+                                                  fast_forward=False, round_period=PERIOD), seed=0)
+    stats = run.stats
+    without = {e["step"]: e["without"] for e in stats["converged_without"]}
+    assert without and set(map(tuple, without.values())) == {("A2",)}
+    assert all(stats["converged_per_step"][k] and 2 <= k <= 9 for k in without)
+    assert stats["status"] == "degraded" and stats["status_counts"]["without_members"] == len(without)
+    assert "converged without some agents' forms" in status_warning(stats["status"], stats["status_counts"], 10)
+    central = estimate_log(sim.log, EstimatorConfig(window=5))
+    for k in range(10):
+        if stats["converged_per_step"][k] and k not in without:
+            dp, dth, mismatched = _step_gap(central, run.estimate, k)
+            assert mismatched == 0 and dp < POS_TOL and dth < YAW_TOL, (k, dp)
