@@ -5,7 +5,8 @@ core) the log runs as one ``decentral agent`` per namespace behind impaired link
 (:mod:`sims.lab.field`), and the reference agent's estimate is compared with the centralized estimate of
 the same log, computed in the same run. Per cell: share of the centralized estimate's placements
 that the agents placed (on time, and at most one sensor step late), the position / yaw gap of the
-converged steps and of all placed steps, steps converged, rounds and bytes per window, frame
+converged steps (those converged without the forms of an agent given up on as down, ``converged_without``,
+apart) and of all placed steps, steps converged, rounds and bytes per window, frame
 latency (sender's clock to arrival: median, p90, max over windows; a TCP stall after a lost packet
 shows here), ``stats.status``, and the simulated runner's prediction of the convergence share at
 the same latency (:func:`sims.runners.admm_run.run_admm` with the links' latency and jitter and the same
@@ -58,7 +59,9 @@ def _cell_metrics(central, est, records, reference):
     stats = est.stats
     steps = len(central.steps)
     want = placed = placed_late = 0
-    gaps_conv, gaps_all, yaw_conv = [], [], []
+    gaps_conv, gaps_all, yaw_conv, gaps_without = [], [], [], []
+    # converged without the forms of agents given up on as down: the others' data only (compared apart)
+    without = {e["step"] for e in stats.get("converged_without", [])}
     for k in range(steps):
         c, e = central.steps[k], est.steps[k]
         want += len(c.poses)
@@ -70,7 +73,9 @@ def _cell_metrics(central, est, records, reference):
             dp = float(np.linalg.norm(c.poses[a].p - e.poses[a].p))
             dy = float(abs(np.angle(np.exp(1j * (c.poses[a].theta - e.poses[a].theta)))))
             gaps_all.append(dp)
-            if stats["converged_per_step"][k]:
+            if stats["converged_per_step"][k] and k in without:
+                gaps_without.append(dp)
+            elif stats["converged_per_step"][k]:
                 gaps_conv.append(dp)
                 yaw_conv.append(dy)
     lat = [r["latency_ms"] for run in records.get(reference, []) for r in run if r.get("latency_ms")]
@@ -81,6 +86,8 @@ def _cell_metrics(central, est, records, reference):
         "placed_share_one_step_late": placed_late / want if want else 1.0,
         "converged_steps": int(sum(stats["converged_per_step"])), "steps": steps,
         "gap_converged_mm": {"max": 1e3 * max(gaps_conv, default=0.0), "median": 1e3 * q(gaps_conv, 0.5) if gaps_conv else None},
+        "converged_without_steps": len(without),
+        "gap_converged_without_mm": 1e3 * max(gaps_without, default=0.0),
         "yaw_gap_converged_deg": float(np.degrees(max(yaw_conv, default=0.0))),
         "gap_placed_mm": {"max": 1e3 * max(gaps_all, default=0.0), "median": 1e3 * q(gaps_all, 0.5) if gaps_all else None},
         "rounds_per_window": {"median": q(stats["rounds_per_step"], 0.5)},
@@ -181,7 +188,8 @@ def summarize(cells: list[dict]) -> list[dict]:
                     "placed_share": stat([c["placed_share"] for c in rows]),
                     "placed_share_one_step_late": stat([c["placed_share_one_step_late"] for c in rows]),
                     "converged_steps": stat([c["converged_steps"] for c in rows]),
-                    "gap_converged_mm_max": max(c["gap_converged_mm"]["max"] for c in rows)})
+                    "gap_converged_mm_max": max(c["gap_converged_mm"]["max"] for c in rows),
+                    "converged_without_steps": sum(c.get("converged_without_steps", 0) for c in rows)})
     return out
 
 

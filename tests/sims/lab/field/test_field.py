@@ -87,28 +87,31 @@ def test_a_ring_in_namespaces_behind_delayed_links_gives_the_centralized_estimat
     result = run_field(sim.log, LaunchConfig(**PACE, transport="udp"), FieldConfig(delay=0.01, jitter=0.2))
     stats = result.estimate.stats
     assert not result.timed_out and stats["mode"] == "field"
-    converged = [k for k, c in enumerate(stats["converged_per_step"]) if c]
+    without = {e["step"] for e in stats["converged_without"]}
+    converged = [k for k, c in enumerate(stats["converged_per_step"]) if c and k not in without]
     assert len(converged) >= 3
     for same, dp, dy in _gaps(central, result.estimate, converged):
         assert same and dp < POS_TOL and dy < YAW_TOL
-    assert (stats["status"] == "ok") == all(stats["converged_per_step"])
+    assert (stats["status"] == "ok") == (all(stats["converged_per_step"]) and not without)
 
 
 @pytest.mark.slow
 @needs_field
-@pytest.mark.parametrize("transport", ["udp", pytest.param("zmq", marks=pytest.mark.xfail(strict=False, reason=(
-    "known limit of TCP: 20 % segment loss stalls a connection for seconds, a live peer then goes unheard for "
-    "two windows, looks down, and the others' windows converge without its forms (2 of 4 runs)")))])
+@pytest.mark.parametrize("transport", ["udp", "zmq"])
 def test_under_loss_and_delay_every_converged_step_is_exact(transport):
-    """4 agents, 30 ms +-20 % links, 20 % packet loss: converged steps equal the centralized estimate."""
+    """4 agents, 30 ms +-20 % links, 20 % packet loss: converged steps equal the centralized estimate, except
+    those reported as converged without an agent given up on as down (over TCP a lost segment stalls a
+    connection for seconds, and a live peer unheard for two windows looks down); the run is ``ok`` only when
+    every step converged with every agent's forms."""
     sim = simulate(get_scenario("multi", n_assemblies=4, steps=10), seed=1)
     central = estimate_log(sim.log, EstimatorConfig(window=5))
     result = run_field(sim.log, LaunchConfig(**PACE, transport=transport), FieldConfig(delay=0.03, loss=0.2))
     stats = result.estimate.stats
-    converged = [k for k, c in enumerate(stats["converged_per_step"]) if c]
+    without = {e["step"] for e in stats["converged_without"]}
+    converged = [k for k, c in enumerate(stats["converged_per_step"]) if c and k not in without]
     for same, dp, dy in _gaps(central, result.estimate, converged):
         assert same and dp < POS_TOL and dy < YAW_TOL
-    assert (stats["status"] == "ok") == all(stats["converged_per_step"])
+    assert (stats["status"] == "ok") == (all(stats["converged_per_step"]) and not without)
 
 
 @pytest.mark.slow
