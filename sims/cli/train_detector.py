@@ -1,7 +1,7 @@
 """``decentral train-detector``: retrain the learned circle detector on rendered scenes and/or labelled frames.
 
 Renders the training shards that are not yet in ``OUT/shards`` (varied scenes, harder scenes,
-mottled floors and ``table1`` runs by seed, :mod:`sims.lab.experiments.detector_data`; the held-out
+mottled floors, ``table1`` runs and ring runs (the ``multi`` scenario's low cameras) by seed, :mod:`sims.lab.experiments.detector_data`; the held-out
 scenes are refused), adds shards of the user's own labelled frames (``--labels``, see
 :func:`agents.perception.training.data.shard_from_labels`), then trains both networks on the CPU
 (``python -m agents.perception.training train``; PyTorch from the ``train`` extra; on a CUDA GPU
@@ -43,6 +43,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--table1", type=_range, default=range(100, 109), metavar="FIRST:STOP",
                         help="table1 run seeds to render (default: 100:109)")
     parser.add_argument("--table1-steps", type=int, default=30, help="steps per table1 run (default: 30)")
+    parser.add_argument("--ring", type=_range, default=range(300, 370), metavar="FIRST:STOP",
+                        help="ring run seeds to render (multi scenario: spheres on the horizon against a wall of "
+                             "varied colour; default: 300:370)")
+    parser.add_argument("--ring-steps", type=int, default=6, help="steps per ring run (default: 6)")
     parser.add_argument("--labels", type=Path, nargs="*", default=[], metavar="LABELS.json",
                         help="your labelled frames: {\"frames\": [{\"image\": ..., \"circles\": [[u, v, r], ...]}]}")
     parser.add_argument("--steps", type=int, default=900, help="proposal network steps (default: 900)")
@@ -64,12 +68,13 @@ def run(args: argparse.Namespace) -> int:
 
     shards = args.out / "shards"
     shards.mkdir(parents=True, exist_ok=True)
-    if args.varied_frames < 1 or args.table1_steps < 1:
-        raise InputError("--varied-frames and --table1-steps must be positive", field="--varied-frames")
+    if args.varied_frames < 1 or args.table1_steps < 1 or args.ring_steps < 1:
+        raise InputError("--varied-frames, --table1-steps and --ring-steps must be positive", field="--varied-frames")
     render = ["--varied", f"{args.varied.start}:{args.varied.stop}", "--varied-frames", str(args.varied_frames),
               "--hard", f"{args.hard.start}:{args.hard.stop}", "--hard-frames", str(args.varied_frames),
               "--mottled", f"{args.mottled.start}:{args.mottled.stop}", "--mottled-frames", str(args.varied_frames),
-              "--table1", f"{args.table1.start}:{args.table1.stop}", "--table1-steps", str(args.table1_steps)]
+              "--table1", f"{args.table1.start}:{args.table1.stop}", "--table1-steps", str(args.table1_steps),
+              "--ring", f"{args.ring.start}:{args.ring.stop}", "--ring-steps", str(args.ring_steps)]
     from agents.perception.training.__main__ import _size
 
     size = None if args.input_size is None else "x".join(map(str, _size(args.input_size)))
@@ -89,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
         write_shard(shards / f"labels-{k}.npz",
                     shard_from_labels(labels, input_size=_size(size)))
     init = [] if args.init is None else ["--init", str(args.init)]
-    validation = ["--validation", "varied-*9.npz", "hard-*49.npz", "mottled-*9.npz", "table1-*8.npz"]
+    validation = ["--validation", "varied-*9.npz", "hard-*49.npz", "mottled-*9.npz", "table1-*8.npz", "ring-*9.npz"]
     status = train_main(["train", str(shards), "-o", str(args.out), "--steps", str(args.steps),
                          "--refine-steps", str(args.refine_steps), "--seed", str(args.seed), "--device", args.device,
                          *init, *validation, "--oversample", "table1-*=2"])

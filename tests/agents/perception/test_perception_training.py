@@ -154,14 +154,14 @@ def test_train_detector_command_renders_and_trains(tmp_path):
 
     out = tmp_path / "det"
     assert main(["train-detector", str(out), "--varied", "2008:2010", "--varied-frames", "1", "--table1", "100:100",
-                 "--hard", "5049:5050", "--mottled", "6008:6010", "--steps", "2", "--refine-steps", "2",
-                 "--init", str(MODEL_DIR)]) == 0
+                 "--hard", "5049:5050", "--mottled", "6008:6010", "--ring", "300:301", "--ring-steps", "1",
+                 "--steps", "2", "--refine-steps", "2", "--init", str(MODEL_DIR)]) == 0
     assert (out / "circles.onnx").is_file() and (out / "circle_refine.onnx").is_file()
     assert (out / "circle_refine_int8.onnx").is_file()
     assert json.loads((out / "circles_training.json").read_text())["init"].endswith("circles.onnx")
     assert sorted(p.name for p in (out / "shards").glob("*.npz")) == ["hard-5049.npz", "mottled-6008.npz",
-                                                                        "mottled-6009.npz", "varied-2008.npz",
-                                                                        "varied-2009.npz"]
+                                                                        "mottled-6009.npz", "ring-300.npz",
+                                                                        "varied-2008.npz", "varied-2009.npz"]
 
 
 def test_hard_scenes_are_reproducible_and_cut_spheres_at_the_frame_edge():
