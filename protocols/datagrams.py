@@ -124,9 +124,10 @@ class _Frame:
         room = len(parity)  # a parity piece is as long as a full data piece
         i = missing[0]
         size = room if i < self.count - 1 else self.length - (self.count - 1) * room
-        if not 0 < size <= room:
+        others = [self.pieces[j] for j in members if j != i]
+        if not 0 < size <= room or any(len(q) > room for q in others):
             raise Rejected("malformed", "frame length does not match its pieces")
-        rebuilt = _xor([parity] + [self.pieces[j] for j in members if j != i], room)
+        rebuilt = _xor([parity] + others, room)
         self.pieces[i] = rebuilt[:size]
         self.rebuilt += 1
 

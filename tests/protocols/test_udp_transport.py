@@ -157,6 +157,14 @@ def test_pieces_that_disagree_with_their_header_are_refused():
     with pytest.raises(Rejected, match="length"):
         for piece in lie[:count]:
             r.add("s", piece, 0.0)
+    # a data piece longer than its group's parity (a forged datagram) is refused, not a crash of the rebuild
+    big = split_frame(b"w" * 5000, 1200, 6)
+    _, version, fid, index, count, groups, length = HEADER.unpack_from(big[0])
+    long_piece = HEADER.pack(b"DG", version, fid, groups, count, groups, length) + b"v" * 1500
+    r = Reassembler(max_frame_bytes=100_000)
+    with pytest.raises(Rejected, match="length"):
+        for piece in [long_piece] + [p for j, p in enumerate(big) if j not in (0, groups)]:
+            r.add("s", piece, 0.0)
 
 
 def test_ipc_address_has_no_datagram_form():
