@@ -20,7 +20,7 @@ import math
 import multiprocessing
 import os
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -306,6 +306,9 @@ def train(network: str, data: Shards, val: Shards, out: str | os.PathLike, confi
                              field="shards")
         if init is not None and str(init).endswith(".onnx"):
             net = circlenet_from_onnx(init)
+            arch = getattr(net, "config", None) or {}
+            if arch:  # the shape comes from the file: the log records it, not the options' defaults
+                config = replace(config, width=int(arch["width"]), channels=tuple(int(c) for c in arch["channels"]))
         else:
             net = CircleNet(config.width, tuple(config.channels))
         loss_fn = _detector_loss
