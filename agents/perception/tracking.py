@@ -72,6 +72,10 @@ class TrackerConfig:
     verify_iou : float
         The same holds for a track whose detection overlaps its predicted circle by less than this
         IoU (plain circles): it may have jumped to a neighbouring node of the same size.
+    verify_radius_ratio : float
+        Nor does a track keep showing its id when its detection's radius differs from the predicted one
+        by more than this ratio (a node's image grows or shrinks a few per cent a frame; a jump of a
+        third is another node, e.g. a nearer one sliding in front of a hidden one), contested or not.
     trust_uncontested : bool
         With a detector that finds nearly every node, a low-overlap match that nothing contests
         (no other detection within the track's association gate, no other track whose gate holds
@@ -104,6 +108,7 @@ class TrackerConfig:
     confident_votes: int = 3
     reverify_after: int = 3
     verify_iou: float = 0.4
+    verify_radius_ratio: float = 0.8
     trust_uncontested: bool = False
     settle_votes: int = 4
     settle_iou: float = 0.6
@@ -325,6 +330,8 @@ class CircleTracker:
             # through the buffer may have jumped to a neighbouring node
             close = float(circle_iou(t.circle[None], dets[j][None])[0, 0]) >= cfg.verify_iou \
                 or (cfg.trust_uncontested and not self._contested(gate, row[id(t)], j))
+            r0, r1 = float(t.circle[2]), float(dets[j][2])
+            close = close and min(r0, r1) >= cfg.verify_radius_ratio * max(r0, r1)
             t.mean, t.cov = self.kf.update(t.mean, t.cov, dets[j])
             t.hits += 1
             if t.lost > cfg.reverify_after or not close:
