@@ -373,10 +373,12 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
     steps = tuple(EstimateStep(r["t"], poses_of(r["poses"]), r["unplaced"]) for r in records)
     final = _counts(transport, name, kinds=True)
     unplaced = count_reasons(step.unplaced for step in steps)
+    # converged steps whose window lacked some agents' forms (given up on as down): the others' data only
+    without = [{"step": r["step"], "without": r["without"]} for r in records if r["converged"] and r.get("without")]
     status, status_counts = run_status([r["converged"] for r in records], placed_steps(steps), unplaced,
                                        not_run=n - len(records),
                                        revised=sum(1 for r in records if "revised_after_s" in r),
-                                       without=sum(1 for r in records if r["converged"] and r.get("without")))
+                                       without=len(without))
     stats = {
         "unplaced": unplaced,
         "status": status,
@@ -399,9 +401,7 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
         # steps answered provisionally whose window converged in the background, and how long after the answer
         "revised": [{"step": r["step"], "after_s": r["revised_after_s"], "reason": r.get("revised_because", "background")}
                     for r in records if "revised_after_s" in r],
-        # converged steps whose window lacked some agents' forms (given up on as down): the others' data only
-        "converged_without": [{"step": r["step"], "without": r["without"]} for r in records
-                              if r["converged"] and r.get("without")],
+        "converged_without": without,
         "missing": sorted(a for a in names if a != name and a not in heard),
         "round_period": pace.round_period,
         "lagged": lagged,  # times the process fell more than 20 half rounds behind and jumped

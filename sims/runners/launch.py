@@ -438,10 +438,13 @@ def _compose(log, reference, records, config, incarnations, timed_out, failures)
         rejected.setdefault(reason, 0)
     unplaced = count_reasons(step.unplaced for step in steps)
     ran = sorted(by_step)
+    # converged steps whose window lacked some agents' forms (given up on as down): the others' data only
+    without = [{"step": k, "without": by_step[k]["without"]} for k in ran
+               if by_step[k]["converged"] and by_step[k].get("without")]
     status, status_counts = run_status([bool(by_step[k]["converged"]) for k in ran], [bool(steps[k].poses) for k in ran],
                                        unplaced, not_run=len(log.steps) - len(ran), timed_out=timed_out,
                                        revised=sum(1 for k in ran if "revised_after_s" in by_step[k]),
-                                       without=sum(1 for k in ran if by_step[k]["converged"] and by_step[k].get("without")))
+                                       without=len(without))
     heard = set()
     for run in records[reference]:
         if run:
@@ -467,9 +470,7 @@ def _compose(log, reference, records, config, incarnations, timed_out, failures)
         "revised": [{"step": k, "after_s": by_step[k]["revised_after_s"],
                      "reason": by_step[k].get("revised_because", "background")} for k in ran
                     if "revised_after_s" in by_step[k]],
-        # converged steps whose window lacked some agents' forms (given up on as down): the others' data only
-        "converged_without": [{"step": k, "without": by_step[k]["without"]} for k in ran
-                              if by_step[k]["converged"] and by_step[k].get("without")],
+        "converged_without": without,
         "missing": sorted(n for n in log.assemblies if n != reference and n not in heard),
         # members whose data the others contradicted, left out of the reference's joint solution
         "excluded": sorted({a for run in records[reference] for rec in run for a in rec.get("excluded", ())}),
