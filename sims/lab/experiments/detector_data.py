@@ -91,13 +91,19 @@ def mottled_shard(seed: int, frames: int, **kw) -> dict[str, np.ndarray]:
 
 def table1_shard(seed: int, steps: int, *, scenario: str = "table1", **kw) -> dict[str, np.ndarray]:
     """A shard of every camera's frames of the ``scenario`` run ``seed`` (``steps`` steps)."""
-    from sims.simulation.render.frame_files import render_frames
     from sims.simulation.render.renderer import RenderConfig
     from sims.simulation.scenarios import get_scenario, simulate
 
-    sim = simulate(get_scenario(scenario, steps=steps), seed=seed)
-    return shard_from_frames(((fr.image, [(n["su"], n["sv"], n["sr"], n["visible"]) for n in fr.nodes])
-                              for _, _, fr in render_frames(sim, seed, RenderConfig())), **kw)
+    return _rendered_shard(simulate(get_scenario(scenario, steps=steps), seed=seed), seed, RenderConfig(), **kw)
+
+
+def _rendered_shard(sim, seed: int, render, **kw) -> dict[str, np.ndarray]:
+    """A shard of every camera's frames of simulation ``sim`` rendered with ``render`` (render seed ``seed``),
+    each circle the exact silhouette's with its visible fraction."""
+    from sims.simulation.render.frame_files import render_frames
+
+    return shard_from_frames(((fr.image, [(nd["su"], nd["sv"], nd["sr"], nd["visible"]) for nd in fr.nodes])
+                              for _, _, fr in render_frames(sim, seed, render)), **kw)
 
 
 def ring_shard(seed: int, steps: int, **kw) -> dict[str, np.ndarray]:
@@ -106,7 +112,6 @@ def ring_shard(seed: int, steps: int, **kw) -> dict[str, np.ndarray]:
     The seed draws the ring (3-8 assemblies 1.2-2.2 m apart, chords or none), the wall behind the
     horizon (brightness 0.25-0.95 at the top, darker or equal at the bottom; a tint) and the light.
     """
-    from sims.simulation.render.frame_files import render_frames
     from sims.simulation.render.renderer import RenderConfig
     from sims.simulation.scenarios import get_scenario, simulate
 
@@ -121,9 +126,7 @@ def ring_shard(seed: int, steps: int, **kw) -> dict[str, np.ndarray]:
     render = RenderConfig(wall_levels=(top, top * float(rng.uniform(0.7, 1.0))),
                           wall_tint=tuple(float(x) for x in rng.uniform(0.7, 1.0, 3)),
                           light=(float(rng.uniform(-0.6, 0.6)), float(rng.uniform(-0.6, 0.6)), 1.0))
-    sim = simulate(scenario, seed=seed)
-    return shard_from_frames(((fr.image, [(n["su"], n["sv"], n["sr"], n["visible"]) for n in fr.nodes])
-                              for _, _, fr in render_frames(sim, seed, render)), **kw)
+    return _rendered_shard(simulate(scenario, seed=seed), seed, render, **kw)
 
 
 def _range(text: str) -> range:
