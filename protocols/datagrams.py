@@ -103,13 +103,12 @@ def split_frame(frame: bytes, mtu: int, frame_id: int, parity_group: int = PARIT
 class _Frame:
     """One frame in progress: its pieces by index (data and parity) and what its header promised."""
 
-    __slots__ = ("first_seen", "count", "groups", "length", "pieces", "bytes", "rebuilt")
+    __slots__ = ("first_seen", "count", "groups", "length", "pieces", "bytes")
 
     def __init__(self, now: float, count: int, groups: int, length: int):
         self.first_seen, self.count, self.groups, self.length = now, count, groups, length
         self.pieces: dict[int, bytes] = {}
         self.bytes = 0
-        self.rebuilt = 0  # data pieces rebuilt from parity
 
     def group_of(self, index: int) -> int:
         return index - self.count if index >= self.count else index % self.groups
@@ -129,7 +128,6 @@ class _Frame:
             raise Rejected("malformed", "frame length does not match its pieces")
         rebuilt = _xor([parity] + others, room)
         self.pieces[i] = rebuilt[:size]
-        self.rebuilt += 1
 
     def whole(self) -> bytes | None:
         if any(i not in self.pieces for i in range(self.count)):
@@ -159,7 +157,6 @@ class Reassembler:
         # frames with parity already returned: their datagrams still to come are ignored, not begun again
         self._done: dict[tuple, float] = {}
         self._dropped = 0
-        self.recovered = 0  # frames completed with a piece rebuilt from parity
 
     def add(self, source, datagram: bytes, now: float) -> bytes | None:
         """Take one datagram; return the frame it completes, if any.
@@ -217,7 +214,6 @@ class Reassembler:
             self._done[key] = now
             if len(self._done) > _MAX_DONE:  # oldest first (insertion order)
                 del self._done[next(iter(self._done))]
-        self.recovered += entry.rebuilt > 0
         return frame
 
     def expire(self, now: float) -> int:
