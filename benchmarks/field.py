@@ -8,7 +8,8 @@ that the agents placed (on time, and at most one sensor step late), the position
 converged steps (those converged without the forms of an agent given up on as down, ``converged_without``,
 apart) and of all placed steps, steps converged, rounds and bytes per window, frame
 latency (sender's clock to arrival: median, p90, max over windows; a TCP stall after a lost packet
-shows here), ``stats.status``, and the simulated runner's prediction of the convergence share at
+shows here), how late the processes ran their rounds against their own clocks and their CPU per step
+(a starved CPU shows there), ``stats.status``, and the simulated runner's prediction of the convergence share at
 the same latency (:func:`sims.runners.admm_run.run_admm` with the links' latency and jitter and the same
 round budget). Needs Linux and root (``ip netns``; ``iptables`` for loss).
 
@@ -94,6 +95,10 @@ def _cell_metrics(central, est, records, reference):
         "bytes_per_window": stats["bytes"]["total"] / windows,
         "frame_latency_ms": {"median_of_medians": q([x[0] for x in lat], 0.5), "p90_of_p90s": q([x[1] for x in lat], 0.9),
                              "max": max((x[2] for x in lat), default=None)},
+        # the processes' own clocks: how late they ran their half rounds (worst agent's median step p90) and
+        # their CPU per step (largest agent median): a starved CPU, told apart from the links
+        "behind_ms_p90": max((v[0] for v in stats.get("behind_ms", {}).values()), default=None),
+        "cpu_ms_per_step": max((v[0] for v in stats.get("cpu_ms", {}).values()), default=None),
         "status": stats["status"], "status_counts": stats["status_counts"],
     }
 
@@ -164,7 +169,8 @@ def main(argv=None) -> int:
         print(f"n={n} {tr}{'' if parity is None else f' parity {parity}'} seed {seed} delay={delay * 1e3:.0f}ms loss={loss:.0%} busy={busy}: placed {row['placed_share']:.0%} "
               f"(+1 step {row['placed_share_one_step_late']:.0%}), converged {row['converged_steps']}/{row['steps']} "
               f"(sim {row['simulated']['converged_steps']}), max gap conv {row['gap_converged_mm']['max']:.2f} mm, "
-              f"latency p90 {row['frame_latency_ms']['p90_of_p90s']} ms, {row['status']}, load {load:.1f}",
+              f"latency p90 {row['frame_latency_ms']['p90_of_p90s']} ms, rounds behind p90 {row['behind_ms_p90']} ms, "
+              f"CPU/step {row['cpu_ms_per_step']} ms, {row['status']}, load {load:.1f}",
               file=sys.stderr, flush=True)
     payload["summary"] = summarize(payload["cells"])
     save("field", payload, args.out)

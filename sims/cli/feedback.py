@@ -28,7 +28,7 @@ from typing import Iterable, Iterator, Mapping, TypeVar
 
 from tqdm import tqdm
 
-from sims.runners.run_status import EXIT_DEGRADED, status_warning
+from sims.runners.run_status import EXIT_DEGRADED, cpu_hint, status_warning
 
 __all__ = ["Progress", "configure", "configured", "is_quiet", "progress", "track", "summary", "warn", "add_strict",
            "report_status"]
@@ -193,6 +193,8 @@ def report_status(stats: Mapping, steps: int, strict: bool) -> int:
     line = status_warning(stats["status"], stats.get("status_counts", {}), steps)
     if line is None:
         return 0
+    hint = cpu_hint(stats.get("behind_ms"), stats.get("round_period", 0.0)) if stats.get("round_period") else None
+    line += f"; {hint}" if hint else ""
     warn(line + (f" (exit status {EXIT_DEGRADED})" if strict else "; --strict makes this exit "
                           f"{EXIT_DEGRADED}"))
     return EXIT_DEGRADED if strict else 0

@@ -17,8 +17,10 @@ the simulated runner drives, here for one agent, on wall-clock timers:
 
 Each finished step is appended at once as one JSON line to ``stream`` (if given): ``{"step", "t",
 "poses", "unplaced", "converged", "rounds", "window_seconds", "counts", "heard", "latency_ms",
-"lagged", "counters", "closed_at"}`` with the transport's cumulative counts, the frame latencies of the window
-(median, p90, max, ms) and the agent's protocol counters, so that a process killed with SIGKILL has
+"lagged", "cpu_ms", "counters", "closed_at"}`` with the transport's cumulative counts, the frame latencies of the
+window (median, p90, max, ms), how late the process ran its half rounds against its own clock (``behind_ms``:
+median, p90, max; a process kept off a busy CPU shows here, not in ``latency_ms``), the CPU time it used
+since the previous record (``cpu_ms``) and the agent's protocol counters, so that a process killed with SIGKILL has
 still reported every step it finished. A step answered provisionally whose window then converged in
 the background, or answered again without a member a later window excluded (:mod:`agents.runtime`,
 :mod:`agents.exclusion_revisions`), is written again, converged, with ``revised_after_s`` (seconds
@@ -228,6 +230,8 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
 
     answered: dict[str, float] = {}
     latencies: list[float] = []  # sent_at to arrival of the frames of the current window (s)
+    behind: list[float] = []  # how late each half round of the current window ran against its due time (s)
+    behind_all: list[float] = []
 
     class _Listening:  # records who was heard and when the peers' rounds started, then hands the frames on
         def poll(self, agent, now):
@@ -262,21 +266,28 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
     records: list[dict] = []
     max_behind, lagged = 20, 0
     began, took = now, None
+    cpu_at = time.process_time()
     end = pace.due(part, n - 1) + max(pace.linger, per_step)
 
     def close(step: int) -> None:
+        nonlocal cpu_at
         local.end_window()
+        cpu_now = time.process_time()
+        cpu_ms, cpu_at = round((cpu_now - cpu_at) * 1e3, 1), cpu_now
         poses = poses_to_dict(dict(sorted(local.window_estimate.items())))
         record = {"step": step, "t": part.steps[step].t, "poses": poses, "unplaced": dict(local.window_unplaced),
                   "converged": local.converged,
                   # a converged window whose forms lacked these agents' (given up on as down): the others' data only
                   "without": list(getattr(local.agent, "without", ())) if local.converged else [],
                   "rounds": local.rounds, "window_seconds": took, "counts": _counts(transport, name), "heard": sorted(heard),
-                  "latency_ms": _quantiles(latencies), "lagged": lagged,
+                  "latency_ms": _quantiles(latencies), "behind_ms": _quantiles(behind), "lagged": lagged,
+                  "cpu_ms": cpu_ms,
                   "excluded": list(getattr(local.agent, "excluded", ())),
                   "suspects": list(getattr(local.agent, "suspects", ())), "clock": start_clock.report(),
                   "counters": {k: int(v) for k, v in local.agent.counters.items()}}  # (to trace a wrong window)
         latencies.clear()
+        behind_all.extend(behind)
+        behind.clear()
         record["closed_at"] = clock()
         records.append(record)
         write(record)
@@ -351,6 +362,7 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
                 lagged += 1
             nxt = done_half + 1
             if nxt <= h:
+                behind.append(now - (pace.start + nxt * pace.round_period / 2))
                 host.half_round(now, nxt // 2, nxt % 2)
                 revise()
                 done_half = nxt
@@ -405,6 +417,11 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
         "missing": sorted(a for a in names if a != name and a not in heard),
         "round_period": pace.round_period,
         "lagged": lagged,  # times the process fell more than 20 half rounds behind and jumped
+        # CPU time of the whole process (start-up included) and of each step (median, max), ms
+        # how late the half rounds ran against the process's own clock over the run (median, p90, max, ms)
+        "behind_ms": _quantiles(behind_all),
+        "cpu_ms": {"total": round(time.process_time() * 1e3, 1),
+                   "per_step": _median_max([r["cpu_ms"] for r in records])},
         "rate": pace.rate,
         "clock": start_clock.report(),  # peers' start offsets, and how far this agent's start was moved
     }
@@ -412,8 +429,13 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
     return AgentRun(est, records, heard, stats)
 
 
+def _median_max(values: list[float]) -> list[float] | None:
+    """``[median, max]`` of ``values``, ``None`` without any."""
+    return [round(float(np.median(values)), 1), round(float(max(values)), 1)] if values else None
+
+
 def _quantiles(latencies: list[float]) -> list[float] | None:
-    """``[median, p90, max]`` of frame latencies in ms (sender's clock to arrival), ``None`` without frames."""
+    """``[median, p90, max]`` of ``latencies`` (s) in ms, ``None`` without any."""
     if not latencies:
         return None
     q = np.quantile(np.asarray(latencies, float), [0.5, 0.9, 1.0]) * 1e3

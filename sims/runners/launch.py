@@ -29,6 +29,7 @@ import select
 import shutil
 import signal
 import socket
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -479,9 +480,24 @@ def _compose(log, reference, records, config, incarnations, timed_out, failures)
         # per agent: peers' start offsets from their round numbers, and how far it followed the earliest start
         "clock": {name: next((rec["clock"] for rec in reversed(runs[-1]) if "clock" in rec), {})
                   for name, runs in records.items() if runs and runs[-1]},
+        # per agent: how late its half rounds ran against its own clock, the p90 of each step: [median, largest]
+        # over its steps (ms); a process kept off a busy CPU shows here, not in the links' latency
+        "behind_ms": _per_step(records, lambda rec: rec["behind_ms"][1] if rec.get("behind_ms") else None),
+        # per agent: CPU time of each step, [median, largest] over its steps (ms)
+        "cpu_ms": _per_step(records, lambda rec: rec.get("cpu_ms")),
         "status": status,
         "status_counts": status_counts,
     }
     if failures:
         stats["agent_errors"] = failures
     return Estimate(reference, steps, stats)
+
+
+def _per_step(records: dict, value) -> dict[str, list[float]]:
+    """Per agent ``[median, largest]`` over its steps' records of ``value(record)`` (records without one skipped)."""
+    out = {}
+    for name, runs in records.items():
+        values = [v for run in runs for rec in run if "step" in rec and (v := value(rec)) is not None]
+        if values:
+            out[name] = [round(float(statistics.median(values)), 1), round(float(max(values)), 1)]
+    return out

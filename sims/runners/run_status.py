@@ -26,14 +26,16 @@ the same verdict, computed here from what each step's window did:
   e.g. ``no_consensus``), as in ``stats.unplaced``.
 
 The commands print :func:`status_warning` as one warning line when a run is not ``ok``, and with
-``--strict`` exit with :data:`EXIT_DEGRADED` (4) (:func:`report_status`).
+``--strict`` exit with :data:`EXIT_DEGRADED` (4) (:func:`report_status`). Where the processes ran their
+rounds late against their own clocks (``stats.behind_ms``), :func:`cpu_hint` adds why: a process kept off
+a busy CPU, which no network setting cures.
 """
 
 from __future__ import annotations
 
 from typing import Iterable, Mapping, Sequence
 
-__all__ = ["STATUSES", "EXIT_DEGRADED", "run_status", "status_warning", "placed_steps"]
+__all__ = ["STATUSES", "EXIT_DEGRADED", "run_status", "status_warning", "cpu_hint", "placed_steps"]
 
 #: the values ``stats.status`` takes
 STATUSES = ("ok", "degraded", "timeout")
@@ -123,6 +125,38 @@ def status_warning(status: str, counts: Mapping[str, int], steps: int) -> str | 
         parts.append(f"{sum(reasons.values())} assembly-steps not placed ("
                      + ", ".join(f"{k} {v}" for k, v in sorted(reasons.items(), key=lambda kv: -kv[1])) + ")")
     return f"status {status}: " + ("; ".join(parts) if parts else "cut short")
+
+
+def cpu_hint(behind_ms, round_period: float) -> str | None:
+    """Why a run fell behind when its processes were short of CPU (``None`` when they kept their clocks).
+
+    ``behind_ms`` is a runner's ``stats.behind_ms``: for one agent ``[median, p90, max]`` of how late its half
+    rounds ran against its own clock (ms); for ``launch`` per agent ``[median, largest]`` over its steps of
+    each step's p90. A process whose (typical) p90 exceeds one ``round_period`` (s) ran its rounds a
+    round or more late: its peers waited for it, whatever the links did.
+
+    Examples
+    --------
+    >>> cpu_hint([4.0, 80.0, 300.0], 0.025)
+    'its half rounds ran 80 ms behind its clock at p90 (round period 25 ms): the process was short of CPU (give it a larger share, e.g. nice, or a slower pace: --rate, --round-period)'
+    >>> cpu_hint({"A1": [3.0, 9.0], "A2": [60.0, 200.0]}, 0.025)
+    'A2 ran its half rounds 60 ms behind its clock at p90 (round period 25 ms): short of CPU (give the agents a larger share, e.g. nice, or a slower pace: --rate, --round-period)'
+    >>> cpu_hint([1.0, 5.0, 30.0], 0.025) is None
+    True
+    """
+    limit = 1e3 * float(round_period)
+    if isinstance(behind_ms, Mapping):
+        late = {a: float(v[0]) for a, v in sorted(behind_ms.items()) if v and float(v[0]) > limit}
+        if not late:
+            return None
+        worst = max(late.values())
+        return (f"{', '.join(late)} ran {'its' if len(late) == 1 else 'their'} half rounds {worst:.0f} ms behind "
+                f"{'its' if len(late) == 1 else 'their'} clock at p90 (round period {limit:.0f} ms): short of CPU "
+                "(give the agents a larger share, e.g. nice, or a slower pace: --rate, --round-period)")
+    if not behind_ms or float(behind_ms[1]) <= limit:
+        return None
+    return (f"its half rounds ran {float(behind_ms[1]):.0f} ms behind its clock at p90 (round period {limit:.0f} ms): "
+            "the process was short of CPU (give it a larger share, e.g. nice, or a slower pace: --rate, --round-period)")
 
 
 _OWN = ("unconverged", "provisional", "unanswered", "not_run", "revised", "without_members")

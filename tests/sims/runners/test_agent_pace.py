@@ -7,6 +7,7 @@ import numpy as np
 from protocols.network import LinkConfig, NetworkConfig, SimulatedNetwork
 from sims.runners.agent_run import Pace, process_agent_config, run_agent
 from sims.runners.parts import split_log
+from sims.runners.run_status import cpu_hint
 from sims.simulation.scenarios import get_scenario, simulate
 
 
@@ -27,17 +28,34 @@ class _SlowClock:
         self.t += max(0.0, seconds)
 
 
-def test_a_process_always_behind_ends_its_run_and_reports_the_lag():
-    """Every clock reading costs 30 ms while half rounds are 12.5 ms apart: the agent still stops after its last step
-    (instead of running half rounds back to back until killed) and counts the times it jumped ahead."""
+def _run(cost: float):
     log = simulate(get_scenario("multi", n_assemblies=3, steps=4), seed=2).log
     name = log.assemblies[0]
     part = split_log(log)[name]
     net = SimulatedNetwork(NetworkConfig(agents=tuple(log.assemblies), link=LinkConfig(), round_period=0.025),
                            np.random.default_rng(0))
     pace = Pace(start=1000.0, rate=1.0, round_period=0.025, linger=0.5)
-    clock = _SlowClock(999.9, 0.03)
+    clock = _SlowClock(999.9, cost)
     config = process_agent_config(part, name, name, 5, pace.rate, pace.round_period)
-    run = run_agent(part, name, net, config, pace, clock=clock, wait=clock.wait)
+    return part, run_agent(part, name, net, config, pace, clock=clock, wait=clock.wait)
+
+
+def test_a_process_always_behind_ends_its_run_and_reports_the_lag():
+    """Every clock reading costs 30 ms while half rounds are 12.5 ms apart: the agent still stops after its last step
+    (instead of running half rounds back to back until killed), counts the times it jumped ahead, and its records say
+    how late it ran its half rounds (more than a round at p90), which the warning turns into "short of CPU"."""
+    part, run = _run(0.03)
     assert len(run.steps) == len(part.steps)
     assert run.stats["lagged"] >= 1
+    assert all(r["behind_ms"][1] > 25.0 for r in run.steps if r["behind_ms"])
+    assert run.stats["behind_ms"][1] > 25.0
+    assert "short of CPU" in cpu_hint(run.stats["behind_ms"], run.stats["round_period"])
+    assert all(r["cpu_ms"] >= 0.0 for r in run.steps) and run.stats["cpu_ms"]["total"] > 0.0
+
+
+def test_a_process_on_time_reports_its_rounds_on_time_and_no_cpu_hint():
+    """A clock reading costs 0.1 ms: the half rounds run within a few ms of their due time, no hint."""
+    _, run = _run(0.0001)
+    assert run.stats["lagged"] == 0
+    assert run.stats["behind_ms"][1] < 5.0
+    assert cpu_hint(run.stats["behind_ms"], run.stats["round_period"]) is None
