@@ -352,6 +352,8 @@ def _launch(log: ObservationLog, config: LaunchConfig, reference: str, work: Pat
     started: list[tuple[str, int, subprocess.Popen]] = []
     with _Children() as children:
         def start_one(name: str, start: str) -> subprocess.Popen:
+            # the agent appends to its stream: a --workdir used before holds an earlier run's records
+            (work / f"{name}.{incarnations[name]}.jsonl").unlink(missing_ok=True)
             err = open(work / f"{name}.{incarnations[name]}.err", "w")
             try:
                 proc = subprocess.Popen(args(name, incarnations[name], start), stdin=subprocess.PIPE,

@@ -157,6 +157,7 @@ def _run(log, config: LaunchConfig, fc: FieldConfig, work: Path, python: str) ->
                 "--reference", reference, "--window", str(config.window), "--loss", repr(config.loss),
                 "--seed", str(config.seed), "--rate", repr(config.rate), "--round-period", repr(config.round_period),
                 *(("--transport", config.transport) if config.transport else ()), *config.extra_args]
+            (work / f"{name}.{incarnations[name]}.jsonl").unlink(missing_ok=True)  # (a workdir used before)
             with open(work / f"{name}.{incarnations[name]}.err", "w") as err:
                 proc = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=err,
                                         preexec_fn=_die_with_parent, text=True, bufsize=1, env=env)

@@ -68,6 +68,21 @@ def test_launch_on_a_four_ring_gives_the_centralized_estimate_with_the_contract_
     assert not any(os.path.exists(f"/proc/{pid}") and _alive(pid) for pid in _pids(tmp_path))
 
 
+def test_a_workdir_used_before_does_not_lend_its_records_to_the_next_launch(tmp_path):
+    """The agents append to their streams: a --workdir holding an earlier run's records (here a made-up one that
+    excluded A2 and placed A1 10 m away) must not mix into the next run's estimate or stats."""
+    sim = _sim(4, 4)
+    stale = {"step": 0, "t": 0.0, "poses": {"A1": {"p": [10.0, 0.0, 0.0], "theta": 0.0}}, "unplaced": {},
+             "converged": True, "without": [], "rounds": 1, "counts": {"messages": 1, "bytes": 1, "rejected": {}},
+             "excluded": ["A2"], "suspects": [], "behind_ms": [900.0, 900.0, 900.0], "cpu_ms": 900.0}
+    (tmp_path / "A0.0.jsonl").write_text(json.dumps(stale) + "\n")
+    result = launch(sim.log, LaunchConfig(**PACE), workdir=tmp_path)
+    stats = result.estimate.stats
+    assert stats["excluded"] == [] and stats["behind_ms"]["A0"][1] < 900.0
+    dp, _, mismatched = estimate_gap(estimate_log(sim.log, EstimatorConfig(window=5)), result.estimate)
+    assert mismatched == 0 and dp < POS_TOL
+
+
 def _pids(workdir):
     return [int(p.read_text()) for p in Path(workdir).glob("*.pid")]
 
