@@ -38,3 +38,27 @@ def test_a_stretched_layout_two_observers_check_is_named_and_never_placed(tmp_pa
     est = launch(sim.log, LaunchConfig(**PACE), workdir=tmp_path).estimate
     assert est.stats["excluded"] == ["A3"], est.stats.get("suspects")
     assert not any("A3" in step.poses for step in est.steps)
+
+
+@pytest.mark.slow
+def test_with_the_liar_excluded_every_converged_step_is_the_centralized_estimate_without_it(tmp_path, monkeypatch):
+    """The same lie: every step the reference reports converged equals the centralized estimate of the log without
+    A3's data (1 mm, 0.05 deg), and at least half of the steps converge."""
+    import sims.runners.launch as launch_module
+    from decentral.estimator import EstimatorConfig, estimate_log
+    from tests.synthetic import without
+
+    sim = simulate(get_scenario("multi", n_assemblies=5, steps=8), seed=3)
+    real_split = launch_module.split_log
+    monkeypatch.setattr(launch_module, "split_log", lambda log: _stretched(real_split(log), "A3"))
+    est = launch(sim.log, LaunchConfig(**PACE), workdir=tmp_path).estimate
+    central = estimate_log(without(sim.log, "A3"), EstimatorConfig(window=5))
+    converged = [k for k, ok in enumerate(est.stats["converged_per_step"]) if ok]
+    assert len(converged) >= len(est.steps) // 2, est.stats["status_counts"]
+    for k in converged:
+        want, got = central.steps[k].poses, est.steps[k].poses
+        assert set(got) == set(want), (k, sorted(got), sorted(want))
+        for a in want:
+            dp = np.linalg.norm(want[a].p - got[a].p)
+            dth = abs(np.angle(np.exp(1j * (want[a].theta - got[a].theta))))
+            assert dp < 1e-3 and dth < np.radians(0.05), (k, a, dp, np.degrees(dth))
