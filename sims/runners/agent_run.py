@@ -17,7 +17,7 @@ the simulated runner drives, here for one agent, on wall-clock timers:
 
 Each finished step is appended at once as one JSON line to ``stream`` (if given): ``{"step", "t",
 "poses", "unplaced", "converged", "rounds", "window_seconds", "counts", "heard", "latency_ms",
-"lagged", "cpu_ms", "counters", "closed_at"}`` with the transport's cumulative counts, the frame latencies of the
+"behind_ms", "lagged", "cpu_ms", "counters", "closed_at"}`` with the transport's cumulative counts, the frame latencies of the
 window (median, p90, max, ms), how late the process ran its half rounds against its own clock (``behind_ms``:
 median, p90, max; a process kept off a busy CPU shows here, not in ``latency_ms``), the CPU time it used
 since the previous record (``cpu_ms``) and the agent's protocol counters, so that a process killed with SIGKILL has
@@ -417,9 +417,9 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
         "missing": sorted(a for a in names if a != name and a not in heard),
         "round_period": pace.round_period,
         "lagged": lagged,  # times the process fell more than 20 half rounds behind and jumped
-        # CPU time of the whole process (start-up included) and of each step (median, max), ms
         # how late the half rounds ran against the process's own clock over the run (median, p90, max, ms)
         "behind_ms": _quantiles(behind_all),
+        # CPU time of the whole process (start-up included) and of each step (median, max), ms
         "cpu_ms": {"total": round(time.process_time() * 1e3, 1),
                    "per_step": _median_max([r["cpu_ms"] for r in records])},
         "rate": pace.rate,

@@ -150,8 +150,9 @@ def cpu_hint(behind_ms, round_period: float) -> str | None:
         if not late:
             return None
         worst = max(late.values())
-        return (f"{', '.join(late)} ran {'its' if len(late) == 1 else 'their'} half rounds {worst:.0f} ms behind "
-                f"{'its' if len(late) == 1 else 'their'} clock at p90 (round period {limit:.0f} ms): short of CPU "
+        late_by = f"its half rounds {worst:.0f} ms behind its clock" if len(late) == 1 else \
+            f"their half rounds up to {worst:.0f} ms behind their clocks"
+        return (f"{', '.join(late)} ran {late_by} at p90 (round period {limit:.0f} ms): short of CPU "
                 "(give the agents a larger share, e.g. nice, or a slower pace: --rate, --round-period)")
     if not behind_ms or float(behind_ms[1]) <= limit:
         return None
