@@ -15,7 +15,9 @@ round budget). Needs Linux and root (``ip netns``; ``iptables`` for loss).
 
 Usage: ``python benchmarks/field.py [--out DIR] [--sizes 5 8] [--transports udp zmq] [--delays 0 0.01
 0.05 0.2] [--losses 0 0.1] [--busy 0 2] [--parity-groups 4 0] [--repeats R] [--steps 12] [--rate 0.4]
-[--round-period 0.025]`` (``--quick``: one small cell per transport). ``--parity-groups``: the UDP
+[--round-period 0.025] [--aggregations tree broadcast]`` (``--quick``: one small cell per transport);
+``--aggregations``: how a window's forms travel (``decentral agent --aggregation``), each a cell of its own.
+``--parity-groups``: the UDP
 transport's data datagrams per parity datagram (``decentral agent --parity-group``; 0: none), each a
 cell of its own; ``--repeats``: each cell again with the next link and agent seeds (a shared machine's
 load moves these figures by tens of points from run to run), summarized per cell in ``summary``
@@ -44,6 +46,8 @@ def build_parser():
     ap.add_argument("--busy", type=int, nargs="+", default=[0, 2], help="busy processes per core")
     ap.add_argument("--parity-groups", type=int, nargs="+", default=[4],
                     help="udp: data datagrams per parity datagram, each a cell (0: none; default 4)")
+    ap.add_argument("--aggregations", nargs="+", default=["tree"], choices=("tree", "broadcast"),
+                    help="how a window's forms travel, each a cell (default: tree)")
     ap.add_argument("--repeats", type=int, default=1, help="runs of each cell, seeds SEED, SEED+1, ...")
     ap.add_argument("--steps", type=int, default=12)
     ap.add_argument("--rate", type=float, default=0.4, help="log seconds per wall second")
@@ -103,7 +107,7 @@ def _cell_metrics(central, est, records, reference):
     }
 
 
-def _simulated(log, central, delay, jitter, loss, budget, round_period, seed, transport):
+def _simulated(log, central, delay, jitter, loss, budget, round_period, seed, transport, aggregation="tree"):
     """The simulated runner at the same latency, jitter, loss and round budget: its convergence share.
 
     Over UDP the loss is per datagram, as the field's relays lose datagrams (``AdmmRunConfig.mtu``)."""
@@ -111,7 +115,7 @@ def _simulated(log, central, delay, jitter, loss, budget, round_period, seed, tr
 
     cfg = AdmmRunConfig(window=5, loss=loss, latency=delay * (1 - jitter), jitter=2 * jitter * delay,
                         round_period=round_period, max_rounds=budget, fast_forward=False,
-                        mtu=1200 if transport == "udp" else 0)
+                        mtu=1200 if transport == "udp" else 0, aggregation=aggregation)
     run = run_admm(log, config=cfg, seed=seed)
     return {"converged_steps": int(sum(run.converged)), "status": run.stats["status"]}
 
@@ -136,16 +140,16 @@ def main(argv=None) -> int:
         print(f"field.py: {path} exists (give --force to replace it)", file=sys.stderr)
         return 2
     # repeats outermost: the machine's load drifts, and each repeat meets every cell at about the same load
-    cells = [(n, tr, par, d, loss, busy, args.seed + r) for r in range(args.repeats) for n in args.sizes
-             for tr in args.transports for par in (args.parity_groups if tr == "udp" else [None]) for d in args.delays
-             for loss in args.losses for busy in args.busy]
+    cells = [(n, tr, par, agg, d, loss, busy, args.seed + r) for r in range(args.repeats) for n in args.sizes
+             for tr in args.transports for par in (args.parity_groups if tr == "udp" else [None])
+             for agg in args.aggregations for d in args.delays for loss in args.losses for busy in args.busy]
     if args.quick:
         args.steps = 8
-        cells = [(4, tr, 4 if tr == "udp" else None, 0.03, 0.2, 0, args.seed) for tr in args.transports]
+        cells = [(4, tr, 4 if tr == "udp" else None, "tree", 0.03, 0.2, 0, args.seed) for tr in args.transports]
     payload = {"benchmark": "field", "machine": machine(),
                "parameters": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}, "cells": []}
     logs = {}
-    for n, tr, parity, delay, loss, busy, seed in cells:
+    for n, tr, parity, agg, delay, loss, busy, seed in cells:
         if n not in logs:
             sim = simulate(get_scenario("multi", n_assemblies=n, steps=args.steps), seed=args.seed)
             t0 = time.perf_counter()
@@ -156,17 +160,17 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         extra = ("--parity-group", str(parity)) if parity is not None else ()
         result = run_field(log, LaunchConfig(rate=args.rate, round_period=args.round_period, transport=tr,
-                                             seed=seed, extra_args=extra),
+                                             seed=seed, aggregation=agg, extra_args=extra),
                            FieldConfig(delay=delay, jitter=args.jitter, loss=loss, busy_per_core=busy, seed=seed))
         wall = time.perf_counter() - t0
-        row = {"n": n, "transport": tr, "parity_group": parity, "delay": delay, "loss": loss, "busy_per_core": busy,
+        row = {"n": n, "transport": tr, "parity_group": parity, "aggregation": agg, "delay": delay, "loss": loss, "busy_per_core": busy,
                "seed": seed, "loadavg_before": load,
                "wall_seconds": wall, "centralized_seconds": central_s, "timed_out": result.timed_out,
                **_cell_metrics(central, result.estimate, result.records, log.assemblies[0])}
         budget = rounds_per_step(log, args.rate, args.round_period)
-        row["simulated"] = _simulated(log, central, delay, args.jitter, loss, budget, args.round_period, seed, tr)
+        row["simulated"] = _simulated(log, central, delay, args.jitter, loss, budget, args.round_period, seed, tr, agg)
         payload["cells"].append(row)
-        print(f"n={n} {tr}{'' if parity is None else f' parity {parity}'} seed {seed} delay={delay * 1e3:.0f}ms loss={loss:.0%} busy={busy}: placed {row['placed_share']:.0%} "
+        print(f"n={n} {tr}{'' if parity is None else f' parity {parity}'} {agg} seed {seed} delay={delay * 1e3:.0f}ms loss={loss:.0%} busy={busy}: placed {row['placed_share']:.0%} "
               f"(+1 step {row['placed_share_one_step_late']:.0%}), converged {row['converged_steps']}/{row['steps']} "
               f"(sim {row['simulated']['converged_steps']}), max gap conv {row['gap_converged_mm']['max']:.2f} mm, "
               f"latency p90 {row['frame_latency_ms']['p90_of_p90s']} ms, rounds behind p90 {row['behind_ms_p90']} ms, "
@@ -178,7 +182,7 @@ def main(argv=None) -> int:
     return 0
 
 
-_CELL = ("n", "transport", "parity_group", "delay", "loss", "busy_per_core")
+_CELL = ("n", "transport", "parity_group", "aggregation", "delay", "loss", "busy_per_core")
 
 
 def summarize(cells: list[dict]) -> list[dict]:
@@ -194,6 +198,7 @@ def summarize(cells: list[dict]) -> list[dict]:
                     "placed_share": stat([c["placed_share"] for c in rows]),
                     "placed_share_one_step_late": stat([c["placed_share_one_step_late"] for c in rows]),
                     "converged_steps": stat([c["converged_steps"] for c in rows]),
+                    "bytes_per_window": stat([c["bytes_per_window"] for c in rows]),
                     "gap_converged_mm_max": max(c["gap_converged_mm"]["max"] for c in rows),
                     "converged_without_steps": sum(c.get("converged_without_steps", 0) for c in rows)})
     return out
@@ -209,21 +214,21 @@ def plot(payload: dict, path: Path, save_figure) -> None:
 
     cells = payload["cells"]
     fig, axes = plt.subplots(1, 4, figsize=(17, 3.8))
-    line = ("n", "transport", "parity_group", "loss", "busy_per_core")
-    for key in sorted({tuple(c[k] for k in line) for c in cells}, key=str):
-        rows = [c for c in cells if tuple(c[k] for k in line) == key]
+    line = ("n", "transport", "parity_group", "loss", "busy_per_core", "aggregation")
+    for key in sorted({tuple(c.get(k, "tree") for k in line) for c in cells}, key=str):
+        rows = [c for c in cells if tuple(c.get(k, "tree") for k in line) == key]
         delays = sorted({c["delay"] for c in rows})
         med = lambda f: [float(np.median([f(c) for c in rows if c["delay"] == d])) for d in delays]  # noqa: E731
         x = [1e3 * d for d in delays]
         label = (f"n={key[0]} {key[1]}{'' if key[2] is None else f' parity {key[2]}'} loss {key[3]:.0%} "
-                 f"busy {key[4]}")
-        style = "-" if key[1] == "udp" else "--"
+                 f"busy {key[4]}{' broadcast' if key[5] == 'broadcast' else ''}")
+        style = ("-" if key[1] == "udp" else "--") if key[5] == "tree" else ":"
         axes[0].plot(x, med(lambda c: c["placed_share"]), style, marker="o", label=label)
         axes[1].plot(x, med(lambda c: c["converged_steps"] / c["steps"]), style, marker="o")
         axes[2].plot(x, med(lambda c: c["bytes_per_window"] / 1e3), style, marker="o")
         axes[3].plot(x, med(lambda c: c["frame_latency_ms"]["p90_of_p90s"] or 0), style, marker="o")
     for ax, title in zip(axes, ("placed / centralized's placements (median of repeats)", "steps converged (share)",
-                                "kB per window (all agents)", "frame latency p90 [ms]")):
+                                "kB per agent and window", "frame latency p90 [ms]")):
         ax.set_xlabel("one-way delay [ms]")
         ax.set_title(title, fontsize=9)
         ax.grid(alpha=0.3)

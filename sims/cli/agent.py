@@ -52,6 +52,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--transport", choices=("zmq", "udp"), default=DEFAULT_TRANSPORT,
                         help="udp: signed datagrams, a lost packet is a lost frame; zmq: ZeroMQ over TCP, a lost "
                              "packet stalls the frames behind it (default: %(default)s); the same for every agent")
+    parser.add_argument("--aggregation", choices=("tree", "broadcast"), default="tree",
+                        help="how a window's cost forms travel: up and down the aggregation tree (default: fewest "
+                             "bytes) or broadcast to every agent (one trip instead of one per tree level, about ten "
+                             "times the bytes: small swarms on a busy CPU or a slow radio); the same for every agent")
     parser.add_argument("--parity-group", type=int, default=4, metavar="N",
                         help="udp: one parity datagram per N datagrams of a frame, so that a frame survives one lost "
                              "datagram in each group (0: none; default: 4); the same for every agent")
@@ -123,7 +127,8 @@ def run(args: argparse.Namespace) -> int:
     reference = args.reference or part.assemblies[0]
     if reference not in part.assemblies:
         raise InputError(f"no assembly {reference!r} in {args.log}", field="--reference")
-    config = process_agent_config(part, args.name, reference, args.window, args.rate, args.round_period)
+    config = process_agent_config(part, args.name, reference, args.window, args.rate, args.round_period,
+                                  args.aggregation)
     signal.signal(signal.SIGTERM, _sigterm)
     faults = LinkConfig(drop=args.loss)
     transport = open_transport(args.transport, args.name, key, {n: peers[n] for n in part.assemblies}, args.seed,

@@ -33,6 +33,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="never start NAME's agent (a peer that never comes up; repeatable)")
     parser.add_argument("--transport", choices=("zmq", "udp"), default=None,
                         help="the agents' transport (default: decentral agent's, see its --help)")
+    parser.add_argument("--aggregation", choices=("tree", "broadcast"), default="tree",
+                        help="how a window's forms travel between the agents: the aggregation tree (default: fewest "
+                             "bytes) or broadcast (one trip, about ten times the bytes; see decentral agent --help)")
     feedback.add_strict(parser)
     parser.add_argument("--workdir", default=None,
                         help="keep keys, peers file, parts and per-agent streams here (default: a temporary folder)")
@@ -54,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     log = read_log(args.log)
     config = LaunchConfig(window=args.window, reference=args.reference, loss=args.loss, seed=args.seed,
                           crashes=crashes, timeout=args.timeout, rate=args.rate, round_period=args.round_period,
-                          absent=tuple(args.absent), transport=args.transport)
+                          absent=tuple(args.absent), transport=args.transport, aggregation=args.aggregation)
     result = launch(log, config, workdir=args.workdir)
     write_estimate(args.output, result.estimate)
     stats = result.estimate.stats

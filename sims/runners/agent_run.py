@@ -168,15 +168,16 @@ def rounds_per_step(log: ObservationLog, rate: float, round_period: float) -> in
 
 
 def process_agent_config(part: ObservationLog, name: str, reference: str, window: int, rate: float,
-                         round_period: float) -> AgentConfig:
-    """The configuration of agent ``name`` running its ``part`` at this pace.
+                         round_period: float, aggregation: str = "tree") -> AgentConfig:
+    """The configuration of agent ``name`` running its ``part`` at this pace (``aggregation``: how a window's
+    forms travel, :class:`agents.assembly.AgentConfig`).
 
     Its waits are bounded by the rounds between two steps (:meth:`agents.runtime.WindowRule.share_timeout`).
     """
     rule = WindowRule(budget=rounds_per_step(part, rate, round_period))
     return AgentConfig(name=name, assemblies=tuple(part.assemblies), reference=reference,
                        cameras=tuple(part.cameras.values()), node_radius=part.node_radius, window=window,
-                       share_timeout=rule.share_timeout(AgentConfig.share_timeout))
+                       share_timeout=rule.share_timeout(AgentConfig.share_timeout), aggregation=aggregation)
 
 
 def _counts(transport: Transport, name: str, kinds: bool = False) -> dict:
@@ -416,6 +417,7 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
         "converged_without": without,
         "missing": sorted(a for a in names if a != name and a not in heard),
         "round_period": pace.round_period,
+        "aggregation": config.aggregation,
         "lagged": lagged,  # times the process fell more than 20 half rounds behind and jumped
         # how late the half rounds ran against the process's own clock over the run (median, p90, max, ms)
         "behind_ms": _quantiles(behind_all),

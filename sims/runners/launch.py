@@ -96,6 +96,8 @@ class LaunchConfig:
         Wall seconds to wait for every process to listen.
     transport : {"zmq", "udp"}, optional
         The agents' transport (default: ``decentral agent``'s).
+    aggregation : {"tree", "broadcast"}
+        How a window's forms travel between the agents (``decentral agent --aggregation``).
     extra_args : tuple of str
         More ``decentral agent`` options given to every agent.
     start_offsets : tuple of (str, float)
@@ -113,6 +115,7 @@ class LaunchConfig:
     absent: tuple[str, ...] = ()
     ready_timeout: float = 120.0
     transport: str | None = None
+    aggregation: str = "tree"
     extra_args: tuple[str, ...] = ()
     start_offsets: tuple[tuple[str, float], ...] = ()
 
@@ -339,7 +342,8 @@ def _launch(log: ObservationLog, config: LaunchConfig, reference: str, work: Pat
                 "--reference", reference, "--window", str(config.window), "--loss", repr(config.loss),
                 "--seed", str(config.seed), "--rate", repr(config.rate), "--round-period", repr(config.round_period),
                 "-o", str(work / f"{name}.{incarnation}.est.json"),
-                *(("--transport", config.transport) if config.transport else ()), *config.extra_args]
+                *(("--transport", config.transport) if config.transport else ()),
+                "--aggregation", config.aggregation, *config.extra_args]
 
     period = step_period(log) / config.rate
     t_first = log.steps[0].t
@@ -461,6 +465,7 @@ def _compose(log, reference, records, config, incarnations, timed_out, failures)
         "seed": config.seed,
         "rate": config.rate,
         "round_period": config.round_period,
+        "aggregation": config.aggregation,
         "processes": int(sum(1 for n in records if n not in config.absent) + sum(incarnations.values())),
         "restarts": dict(incarnations),
         "messages": {"total": int(sum(messages.values())), "per_agent": messages},

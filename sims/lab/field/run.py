@@ -156,7 +156,8 @@ def _run(log, config: LaunchConfig, fc: FieldConfig, work: Path, python: str) ->
                 "-o", str(work / f"{name}.{incarnations[name]}.est.json"),
                 "--reference", reference, "--window", str(config.window), "--loss", repr(config.loss),
                 "--seed", str(config.seed), "--rate", repr(config.rate), "--round-period", repr(config.round_period),
-                *(("--transport", config.transport) if config.transport else ()), *config.extra_args]
+                *(("--transport", config.transport) if config.transport else ()),
+                "--aggregation", config.aggregation, *config.extra_args]
             (work / f"{name}.{incarnations[name]}.jsonl").unlink(missing_ok=True)  # (a workdir used before)
             with open(work / f"{name}.{incarnations[name]}.err", "w") as err:
                 proc = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=err,

@@ -83,6 +83,17 @@ def test_a_workdir_used_before_does_not_lend_its_records_to_the_next_launch(tmp_
     assert mismatched == 0 and dp < POS_TOL
 
 
+def test_launch_shares_by_broadcast_when_asked_and_still_gives_the_centralized_estimate(tmp_path):
+    """`--aggregation broadcast`: no window goes through the tree, and every step equals the centralized estimate."""
+    sim = _sim(4, 4)
+    result = launch(sim.log, LaunchConfig(**PACE, aggregation="broadcast"), workdir=tmp_path)
+    assert result.estimate.stats["aggregation"] == "broadcast"
+    counters = [rec["counters"] for run in result.records["A0"] for rec in run if "step" in rec]
+    assert counters and counters[-1]["tree_windows"] == 0 and counters[-1]["broadcast_windows"] >= 4
+    dp, _, mismatched = estimate_gap(estimate_log(sim.log, EstimatorConfig(window=5)), result.estimate)
+    assert mismatched == 0 and dp < POS_TOL
+
+
 def _pids(workdir):
     return [int(p.read_text()) for p in Path(workdir).glob("*.pid")]
 
