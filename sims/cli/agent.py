@@ -54,8 +54,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "packet stalls the frames behind it (default: %(default)s); the same for every agent")
     parser.add_argument("--aggregation", choices=("tree", "broadcast"), default="tree",
                         help="how a window's cost forms travel: up and down the aggregation tree (default: fewest "
-                             "bytes) or broadcast to every agent (one trip instead of one per tree level, about ten "
-                             "times the bytes: small swarms on a busy CPU or a slow radio); the same for every agent")
+                             "bytes, every lie test) or broadcast to every agent (one trip instead of one per tree "
+                             "level, up to about eight times the bytes, member-wide lie tests only after the cold "
+                             "start: small swarms on busy computers); the same for every agent")
     parser.add_argument("--parity-group", type=int, default=4, metavar="N",
                         help="udp: one parity datagram per N datagrams of a frame, so that a frame survives one lost "
                              "datagram in each group (0: none; default: 4); the same for every agent")
