@@ -26,34 +26,31 @@ from _common import parser, save  # noqa: I001  (pins threads before numpy)
 import numpy as np
 
 from decentral.estimator import EstimatorConfig, estimate_log
-from decentral.geometry import rot2
+from decentral.geometry import rotz
+from decentral.observations import Pose
 from sims.simulation.scenarios import get_scenario, simulate
-
-
-def _yaw(theta: float) -> np.ndarray:
-    R = np.eye(3)
-    R[:2, :2] = rot2(theta)
-    return R
+from sims.simulation.world.camera import project_nodes
 
 
 def residuals(log, estimate, step: int) -> dict:
     """Per ``(observer, observed)``, the pixel residuals (n, 2) of the observer's detections at ``step`` against
-    the nodes where ``estimate`` puts them (both placed; detections of the observer's own nodes left out)."""
+    the nodes where ``estimate`` puts them (both placed; detections of the observer's own nodes, and of nodes the
+    estimate puts behind the camera, left out)."""
     s, poses = log.steps[step], estimate.steps[step].poses
     owner, out = s.node_owner(), {}
     for key, dets in s.detections.items():
         obs, cam = key.split("/")[0], log.cameras[key]
         if obs not in poses:
             continue
-        cam_in_root = cam.in_root(s.mounts.get(key))
+        cam_world = Pose(rotz(poses[obs].theta), poses[obs].p).compose(cam.in_root(s.mounts.get(key)))
         for d in dets:
             j = owner.get(d.node)
             if j is None or j == obs or j not in poses:
                 continue
-            world = _yaw(poses[j].theta) @ s.config[j][d.node] + poses[j].p
-            in_obs = _yaw(poses[obs].theta).T @ (world - poses[obs].p)
-            x = cam.K @ (cam_in_root.R.T @ (in_obs - cam_in_root.p))
-            out.setdefault((obs, j), []).append([d.u - x[0] / x[2], d.v - x[1] / x[2]])
+            world = rotz(poses[j].theta) @ s.config[j][d.node] + poses[j].p
+            uvr, depth = project_nodes(cam.K, cam_world, world[None], log.node_radius)
+            if depth[0] > 0:  # (a node the estimate puts behind the camera has no place in the image to compare)
+                out.setdefault((obs, j), []).append([d.u - uvr[0, 0], d.v - uvr[0, 1]])
     return {k: np.array(v) for k, v in out.items()}
 
 
