@@ -423,7 +423,7 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
         "behind_ms": _quantiles(behind_all),
         # CPU time of the whole process (start-up included) and of each step (median, max), ms
         "cpu_ms": {"total": round(time.process_time() * 1e3, 1),
-                   "per_step": _median_max([r["cpu_ms"] for r in records])},
+                   "per_step": median_max([r["cpu_ms"] for r in records])},
         "rate": pace.rate,
         "clock": start_clock.report(),  # peers' start offsets, and how far this agent's start was moved
     }
@@ -431,8 +431,8 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
     return AgentRun(est, records, heard, stats)
 
 
-def _median_max(values: list[float]) -> list[float] | None:
-    """``[median, max]`` of ``values``, ``None`` without any."""
+def median_max(values: list[float]) -> list[float] | None:
+    """``[median, max]`` of ``values`` (rounded to 0.1), ``None`` without any."""
     return [round(float(np.median(values)), 1), round(float(max(values)), 1)] if values else None
 
 

@@ -29,7 +29,6 @@ import select
 import shutil
 import signal
 import socket
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -40,7 +39,7 @@ from pathlib import Path
 from decentral.errors import DecentralError, InputError
 from decentral.observations import Estimate, EstimateStep, ObservationLog
 from decentral.unplaced import count_reasons
-from sims.runners.agent_run import poses_of, step_period
+from sims.runners.agent_run import median_max, poses_of, step_period
 from sims.runners.parts import split_log, write_part
 from sims.runners.run_status import run_status
 
@@ -506,5 +505,5 @@ def _per_step(records: dict, value) -> dict[str, list[float]]:
     for name, runs in records.items():
         values = [v for run in runs for rec in run if "step" in rec and (v := value(rec)) is not None]
         if values:
-            out[name] = [round(float(statistics.median(values)), 1), round(float(max(values)), 1)]
+            out[name] = median_max(values)
     return out
