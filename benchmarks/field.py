@@ -186,8 +186,8 @@ _CELL = ("n", "transport", "parity_group", "aggregation", "delay", "loss", "busy
 
 
 def summarize(cells: list[dict]) -> list[dict]:
-    """Per cell (all but the seed): median, least and most over its repeats of the placement shares and
-    steps converged, and the largest gap of a converged step to the centralized estimate."""
+    """Per cell (all but the seed): median, least and most over its repeats of the placement shares, steps
+    converged and bytes per agent and window, and the largest gap of a converged step to the centralized estimate."""
     import numpy as np
 
     out = []
@@ -215,8 +215,8 @@ def plot(payload: dict, path: Path, save_figure) -> None:
     cells = payload["cells"]
     fig, axes = plt.subplots(1, 4, figsize=(17, 3.8))
     line = ("n", "transport", "parity_group", "loss", "busy_per_core", "aggregation")
-    for key in sorted({tuple(c.get(k, "tree") for k in line) for c in cells}, key=str):
-        rows = [c for c in cells if tuple(c.get(k, "tree") for k in line) == key]
+    for key in sorted({tuple(c[k] for k in line) for c in cells}, key=str):
+        rows = [c for c in cells if tuple(c[k] for k in line) == key]
         delays = sorted({c["delay"] for c in rows})
         med = lambda f: [float(np.median([f(c) for c in rows if c["delay"] == d])) for d in delays]  # noqa: E731
         x = [1e3 * d for d in delays]
