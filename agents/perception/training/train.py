@@ -248,35 +248,62 @@ def _plot(log: dict, path: Path) -> None:
     plt.close(fig)
 
 
-#: the training data of the batch-preparing worker processes (inherited by fork, never pickled)
+#: the training data of the batch-preparing worker processes (inherited by fork, never pickled), and the
+#: shared buffers ("slots") they write the proposal network's input batches into
 _WORKER_DATA: dict = {}
 
 
 def _make_batch(job) -> tuple:
-    """One step's batch: ``job`` = (network, seed, step, indices); augmentations from (seed, step).
+    """One step's batch: ``job`` = (network, seed, step, indices, slot); augmentations from (seed, step).
 
-    ``step`` is the step number (>= 1), or a pair (0, k) for the k-th batch drawn before training."""
-    network, seed, step, idx = job
+    ``step`` is the step number (>= 1), or a pair (0, k) for the k-th batch drawn before training.
+    ``slot`` (a worker's job; None otherwise): the batch's inputs go to that shared buffer and the
+    slot's number is returned in their place (a 32-frame batch is 42 MB: passed through a pipe, its
+    bytes, not the augmentation, set the pace of training on a GPU).
+    """
+    network, seed, step, idx, slot = job
     data = _WORKER_DATA["data"]
     rng = np.random.default_rng([seed, *np.atleast_1d(step)])
-    if network == "detector":
-        return detector_batch(data, idx, rng)
-    return refine_batch(data, idx, rng)
+    batch = detector_batch(data, idx, rng) if network == "detector" else refine_batch(data, idx, rng)
+    if slot is None:
+        return batch
+    _WORKER_DATA["slots"][slot][:len(batch[0])] = batch[0]
+    return (slot, *batch[1:])
+
+
+def _shared_slots(count: int, shape: tuple[int, ...]) -> np.ndarray:
+    """``count`` float32 buffers of ``shape`` in memory that forked processes share: (count, *shape)."""
+    raw = multiprocessing.get_context("fork").RawArray("f", int(count * np.prod(shape)))
+    return np.frombuffer(raw, np.float32).reshape(count, *shape)
 
 
 def _batches(pool, jobs, ahead: int):
-    """The batches of ``jobs`` in order: made here (``pool`` None) or by ``pool``, at most ``ahead`` in flight."""
+    """The batches of ``jobs`` in order: made here (``pool`` None) or by ``pool``, at most ``ahead`` in flight.
+
+    With a pool and slots (:func:`_shared_slots`, at least ``ahead + 1``), a job's inputs come back
+    through the slot of its number: a slot is written again only after its batch was handed on and
+    the next one asked for, and the batch handed on is a copy.
+    """
     if pool is None:
         for job in jobs:
-            yield _make_batch(job)
+            yield _make_batch((*job, None))
         return
+    slots = _WORKER_DATA.get("slots")
     pending: collections.deque = collections.deque()
-    for job in jobs:
-        pending.append(pool.apply_async(_make_batch, (job,)))
+
+    def result(handle):
+        out = handle.get()
+        if slots is None:
+            return out
+        return (slots[out[0]][:len(out[1])].copy(), *out[1:])
+
+    for k, job in enumerate(jobs):
+        slot = k % len(slots) if slots is not None else None
+        pending.append(pool.apply_async(_make_batch, ((*job, slot),)))
         if len(pending) >= ahead:
-            yield pending.popleft().get()
+            yield result(pending.popleft())
     while pending:
-        yield pending.popleft().get()
+        yield result(pending.popleft())
 
 
 def train(network: str, data: Shards, val: Shards, out: str | os.PathLike, config: TrainConfig = TrainConfig(),
@@ -325,7 +352,7 @@ def train(network: str, data: Shards, val: Shards, out: str | os.PathLike, confi
         shape, output = (1, 3, 32, 32), "circle"
     if init is not None and str(init).endswith(".onnx"):
         _WORKER_DATA["data"] = data
-        stats = [_make_batch((network, config.seed, (0, k), items[rng.permutation(n_train)[:config.batch]]))[0]
+        stats = [_make_batch((network, config.seed, (0, k), items[rng.permutation(n_train)[:config.batch]], None))[0]
                  for k in range(8)]
         diff = load_onnx_weights(net, init, stats)
         if progress:
@@ -337,8 +364,12 @@ def train(network: str, data: Shards, val: Shards, out: str | os.PathLike, confi
             raise InputError("the weights do not fit the network: give the --width and --channels they were "
                              "trained with", source=str(init)) from None
     _WORKER_DATA["data"] = data
+    _WORKER_DATA.pop("slots", None)
     pool = None  # forked before CUDA starts; the workers only run numpy and OpenCV
+    ahead = 2 * config.workers + 2
     if config.workers > 0 and "fork" in multiprocessing.get_all_start_methods():
+        if network == "detector":
+            _WORKER_DATA["slots"] = _shared_slots(ahead + 1, (config.batch, 3, *data.images.shape[1:3]))
         pool = multiprocessing.get_context("fork").Pool(config.workers)
     net.to(device)
     if device.type == "cuda":
@@ -360,20 +391,54 @@ def train(network: str, data: Shards, val: Shards, out: str | os.PathLike, confi
             pos += config.batch
 
     try:
-        _loop(net, opt, loss_fn, _batches(pool, jobs(), 2 * config.workers + 2), val_batches, config, device, log,
+        _loop(net, opt, loss_fn, _batches(pool, jobs(), ahead), val_batches, config, device, log,
               out, name, shape, output, progress)
     finally:
         if pool is not None:
             pool.terminate()
             pool.join()
+        _WORKER_DATA.pop("slots", None)
     return log
 
 
 def _loop(net, opt, loss_fn, batches, val_batches, config: TrainConfig, device, log: dict, out: Path, name: str,
           shape, output: str, progress) -> None:
-    """The optimisation steps, validation, best-model export and logs of :func:`train`."""
+    """The optimisation steps, validation, best-model export and logs of :func:`train`.
+
+    A fine-tune (``log["init"]`` set) is validated before its first step too (step 0): the starting
+    network's loss on the same validation set, kept (and exported) unless a later step does better.
+    """
     best = math.inf
     wall0, cpu0 = time.perf_counter(), time.process_time()
+
+    def validate(step: int) -> None:
+        nonlocal best
+        net.eval()
+        with torch.no_grad():
+            vals = [loss_fn(net, b, device) for b in val_batches]
+        v = float(np.mean([float(a) for a, _ in vals]))
+        vparts = {k: float(np.mean([p[k] for _, p in vals])) for k in vals[0][1]}
+        entry = {"step": step, "loss": v, **vparts, "wall_s": time.perf_counter() - wall0,
+                 "cpu_s": time.process_time() - cpu0}
+        log["validation"].append(entry)
+        if v < best:
+            best = v
+            log["best_step"] = step
+            torch.save({k: t.detach().cpu() for k, t in net.state_dict().items()}, out / f"{name}.pt")
+            export_onnx(net, out / f"{name}.onnx", shape, output)
+        log["wall_seconds"] = time.perf_counter() - wall0
+        log["cpu_seconds"] = time.process_time() - cpu0
+        with open(out / f"{name}_training.json", "w") as fh:
+            json.dump(log, fh)
+        _plot(log, out / f"{name}_training.png")
+        if progress:
+            recent = [t for _, t in log["train"][-config.eval_every:]]
+            trained = f"train {np.mean(recent):.4f} " if recent else "(the starting network) "
+            progress(f"{log['network']} step {step}/{config.steps}: {trained}validation {v:.4f} {vparts} "
+                     f"({entry['wall_s']:.0f} s wall, {entry['cpu_s']:.0f} s CPU)")
+
+    if log.get("init") is not None:
+        validate(0)
     for step, batch in enumerate(batches, start=1):
         lr = config.lr * min(1.0, step / config.warmup) * 0.5 * (1 + math.cos(math.pi * step / config.steps))
         for g in opt.param_groups:
@@ -389,26 +454,6 @@ def _loop(net, opt, loss_fn, batches, val_batches, config: TrainConfig, device, 
         if stop:
             log["stopped_at_step"] = step  # the time limit: the schedule did not run to its end
         if step % config.eval_every == 0 or step == config.steps or stop:
-            net.eval()
-            with torch.no_grad():
-                vals = [loss_fn(net, b, device) for b in val_batches]
-            v = float(np.mean([float(a) for a, _ in vals]))
-            vparts = {k: float(np.mean([p[k] for _, p in vals])) for k in vals[0][1]}
-            entry = {"step": step, "loss": v, **vparts, "wall_s": time.perf_counter() - wall0,
-                     "cpu_s": time.process_time() - cpu0}
-            log["validation"].append(entry)
-            if v < best:
-                best = v
-                log["best_step"] = step
-                torch.save({k: t.detach().cpu() for k, t in net.state_dict().items()}, out / f"{name}.pt")
-                export_onnx(net, out / f"{name}.onnx", shape, output)
-            log["wall_seconds"] = time.perf_counter() - wall0
-            log["cpu_seconds"] = time.process_time() - cpu0
-            with open(out / f"{name}_training.json", "w") as fh:
-                json.dump(log, fh)
-            _plot(log, out / f"{name}_training.png")
-            if progress:
-                progress(f"{log['network']} step {step}/{config.steps}: train {np.mean([t for _, t in log['train'][-config.eval_every:]]):.4f}"
-                         f" validation {v:.4f} {vparts} ({entry['wall_s']:.0f} s wall, {entry['cpu_s']:.0f} s CPU)")
+            validate(step)
         if stop:
             break

@@ -251,18 +251,39 @@ def test_device_is_recorded_and_a_missing_gpu_is_one_line(tmp_path, capsys):
 
 
 def test_batch_workers_change_nothing(tmp_path):
-    """Batches prepared by two worker processes give the same weights as batches prepared in the training process."""
+    """Batches prepared by worker processes give the same weights as batches prepared in the training process.
+
+    Nine steps with one worker pass each of its five shared input buffers on at least once more after
+    its first use: a buffer written again too early would change the weights."""
     torch = pytest.importorskip("torch", reason="training needs PyTorch (the `train` extra)")
     from agents.perception.training.train import TrainConfig, train
 
     paths = _shards(tmp_path)
     data, val = load_shards(paths[:2]), load_shards(paths[2:])
     weights = []
-    for workers in (0, 2):
-        cfg = TrainConfig(steps=2, batch=2, eval_every=2, seed=3, device="cpu", workers=workers)
+    for workers in (0, 1, 2):
+        cfg = TrainConfig(steps=9, batch=2, eval_every=9, seed=3, device="cpu", workers=workers)
         train("detector", data, val, tmp_path / f"w{workers}", cfg, progress=None)
         weights.append(torch.cat([v.flatten().float() for v in torch.load(tmp_path / f"w{workers}" / "circles.pt").values()]))
     assert torch.allclose(weights[0], weights[1], atol=1e-5, rtol=0)
+    assert torch.allclose(weights[0], weights[2], atol=1e-5, rtol=0)
+
+
+def test_a_fine_tune_is_validated_before_its_first_step(tmp_path):
+    """A fine-tune's step 0 is its starting network's validation loss: the best loss of the run it starts from."""
+    pytest.importorskip("torch", reason="training needs PyTorch (the `train` extra)")
+    from agents.perception.training.train import TrainConfig, train
+
+    paths = _shards(tmp_path)
+    data, val = load_shards(paths[:2]), load_shards(paths[2:])
+    cfg = TrainConfig(steps=4, batch=2, eval_every=2, seed=3, device="cpu")
+    first = train("detector", data, val, tmp_path / "a", cfg, progress=None)
+    assert [e["step"] for e in first["validation"]] == [2, 4]  # (no step 0 without a starting network)
+    tuned = train("detector", data, val, tmp_path / "b", cfg, progress=None, init=tmp_path / "a" / "circles.pt")
+    start = tuned["validation"][0]
+    assert start["step"] == 0
+    assert start["loss"] == pytest.approx(min(e["loss"] for e in first["validation"]), rel=1e-5)
+    assert tuned["best_step"] in (0, 2, 4) and (tmp_path / "b" / "circles.onnx").is_file()
 
 
 def test_detector_takes_its_input_size_from_the_model(tmp_path):

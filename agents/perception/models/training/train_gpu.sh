@@ -3,9 +3,13 @@
 # 16 processes, then train three proposal-network variants and the second stage side by side (one
 # process each, batches prepared by forked workers); the model card says which variant shipped and how.
 #
-# usage: train_gpu.sh SCALE OUT [STEPS REFINE_STEPS]
+# usage: [RECIPE=scratch|finetune] train_gpu.sh SCALE OUT [STEPS REFINE_STEPS]
 #   SCALE  tiny (a handful of scenes and 40 steps: checks the whole chain) or full
 #   OUT    folder for the logs, ONNX files and training JSON (shards go to $SHARDS, default /tmp/dd)
+#   RECIPE scratch (default): three proposal-network shapes and the second stage from random weights;
+#          finetune: the shipped networks (agents/perception/models) fine-tuned on every kind of
+#          scene (varied, harder, table1, mottled floors, ring runs) at two learning rates, and the
+#          second stage fine-tuned too
 # Training stops (after a last validation) BUDGET seconds (default 470) after the script started,
 # whatever the steps; DEVICE=cpu runs the chain without a GPU.
 # Run from the repository root (or a copy of agents/, sims/, decentral/, protocols/).
@@ -13,13 +17,17 @@ set -u -o pipefail
 SCALE=${1:?tiny or full}; OUT=${2:?output folder}
 STEPS=${3:-4000}; RSTEPS=${4:-6000}
 SHARDS=${SHARDS:-/tmp/dd}; NPROC=${NPROC:-16}; DEVICE=${DEVICE:-cuda}; BUDGET=${BUDGET:-470}
+RECIPE=${RECIPE:-scratch}
+case $RECIPE in scratch|finetune) ;; *) echo "RECIPE is scratch or finetune, not $RECIPE" >&2; exit 2 ;; esac
 export PYTHONPATH=$PWD${PYTHONPATH:+:$PYTHONPATH} PYTHONUNBUFFERED=1 OMP_NUM_THREADS=1 OMP_WAIT_POLICY=PASSIVE
 mkdir -p "$OUT" "$SHARDS"
 PY=${PY:-python3}
 if [ "$SCALE" = tiny ]; then
   RENDER="--varied 2008:2010 --varied-frames 3 --hard 5048:5050 --hard-frames 3 --table1 107:109 --table1-steps 2"
+  [ "$RECIPE" = finetune ] && RENDER="$RENDER --mottled 6008:6010 --mottled-frames 3 --ring 308:310 --ring-steps 2"
 else
   RENDER="--varied 2000:2400 --hard 5000:5300 --table1 100:109"
+  [ "$RECIPE" = finetune ] && RENDER="$RENDER --mottled 6000:6100 --ring 300:400"
 fi
 t0=$(date +%s)
 for i in $(seq 0 $((NPROC - 1))); do
@@ -33,21 +41,33 @@ grep -h -i error "$SHARDS"/render_*.log && exit 1
 set -f
 MINUTES=$(awk "BEGIN {m = ($BUDGET - $t1 + $t0 - 60) / 60; print (m < 0.2 ? 0.2 : m)}")
 echo "training for at most $MINUTES min each"
-V="--validation varied-2??9.npz hard-5?49.npz table1-108.npz --oversample table1-*=2"
+if [ "$RECIPE" = scratch ]; then
+  V="--validation varied-2??9.npz hard-5?49.npz table1-108.npz --oversample table1-*=2"; SEED=7
+else  # the validation patterns of the ring fine-tune (models/circles.md)
+  V="--validation varied-*9.npz table1-*8.npz hard-5049.npz hard-5149.npz mottled-*9.npz ring-*9.npz --oversample table1-*=2"
+  SEED=21
+fi
 EVERY=250
 [ "$SCALE" = tiny ] && EVERY=20 STEPS=40 RSTEPS=40
-COMMON="--device $DEVICE --eval-every $EVERY --max-minutes $MINUTES --seed 7 $V"
+COMMON="--device $DEVICE --eval-every $EVERY --max-minutes $MINUTES --seed $SEED $V"
 train() {  # name, then options
   local name=$1; shift
   $PY -m agents.perception.training train "$SHARDS" -o "$OUT/$name" "$@" $COMMON > "$OUT/$name.log" 2>&1
   echo "$name: exit $?"
 }
-train det_a --network detector --steps "$STEPS" --batch 32 --lr 2e-3 --warmup 200 --workers 4 &
-train det_b --network detector --steps "$STEPS" --batch 32 --lr 2e-3 --warmup 200 --workers 4 \
-  --width 64 --channels 24 48 96 144 192 &
-train det_c --network detector --steps "$STEPS" --batch 32 --lr 2e-3 --warmup 200 --workers 4 \
-  --width 64 --channels 16 32 64 128 192 &
-train ref --network refine --refine-steps "$RSTEPS" --batch 32 --lr 1e-3 --warmup 200 --workers 2 &
+if [ "$RECIPE" = scratch ]; then
+  train det_a --network detector --steps "$STEPS" --batch 32 --lr 2e-3 --warmup 200 --workers 4 &
+  train det_b --network detector --steps "$STEPS" --batch 32 --lr 2e-3 --warmup 200 --workers 4 \
+    --width 64 --channels 24 48 96 144 192 &
+  train det_c --network detector --steps "$STEPS" --batch 32 --lr 2e-3 --warmup 200 --workers 4 \
+    --width 64 --channels 16 32 64 128 192 &
+  train ref --network refine --refine-steps "$RSTEPS" --batch 32 --lr 1e-3 --warmup 200 --workers 2 &
+else
+  MODELS=agents/perception/models
+  train ft_slow --network detector --init $MODELS --steps "$STEPS" --batch 32 --lr 6e-4 --warmup 100 --workers 6 &
+  train ft_fast --network detector --init $MODELS --steps "$STEPS" --batch 32 --lr 1.5e-3 --warmup 200 --workers 6 &
+  train ft_ref --network refine --init $MODELS --refine-steps "$RSTEPS" --batch 32 --lr 3e-4 --warmup 100 --workers 2 &
+fi
 wait
 t2=$(date +%s)
 echo "trained in $((t2 - t1)) s (render $((t1 - t0)) s)"
