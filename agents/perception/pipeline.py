@@ -16,7 +16,7 @@ import numpy as np
 from agents.perception.apriltag3 import make_identifier
 from agents.perception.detectors import make_detector
 from agents.perception.motion import FlowRegistration
-from agents.perception.read_owner import unambiguous_reads
+from agents.perception.read_owner import PrintScale, unambiguous_reads
 from agents.perception.tracking import CircleTracker, TrackerConfig
 from agents.perception.types import Circle, CircleDetector, Identifier, TrackedCircle, Tracker
 
@@ -47,7 +47,8 @@ class Perception:
         Default :func:`~agents.perception.apriltag3.make_identifier` (tag36h11): the AprilTag 3
         library inside each circle, OpenCV's reader where it reads nothing. Its reads pass
         :func:`~agents.perception.read_owner.unambiguous_reads`: a read that a nearer or overlapping
-        circle could own is dropped.
+        circle could own is dropped; then :class:`~agents.perception.read_owner.PrintScale`: a read
+        whose print is far too small or large for its circle is dropped.
     tracker : Tracker or None
         Default :class:`~agents.perception.tracking.CircleTracker` (``trust_uncontested`` when the
         detector's ``finds_neighbours`` is True); ``track=False`` disables it
@@ -74,9 +75,11 @@ class Perception:
         if motion == "flow":
             motion = FlowRegistration() if track else None
         self.motion = motion
+        self.print_scale = PrintScale()
 
     def reset(self) -> None:
         """Start a new sequence."""
+        self.print_scale.reset()
         if self.tracker is not None:
             self.tracker.reset()
         reset = getattr(self.motion, "reset", None)
@@ -93,7 +96,7 @@ class Perception:
         circles = self.detector.detect(image)
         t1 = time.process_time()
         if self.tracker is None:
-            reads = unambiguous_reads(circles, self.identifier.identify(image, circles))
+            reads = self.print_scale.filter(circles, unambiguous_reads(circles, self.identifier.identify(image, circles)))
             t2 = time.process_time()
             out = [TrackedCircle(c, r, r.node if r is not None else None, None) for c, r in zip(circles, reads)]
             return out, {"detect": t1 - t0, "identify": t2 - t1}
@@ -113,7 +116,7 @@ class Perception:
         else:
             got = iter(self.identifier.identify(image, todo) if todo else [])
         # a read that another circle of the frame could own is dropped (agents.perception.read_owner)
-        reads = unambiguous_reads(circles, [None if s else next(got) for s in skip])
+        reads = self.print_scale.filter(circles, unambiguous_reads(circles, [None if s else next(got) for s in skip]))
         t3 = time.process_time()
         out = self.tracker.update(circles, reads, motion=motion)
         t4 = time.process_time()

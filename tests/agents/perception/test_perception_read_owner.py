@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from agents.perception import Perception
-from agents.perception.read_owner import unambiguous_reads
+from agents.perception.read_owner import PrintScale, print_fraction, unambiguous_reads
 from agents.perception.types import Circle, TagRead
 
 
@@ -79,3 +79,50 @@ def test_perception_shows_an_overlap_read_only_on_the_nearer_node(track):
     p = Perception(_Fixed(), _SameReadEverywhere(), track=track, motion=None)
     dets, _ = p.process(np.zeros((400, 500, 3), np.uint8))
     assert [d.node for d in dets] == [None, 5]
+
+
+def _reads_at(fractions, r=40.0):
+    """One circle of radius ``r`` per fraction, each with a square print whose side is ``fraction * r``."""
+    circles = [Circle(100.0 * k, 100.0, r, 0.9) for k in range(len(fractions))]
+    return circles, [_tag(k, c.u, c.v, f * r / 2) for k, (c, f) in enumerate(zip(circles, fractions))]
+
+
+def test_print_fraction_is_the_longest_side_over_the_radius():
+    circles, reads = _reads_at([0.6])
+    assert print_fraction(circles[0], reads[0]) == pytest.approx(0.6)
+
+
+def test_print_scale_drops_a_print_far_too_small_or_large_for_its_circle_once_it_has_seen_enough():
+    """After 8 reads of fractions 0.45-0.93 (prints of several sizes, as on the tuning scenes), a print a quarter of a
+    radius (a circle drawn around two spheres) and one of 1.6 radii (a circle around the print) are dropped; the
+    usual sizes still pass; before 8 reads nothing is dropped; reset forgets."""
+    scale = PrintScale()
+    circles, reads = _reads_at([0.25, 1.6])
+    assert scale.filter(circles, reads) == reads  # nothing learnt yet: both kept (and learnt)
+    scale.reset()
+    assert scale.median() is None
+    usual = [0.45, 0.55, 0.6, 0.65, 0.66, 0.7, 0.8, 0.93]
+    circles, reads = _reads_at(usual)
+    assert scale.filter(circles, reads) == reads
+    assert scale.median() == pytest.approx(0.655)
+    circles, reads = _reads_at([0.25, 1.6, 0.45, 0.93, 0.66])
+    assert scale.filter(circles, reads) == [None, None, *reads[2:]]
+    assert scale.filter(circles, [None] * 5) == [None] * 5
+    scale.reset()
+    assert scale.filter(circles[:2], reads[:2]) == reads[:2]
+
+
+def test_print_scale_forgets_old_reads_and_follows_a_camera_that_changes():
+    """Only the last ``keep`` reads count: after many reads of another print size, that size is the usual one."""
+    scale = PrintScale(keep=16)
+    scale.filter(*_reads_at([0.6] * 16))
+    for f in (0.9, 1.0, 1.1, 1.15):  # each step within a factor 2 of the median so far
+        scale.filter(*_reads_at([f] * 16))
+    assert scale.median() == pytest.approx(1.15)
+    circles, reads = _reads_at([0.5])
+    assert scale.filter(circles, reads) == [None]
+
+
+def test_print_scale_refuses_a_meaningless_band():
+    with pytest.raises(ValueError):
+        PrintScale(factor=1.0)
