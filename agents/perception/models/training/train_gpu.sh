@@ -9,7 +9,8 @@
 #   RECIPE scratch (default): three proposal-network shapes and the second stage from random weights;
 #          finetune: the shipped networks (agents/perception/models) fine-tuned on every kind of
 #          scene (varied, harder, table1, mottled floors, ring runs) at two learning rates, and the
-#          second stage fine-tuned too
+#          second stage fine-tuned too (the release in models/circles.md: a first call renders the
+#          shards, then on the same machine RECIPE=finetune RENDERED=1 BUDGET=360 train_gpu.sh full OUT 4500 14000)
 # Training stops (after a last validation) BUDGET seconds (default 470) after the script started,
 # whatever the steps; DEVICE=cpu runs the chain without a GPU.
 # Run from the repository root (or a copy of agents/, sims/, decentral/, protocols/).
@@ -30,13 +31,16 @@ else
   [ "$RECIPE" = finetune ] && RENDER="$RENDER --mottled 6000:6100 --ring 300:400"
 fi
 t0=$(date +%s)
-for i in $(seq 0 $((NPROC - 1))); do
-  $PY -m sims.lab.experiments.detector_data "$SHARDS" $RENDER --input-size 384x288 --stride "$NPROC" --offset "$i" \
-    > "$SHARDS/render_$i.log" 2>&1 &
-done
-wait
+if [ "${RENDERED:-0}" != 1 ]; then  # RENDERED=1: the shards of an earlier call on the same machine are in $SHARDS
+  for i in $(seq 0 $((NPROC - 1))); do
+    $PY -m sims.lab.experiments.detector_data "$SHARDS" $RENDER --input-size 384x288 --stride "$NPROC" --offset "$i" \
+      > "$SHARDS/render_$i.log" 2>&1 &
+  done
+  wait
+fi
 t1=$(date +%s)
-echo "rendered $(ls "$SHARDS"/*.npz | wc -l) shards ($(du -sh "$SHARDS" | cut -f1)) in $((t1 - t0)) s"
+[ "${RENDERED:-0}" = 1 ] && how="already rendered" || how="rendered in $((t1 - t0)) s"
+echo "$(ls "$SHARDS"/*.npz | wc -l) shards ($(du -sh "$SHARDS" | cut -f1)), $how"
 grep -h -i error "$SHARDS"/render_*.log && exit 1
 set -f
 MINUTES=$(awk "BEGIN {m = ($BUDGET - $t1 + $t0 - 60) / 60; print (m < 0.2 ? 0.2 : m)}")
@@ -63,10 +67,11 @@ if [ "$RECIPE" = scratch ]; then
     --width 64 --channels 16 32 64 128 192 &
   train ref --network refine --refine-steps "$RSTEPS" --batch 32 --lr 1e-3 --warmup 200 --workers 2 &
 else
-  MODELS=agents/perception/models
-  train ft_slow --network detector --init $MODELS --steps "$STEPS" --batch 32 --lr 6e-4 --warmup 100 --workers 6 &
-  train ft_fast --network detector --init $MODELS --steps "$STEPS" --batch 32 --lr 1.5e-3 --warmup 200 --workers 6 &
-  train ft_ref --network refine --init $MODELS --refine-steps "$RSTEPS" --batch 32 --lr 3e-4 --warmup 100 --workers 2 &
+  MODELS=${MODELS:-agents/perception/models}  # the release to start from
+  train ft_2e3 --network detector --init $MODELS --steps "$STEPS" --batch 32 --lr 2e-3 --warmup 200 --workers 7 &
+  train ft_1e3b48 --network detector --init $MODELS --steps "$((STEPS * 2 / 3))" --batch 48 --lr 1.5e-3 --warmup 200 \
+    --workers 7 &
+  train ref_1e3 --network refine --init $MODELS --refine-steps "$RSTEPS" --batch 32 --lr 1e-3 --warmup 200 --workers 1 &
 fi
 wait
 t2=$(date +%s)
