@@ -47,8 +47,8 @@ def test_opencv_and_onnxruntime_backends_agree():
 
 def test_shipped_8_bit_second_stage_finds_the_float_networks_circles():
     """With onnxruntime the shipped detector runs the 8-bit second stage; on tuning scenes 0-7 it finds the
-    circles the float one finds, each centre within 3 % and radius within 2 % of the radius (measured: at most
-    1.7 % and 1.1 %, median 0.1 px). A proposal at the heatmap threshold may settle on a rim in one and not in
+    circles the float one finds, each centre within 3 % and radius within 2 % of the radius (measured with the
+    current networks: at most 0.9 % and 1.2 %, median 0.2 px). A proposal at the heatmap threshold may settle on a rim in one and not in
     the other: at most one such circle a frame, with a score under 0.35, is kept by one stage only."""
     pytest.importorskip("onnxruntime")
     quantized = LearnedCircleDetector(LearnedConfig(backend="onnxruntime"))
@@ -152,8 +152,8 @@ def test_discs_of_another_renderer_match_strictly_and_within_one_and_a_half_pixe
 
 def test_few_false_circles_on_mottled_floors_it_was_not_trained_on():
     """On held-out mottled floors (blotches 6-48 px, 64 frames) and on the perception tests' blotchy floor at
-    1024 x 768, at most one false circle a frame on average (the release before proposed 6.3 and 28: measured
-    0.25 and 0.33 now), and at least 85 % of the whole discs found strictly (measured 0.90)."""
+    1024 x 768, at most one false circle a frame on average (the release before the mottled floors proposed 6.3
+    and 28; the current networks 0.125 and 0), and at least 85 % of the whole discs found strictly (0.98)."""
     from agents.perception.types import TrackedCircle
     from sims.lab.experiments.mottled_scenes import HELD_OUT_MOTTLED_SEEDS, mottled_frames
     from sims.lab.experiments.perception_scores import SequenceScore, score_frame
