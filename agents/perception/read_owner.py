@@ -88,7 +88,8 @@ def unambiguous_reads(circles: Sequence[Circle], reads: Sequence[TagRead | None]
 def print_fraction(circle: Circle, read: TagRead) -> float:
     """The read print's longest side (image pixels) over ``circle``'s radius."""
     c = np.asarray(read.corners, dtype=float).reshape(-1, 2)
-    return float(np.max(np.hypot(*(c - np.roll(c, -1, axis=0)).T)) / circle.r)
+    side = float(np.max(np.hypot(*(c - np.roll(c, -1, axis=0)).T))) if len(c) else 0.0
+    return side / circle.r if circle.r > 0 else float("inf")
 
 
 class PrintScale:
@@ -121,7 +122,7 @@ class PrintScale:
         for circle, read in zip(circles, reads, strict=True):
             if read is not None:
                 f = print_fraction(circle, read)
-                if m is not None and not m / self.factor <= f <= m * self.factor:
+                if not np.isfinite(f) or (m is not None and not m / self.factor <= f <= m * self.factor):
                     read = None
                 else:
                     self._seen.append(f)

@@ -126,3 +126,14 @@ def test_print_scale_forgets_old_reads_and_follows_a_camera_that_changes():
 def test_print_scale_refuses_a_meaningless_band():
     with pytest.raises(ValueError):
         PrintScale(factor=1.0)
+
+
+def test_print_scale_drops_a_read_it_cannot_measure():
+    """A read on a circle of no radius, or with corners that are not numbers, is dropped and not learnt."""
+    scale = PrintScale()
+    read = _tag(1, 10.0, 10.0, 4.0)
+    assert scale.filter([Circle(10.0, 10.0, 0.0, 0.9)], [read]) == [None]
+    bad = TagRead(2, 2, np.full((4, 2), np.nan), 0, 50.0, 1.0)
+    assert scale.filter([Circle(10.0, 10.0, 20.0, 0.9)], [bad]) == [None]
+    scale.filter(*_reads_at([0.6] * 8))
+    assert scale.median() == pytest.approx(0.6)  # (neither unmeasurable read was learnt)
