@@ -207,6 +207,9 @@ class LearnedCircleDetector:
     #: that no other detection competes for is that node, not an undetected neighbour
     #: (:attr:`~agents.perception.tracking.TrackerConfig.trust_uncontested`)
     finds_neighbours = True
+    #: its circles are the spheres' outlines (trained so), never a print's square: a print's size against its
+    #: circle tells whether the circle is its node's (:class:`~agents.perception.read_owner.PrintScale`)
+    outlines_spheres = True
 
     def __init__(self, config: LearnedConfig | None = None):
         self.config = cfg = config or LearnedConfig()

@@ -122,7 +122,7 @@ class PrintScale:
         for circle, read in zip(circles, reads, strict=True):
             if read is not None:
                 f = print_fraction(circle, read)
-                if not np.isfinite(f) or (m is not None and not m / self.factor <= f <= m * self.factor):
+                if not (np.isfinite(f) and f > 0) or (m is not None and not m / self.factor <= f <= m * self.factor):
                     read = None
                 else:
                     self._seen.append(f)

@@ -129,11 +129,22 @@ def test_print_scale_refuses_a_meaningless_band():
 
 
 def test_print_scale_drops_a_read_it_cannot_measure():
-    """A read on a circle of no radius, or with corners that are not numbers, is dropped and not learnt."""
+    """A read on a circle of no radius, with corners that are not numbers or all in one place, is dropped and not learnt."""
     scale = PrintScale()
     read = _tag(1, 10.0, 10.0, 4.0)
     assert scale.filter([Circle(10.0, 10.0, 0.0, 0.9)], [read]) == [None]
     bad = TagRead(2, 2, np.full((4, 2), np.nan), 0, 50.0, 1.0)
     assert scale.filter([Circle(10.0, 10.0, 20.0, 0.9)], [bad]) == [None]
+    point = TagRead(3, 3, np.zeros((4, 2)), 0, 50.0, 1.0)  # four corners in one place: a print of no size
+    assert scale.filter([Circle(10.0, 10.0, 20.0, 0.9)], [point]) == [None]
     scale.filter(*_reads_at([0.6] * 8))
     assert scale.median() == pytest.approx(0.6)  # (neither unmeasurable read was learnt)
+
+
+def test_the_print_rule_is_on_for_a_detector_of_sphere_outlines_only():
+    """Perception applies PrintScale where the detector's circles are the spheres' outlines (the learned one), not
+    for hough (whose circle is sometimes the print itself), unless asked."""
+    assert isinstance(Perception("learned").print_scale, PrintScale)
+    assert Perception("hough").print_scale is None
+    assert isinstance(Perception("hough", print_scale=PrintScale()).print_scale, PrintScale)
+    assert Perception("learned", print_scale=None).print_scale is None
