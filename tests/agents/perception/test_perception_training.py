@@ -253,8 +253,8 @@ def test_device_is_recorded_and_a_missing_gpu_is_one_line(tmp_path, capsys):
 def test_batch_workers_change_nothing(tmp_path):
     """Batches prepared by worker processes give the same weights as batches prepared in the training process.
 
-    Nine steps with one worker pass each of its five shared input buffers on at least once more after
-    its first use: a buffer written again too early would change the weights."""
+    Ten steps with one worker pass each of its five shared input buffers on a second time: a buffer
+    written again too early would change the weights."""
     torch = pytest.importorskip("torch", reason="training needs PyTorch (the `train` extra)")
     from agents.perception.training.train import TrainConfig, train
 
@@ -262,7 +262,7 @@ def test_batch_workers_change_nothing(tmp_path):
     data, val = load_shards(paths[:2]), load_shards(paths[2:])
     weights = []
     for workers in (0, 1, 2):
-        cfg = TrainConfig(steps=9, batch=2, eval_every=9, seed=3, device="cpu", workers=workers)
+        cfg = TrainConfig(steps=10, batch=2, eval_every=10, seed=3, device="cpu", workers=workers)
         train("detector", data, val, tmp_path / f"w{workers}", cfg, progress=None)
         weights.append(torch.cat([v.flatten().float() for v in torch.load(tmp_path / f"w{workers}" / "circles.pt").values()]))
     assert torch.allclose(weights[0], weights[1], atol=1e-5, rtol=0)

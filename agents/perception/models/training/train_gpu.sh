@@ -10,7 +10,8 @@
 #          finetune: the shipped networks (agents/perception/models) fine-tuned on every kind of
 #          scene (varied, harder, table1, mottled floors, ring runs) at two learning rates, and the
 #          second stage fine-tuned too (the release in models/circles.md: a first call renders the
-#          shards, then on the same machine RECIPE=finetune RENDERED=1 BUDGET=360 train_gpu.sh full OUT 4500 14000)
+#          shards, then on the same machine RECIPE=finetune RENDERED=1 BUDGET=360 train_gpu.sh full OUT 4500 14000,
+#          with MODELS= a folder holding the release before: git show ffaf4ff:agents/perception/models/<file>)
 # Training stops (after a last validation) BUDGET seconds (default 470) after the script started,
 # whatever the steps; DEVICE=cpu runs the chain without a GPU.
 # Run from the repository root (or a copy of agents/, sims/, decentral/, protocols/).
@@ -39,6 +40,7 @@ if [ "${RENDERED:-0}" != 1 ]; then  # RENDERED=1: the shards of an earlier call 
   wait
 fi
 t1=$(date +%s)
+ls "$SHARDS"/*.npz > /dev/null 2>&1 || { echo "no shards in $SHARDS" >&2; exit 2; }
 [ "${RENDERED:-0}" = 1 ] && how="already rendered" || how="rendered in $((t1 - t0)) s"
 echo "$(ls "$SHARDS"/*.npz | wc -l) shards ($(du -sh "$SHARDS" | cut -f1)), $how"
 grep -h -i error "$SHARDS"/render_*.log && exit 1
@@ -68,10 +70,10 @@ if [ "$RECIPE" = scratch ]; then
   train ref --network refine --refine-steps "$RSTEPS" --batch 32 --lr 1e-3 --warmup 200 --workers 2 &
 else
   MODELS=${MODELS:-agents/perception/models}  # the release to start from
-  train ft_2e3 --network detector --init $MODELS --steps "$STEPS" --batch 32 --lr 2e-3 --warmup 200 --workers 7 &
-  train ft_1e3b48 --network detector --init $MODELS --steps "$((STEPS * 2 / 3))" --batch 48 --lr 1.5e-3 --warmup 200 \
+  train ft_2e3 --network detector --init "$MODELS" --steps "$STEPS" --batch 32 --lr 2e-3 --warmup 200 --workers 7 &
+  train ft_1e3b48 --network detector --init "$MODELS" --steps "$((STEPS * 2 / 3))" --batch 48 --lr 1.5e-3 --warmup 200 \
     --workers 7 &
-  train ref_1e3 --network refine --init $MODELS --refine-steps "$RSTEPS" --batch 32 --lr 1e-3 --warmup 200 --workers 1 &
+  train ref_1e3 --network refine --init "$MODELS" --refine-steps "$RSTEPS" --batch 32 --lr 1e-3 --warmup 200 --workers 1 &
 fi
 wait
 t2=$(date +%s)
