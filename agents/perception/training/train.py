@@ -364,33 +364,32 @@ def train(network: str, data: Shards, val: Shards, out: str | os.PathLike, confi
             raise InputError("the weights do not fit the network: give the --width and --channels they were "
                              "trained with", source=str(init)) from None
     _WORKER_DATA["data"] = data
-    _WORKER_DATA.pop("slots", None)
     pool = None  # forked before CUDA starts; the workers only run numpy and OpenCV
     ahead = 2 * config.workers + 2
     if config.workers > 0 and "fork" in multiprocessing.get_all_start_methods():
         if network == "detector":
             _WORKER_DATA["slots"] = _shared_slots(ahead + 1, (config.batch, 3, *data.images.shape[1:3]))
         pool = multiprocessing.get_context("fork").Pool(config.workers)
-    net.to(device)
-    if device.type == "cuda":
-        torch.backends.cudnn.benchmark = True
-    opt = torch.optim.AdamW(net.parameters(), lr=config.lr, weight_decay=config.weight_decay)
-    log = {"network": network, "config": asdict(config), "device": str(device),
-           "device_name": torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu",
-           "architecture": getattr(net, "config", None),
-           "init": None if init is None else str(init), "train_items": int(n_train),
-           "validation_items": int(sum(len(b[0]) for b in val_batches)), "train": [], "validation": [],
-           "parts": [], **(extra or {})}
+    try:  # (the workers and shared slots are let go on every exit, also when CUDA or the optimizer fails)
+        net.to(device)
+        if device.type == "cuda":
+            torch.backends.cudnn.benchmark = True
+        opt = torch.optim.AdamW(net.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+        log = {"network": network, "config": asdict(config), "device": str(device),
+               "device_name": torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu",
+               "architecture": getattr(net, "config", None),
+               "init": None if init is None else str(init), "train_items": int(n_train),
+               "validation_items": int(sum(len(b[0]) for b in val_batches)), "train": [], "validation": [],
+               "parts": [], **(extra or {})}
 
-    def jobs():
-        order, pos = rng.permutation(n_train), 0
-        for step in range(1, config.steps + 1):
-            if pos + config.batch > n_train:
-                order, pos = rng.permutation(n_train), 0
-            yield network, config.seed, step, items[order[pos:pos + config.batch]]
-            pos += config.batch
+        def jobs():
+            order, pos = rng.permutation(n_train), 0
+            for step in range(1, config.steps + 1):
+                if pos + config.batch > n_train:
+                    order, pos = rng.permutation(n_train), 0
+                yield network, config.seed, step, items[order[pos:pos + config.batch]]
+                pos += config.batch
 
-    try:
         _loop(net, opt, loss_fn, _batches(pool, jobs(), ahead), val_batches, config, device, log,
               out, name, shape, output, progress)
     finally:
