@@ -9,6 +9,9 @@ Two sources, both with exact truth and reproducible from their seeds:
 - ``hard``: :func:`sims.lab.experiments.hard_scenes.hard_sequence` scenes (near and large spheres,
   spheres cut by the frame's edge, clumps of spheres hiding one another, rescaled, tinted and
   patched floors, dim to harsh light), seeds from :data:`TRAIN_HARD_SEEDS` upwards.
+- ``pairs``: :func:`sims.lab.experiments.hard_scenes.pair_sequence` scenes (small spheres in touching or
+  overlapping groups of two or three, on the harder scenes' floors and light), seeds from
+  :data:`TRAIN_PAIR_SEEDS` upwards.
 - ``mottled``: :func:`sims.lab.experiments.mottled_scenes.mottled_frames` (tagged discs on blotchy floors
   of many blotch sizes and tints, a quarter of the frames without any disc), seeds from
   :data:`TRAIN_MOTTLED_SEEDS` upwards; the held-out ones
@@ -47,13 +50,16 @@ from agents.perception.training.data import shard_from_frames, write_shard
 from decentral.errors import InputError
 from sims.lab.experiments.varied_scenes import HELD_OUT_SEEDS, sequence
 
-__all__ = ["TRAIN_HARD_SEEDS", "TRAIN_MOTTLED_SEEDS", "TRAIN_RING_SEEDS", "TRAIN_TABLE1_SEEDS", "TRAIN_VARIED_SEEDS",
-           "hard_shard", "mottled_shard", "ring_shard", "table1_shard", "varied_shard"]
+__all__ = ["TRAIN_HARD_SEEDS", "TRAIN_MOTTLED_SEEDS", "TRAIN_PAIR_SEEDS", "TRAIN_RING_SEEDS", "TRAIN_TABLE1_SEEDS",
+           "TRAIN_VARIED_SEEDS", "hard_shard", "mottled_shard", "pair_shard", "ring_shard", "table1_shard",
+           "varied_shard"]
 
 #: first scene seed of the varied training scenes (0-31 tuned the hand-made detectors, 1000-1007 held out)
 TRAIN_VARIED_SEEDS = 2000
 #: first seed of the harder training scenes (:mod:`sims.lab.experiments.hard_scenes`; its own generator)
 TRAIN_HARD_SEEDS = 5000
+#: first seed of the small-sphere group scenes (:func:`sims.lab.experiments.hard_scenes.pair_sequence`)
+TRAIN_PAIR_SEEDS = 8000
 #: first seed of the mottled-floor training scenes (:mod:`sims.lab.experiments.mottled_scenes`)
 TRAIN_MOTTLED_SEEDS = 6000
 #: first seed of the table1 training runs (the experiments and benchmarks use 0-9)
@@ -77,6 +83,15 @@ def hard_shard(seed: int, frames: int, **kw) -> dict[str, np.ndarray]:
 
     return shard_from_frames(((f.image, [(s.u, s.v, s.r, vis) for s, vis in zip(f.spheres, f.visible)])
                               for f in hard_sequence(seed, frames)), **kw)
+
+
+def pair_shard(seed: int, frames: int, **kw) -> dict[str, np.ndarray]:
+    """A shard of ``frames`` frames of small-sphere group scene ``seed``
+    (:func:`~sims.lab.experiments.hard_scenes.pair_sequence`)."""
+    from sims.lab.experiments.hard_scenes import pair_sequence
+
+    return shard_from_frames(((f.image, [(s.u, s.v, s.r, vis) for s, vis in zip(f.spheres, f.visible)])
+                              for f in pair_sequence(seed, frames)), **kw)
 
 
 def mottled_shard(seed: int, frames: int, **kw) -> dict[str, np.ndarray]:
@@ -154,6 +169,8 @@ def main(argv=None) -> int:
     ap.add_argument("--varied-frames", type=int, default=10, help="frames per varied scene (default 10)")
     ap.add_argument("--hard", type=_range, default=range(0), help="harder scene seeds FIRST:STOP")
     ap.add_argument("--hard-frames", type=int, default=10, help="frames per harder scene (default 10)")
+    ap.add_argument("--pairs", type=_range, default=range(0), help="small-sphere group scene seeds FIRST:STOP")
+    ap.add_argument("--pairs-frames", type=int, default=10, help="frames per group scene (default 10)")
     ap.add_argument("--mottled", type=_range, default=range(0), help="mottled-floor scene seeds FIRST:STOP")
     ap.add_argument("--mottled-frames", type=int, default=10, help="frames per mottled scene (default 10)")
     ap.add_argument("--table1", type=_range, default=range(0), help="table1 run seeds FIRST:STOP")
@@ -173,6 +190,7 @@ def main(argv=None) -> int:
     out = Path(args.outdir)
     out.mkdir(parents=True, exist_ok=True)
     jobs = [("varied", s) for s in args.varied] + [("hard", s) for s in args.hard] + \
+        [("pairs", s) for s in args.pairs] + \
         [("mottled", s) for s in args.mottled] + [("table1", s) for s in args.table1] + \
         [("ring", s) for s in args.ring]
     for i, (kind, seed) in enumerate(jobs):
@@ -186,6 +204,8 @@ def main(argv=None) -> int:
                 arrays = varied_shard(seed, args.varied_frames, **kw)
             elif kind == "hard":
                 arrays = hard_shard(seed, args.hard_frames, **kw)
+            elif kind == "pairs":
+                arrays = pair_shard(seed, args.pairs_frames, **kw)
             elif kind == "mottled":
                 arrays = mottled_shard(seed, args.mottled_frames, **kw)
             elif kind == "ring":

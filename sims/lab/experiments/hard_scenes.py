@@ -19,7 +19,7 @@ from sims.lab.experiments.varied_scenes import (Frame, animate, random_look, ran
 from sims.simulation.render.surfaces import SURFACES, lighting_gradient, surface
 from sims.simulation.render.textures import TAG_IDS
 
-__all__ = ["hard_floor", "hard_sequence"]
+__all__ = ["hard_floor", "hard_sequence", "pair_sequence"]
 
 
 def hard_floor(rng: np.random.Generator, height: int, width: int) -> np.ndarray:
@@ -93,13 +93,7 @@ def hard_sequence(seed: int, frames: int = 10, *, width: int = 1024, height: int
     up to 15 %, turning tags, smear now and then; spheres may drift out of the frame by up to one
     radius.
     """
-    rng = np.random.default_rng(np.random.SeedSequence([seed, 7]))
-    floor_rng, noise_rng, motion_rng = (np.random.default_rng(s) for s in np.random.SeedSequence([seed, 7]).spawn(3))
-    floor = hard_floor(floor_rng, height, width)
-    gradient = lighting_gradient(floor_rng, height, width, strength=float(rng.uniform(0.2, 0.7)))
-    look = random_look(rng, elevation=(0.25, 1.3), ambient=(0.15, 0.6), noise=(1.0, 9.0), blur=(0.0, 1.5),
-                       gain=(0.55, 1.35), jpeg=(0, 0, 50, 70, 85), shadow=(0.05, 0.45))  # dim to harsh
-    floor_mean = floor.reshape(-1, 3).mean(axis=0)
+    rng, noise_rng, motion_rng, floor, gradient, look, floor_mean = _setting(seed, 7, width, height)
     n = int(rng.integers(3, 15))
     ids = rng.choice(TAG_IDS, size=n, replace=False)
     clump = rng.uniform([0.2 * width, 0.2 * height], [0.8 * width, 0.8 * height])
@@ -118,6 +112,62 @@ def hard_sequence(seed: int, frames: int = 10, *, width: int = 1024, height: int
         colour = _colour(rng, floor_mean)
         movers.append(random_mover(rng, int(ids[i]), float(u), float(v), r, colour, tag=bool(rng.random() < 0.9),
                                    tag_normal=normal, max_specular=0.8, speed=3.0 if mode != "clump" else 1.5))
+    return _animate(rng, movers, look, floor, gradient, noise_rng, motion_rng, frames, radius, width, height)
+
+
+def _setting(seed: int, salt: int, width: int, height: int):
+    """A scene's generators (draws, sensor noise, motion), floor, lighting gradient, look and the floor's
+    mean colour, from ``seed`` and the generator's own ``salt``."""
+    rng = np.random.default_rng(np.random.SeedSequence([seed, salt]))
+    floor_rng, noise_rng, motion_rng = (np.random.default_rng(s) for s in np.random.SeedSequence([seed, salt]).spawn(3))
+    floor = hard_floor(floor_rng, height, width)
+    gradient = lighting_gradient(floor_rng, height, width, strength=float(rng.uniform(0.2, 0.7)))
+    look = random_look(rng, elevation=(0.25, 1.3), ambient=(0.15, 0.6), noise=(1.0, 9.0), blur=(0.0, 1.5),
+                       gain=(0.55, 1.35), jpeg=(0, 0, 50, 70, 85), shadow=(0.05, 0.45))  # dim to harsh
+    return rng, noise_rng, motion_rng, floor, gradient, look, floor.reshape(-1, 3).mean(axis=0)
+
+
+def _animate(rng, movers, look, floor, gradient, noise_rng, motion_rng, frames: int, radius, width: int, height: int):
+    """The frames of ``movers`` with 0-4 struts over them (the harder scenes' motion and sensor)."""
     struts = random_struts(rng, width, height, count=(0, 4), spread=220, widths=(4, 20), greys=(0.1, 0.85))
     return animate(movers, struts, look, floor, gradient, noise_rng, motion_rng, frames,
                    radius=radius, jitter=1.0, wobble=0.15, margin=1.0)
+
+
+def pair_sequence(seed: int, frames: int = 10, *, width: int = 1024, height: int = 768,
+                  radius: tuple[float, float] = (12.0, 45.0)) -> list[Frame]:
+    """Small spheres in touching or overlapping groups of two or three: ``frames`` frames from ``seed``.
+
+    Floors, light and sensor as :func:`hard_sequence` (draws of their own). 2-5 groups; a group's first
+    sphere has a log-uniform radius in ``radius``, each next one 0.75-1.33 times its predecessor's, its
+    centre 0.6-1.1 times the two radii's sum away in any direction (one hides part of the other, or they
+    touch: two nodes of an assembly seen from afar, which a proposal network tends to take for one
+    larger circle); plus 0-3 lone spheres of 12-110 px. Groups move slowly, so they stay together.
+    """
+    rng, noise_rng, motion_rng, floor, gradient, look, floor_mean = _setting(seed, 11, width, height)
+    groups = int(rng.integers(2, 6))
+    sizes = [int(rng.integers(2, 4)) for _ in range(groups)]
+    lone = int(rng.integers(0, 4))
+    ids = rng.choice(TAG_IDS, size=sum(sizes) + lone, replace=False)
+    lo, hi = np.log(radius[0]), np.log(radius[1])
+    movers = []
+
+    def add(u: float, v: float, r: float, speed: float) -> None:
+        movers.append(random_mover(rng, int(ids[len(movers)]), float(u), float(v), r, _colour(rng, floor_mean),
+                                   tag=bool(rng.random() < 0.9), tag_normal=random_tag_normal(rng, 1.3),
+                                   max_specular=0.8, speed=speed))
+
+    for size in sizes:
+        r = float(np.exp(rng.uniform(lo, hi)))
+        at = rng.uniform([4 * r, 4 * r], [width - 4 * r, height - 4 * r])
+        add(*at, r, 1.0)
+        for _ in range(size - 1):
+            r2 = float(np.clip(r * np.exp(rng.uniform(np.log(0.75), np.log(1.33))), radius[0], radius[1]))
+            ang = rng.uniform(0, 2 * np.pi)
+            at = at + rng.uniform(0.6, 1.1) * (r + r2) * np.array([np.cos(ang), np.sin(ang)])
+            add(*at, r2, 1.0)
+            r = r2
+    for _ in range(lone):
+        r = float(np.exp(rng.uniform(np.log(12.0), np.log(110.0))))
+        add(*rng.uniform([r, r], [width - r, height - r]), r, 3.0)
+    return _animate(rng, movers, look, floor, gradient, noise_rng, motion_rng, frames, (12.0, 110.0), width, height)

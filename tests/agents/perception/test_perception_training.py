@@ -180,6 +180,31 @@ def test_hard_scenes_are_reproducible_and_cut_spheres_at_the_frame_edge():
     assert cut > 0
 
 
+def test_pair_scenes_are_reproducible_and_hold_small_spheres_that_touch_or_overlap(tmp_path):
+    """Group scenes repeat from their seed; in their first frame most spheres of 12-45 px have a neighbour
+    whose disc touches or overlaps theirs (centres drawn at most 1.1 times the radii's sum apart; 1.25 allows
+    for the first frame's motion and size wobble);
+    the command writes them as ``pairs-SEED.npz`` shards."""
+    from sims.lab.experiments.detector_data import main as render_shards
+    from sims.lab.experiments.hard_scenes import pair_sequence
+
+    a, b = pair_sequence(8001, 2), pair_sequence(8001, 2)
+    assert all(np.array_equal(x.image, y.image) for x, y in zip(a, b))
+    small = touching = 0
+    for seed in range(8000, 8008):
+        f = pair_sequence(seed, 1)[0]
+        assert f.image.shape == (768, 1024, 3) and ((f.visible >= 0) & (f.visible <= 1)).all()
+        for i, s in enumerate(f.spheres):
+            if s.r > 46:
+                continue
+            small += 1
+            touching += any(np.hypot(s.u - o.u, s.v - o.v) <= 1.25 * (s.r + o.r) for j, o in enumerate(f.spheres) if j != i)
+    assert small >= 16 and touching >= 0.8 * small
+    assert render_shards([str(tmp_path), "--pairs", "8000:8001", "--pairs-frames", "2", "--input-size", "192x144"]) == 0
+    with np.load(tmp_path / "pairs-8000.npz") as shard:
+        assert shard["images"].shape[:3] == (2, 144, 192) and len(shard["circles"]) >= 4
+
+
 def test_mottled_scenes_are_reproducible_have_empty_floors_and_keep_their_held_out_seeds_out(tmp_path):
     """Mottled frames repeat from their seed; some frames hold no disc; every truth circle is a drawn disc
     (bright against its surroundings where fully visible); held-out seeds are refused as training data."""
