@@ -61,7 +61,11 @@ from protocols.admm_values import AdmmInbox
 from protocols.window_aggregation import WindowAggregation
 from protocols.admm_rounds import AdmmRounds, RoundView
 
-__all__ = ["AgentConfig", "OwnStep", "AssemblyAgent"]
+__all__ = ["AgentConfig", "OwnStep", "AssemblyAgent", "LATE_WINDOWS"]
+
+#: windows over which an agent remembers how late its process ran (:meth:`AssemblyAgent.ran_late`): the latest
+#: of them counts, so one window on time does not switch a starved agent back to the tree
+LATE_WINDOWS = 4
 
 
 
@@ -100,6 +104,7 @@ class AssemblyAgent(AssemblyResults):
         # how late messages arrive (rounds): the waits below grow with it (Liu et al.'s window, over a slow radio)
         self._lag = LagMeter()
         self._patience = config.patience
+        self._late: list[float] = []  # how late its process ran the last windows' half rounds (rounds; ran_late)
         self._start = WindowStart()  # the joint solution the current window started at, if any
         self._hold = 0  # the ADMM of this window starts at this round (after the forms are shared)
         self._hop: int | None = 0 if config.name == config.reference else None
@@ -154,8 +159,12 @@ class AssemblyAgent(AssemblyResults):
         cfg = self.config
         self._patience = max(cfg.patience, self._lag.round_trip())
         depth = max(1, self._sharing.depth, self._sharing.tree.graph_depth)
-        # a typical trip up (or down) the tree slower than the configured wait: broadcast (one trip, more messages)
-        self._sharing.slow_tree = depth * self._lag.typical() > cfg.share_timeout
+        # a typical trip up (or down) the tree slower than the configured wait: broadcast (one trip, more messages).
+        # A hop's trip is the link's lag plus the time the forwarding process runs late: on a computer busy with
+        # other work the agents' processes are all late, each level of the tree adds that, and the reference
+        # solving for all falls further behind (docs/processes.md, "Tree or broadcast, with busy cores")
+        late = max(self._late, default=0.0)
+        self._sharing.slow_tree = depth * (self._lag.typical() + late) > cfg.share_timeout
         hops = depth if cfg.aggregation == "tree" and not self._sharing.slow_tree else 1
         share_timeout = max(cfg.share_timeout, 2 * hops * self._lag.one_way() + self._patience)
         if not self._lag.heard:  # nothing arrived yet (a cold start over slow links): no wait can be judged yet
@@ -163,6 +172,18 @@ class AssemblyAgent(AssemblyResults):
         self._rounds.patience, self._rounds.share_timeout = self._patience, share_timeout
         self._sharing.share_timeout = share_timeout
         self._sharing.resend_after = max(3, self._lag.round_trip())
+
+    @property
+    def sharing(self) -> str:
+        """How this agent shares its windows' forms by its local rule, as of its last half round: ``"tree"``, or
+        ``"broadcast"`` (so configured, or a trip through the tree too slow at the measured lag and lateness)."""
+        return "broadcast" if self.config.aggregation == "broadcast" or self._sharing.slow_tree else "tree"
+
+    def ran_late(self, rounds: float) -> None:
+        """The runtime's report at a window's end: how late its process ran that window's half rounds (p90,
+        in rounds). The latest of the last :data:`LATE_WINDOWS` reports adds to every hop of the tree's trip in
+        the slow-tree test (:meth:`_scale_waits`). A simulated runner never reports: its agents run on time."""
+        self._late = (self._late + [max(0.0, float(rounds))])[-LATE_WINDOWS:]
 
     def on_step(self, own: OwnStep, round_index: int | None = None) -> None:
         """Take the assembly's own observations of a new step (at round ``round_index``) and slide the window."""

@@ -445,3 +445,28 @@ def test_an_exact_window_answers_with_its_joint_solution_whatever_rows_a_busy_ne
     assert set(after) == set(exact)
     for name, pose in exact.items():
         assert np.allclose(after[name].p, pose.p, atol=1e-9) and abs(after[name].theta - pose.theta) < 1e-9
+
+
+def test_an_agent_whose_process_runs_late_shares_by_broadcast_until_it_is_on_time_again(log):
+    """The slow-tree test counts a hop as the measured lag plus how late the agent's process ran (the runtime's
+    report, in rounds): on time it keeps the tree; a report longer than the wait for the forms switches it to
+    broadcast; it stays there until LATE_WINDOWS reports in a row are on time again."""
+    from agents.assembly import LATE_WINDOWS
+
+    agent = _agent(log, "A1", share_forms="every")
+    agent.on_step(own_step(log, "A1", 0), 0)
+    agent.tick(1, 0)
+    assert agent.sharing == "tree"
+    agent.ran_late(0.5)
+    agent.tick(2, 0)
+    assert agent.sharing == "tree"
+    agent.ran_late(agent.waits["share_timeout"] + 1.0)
+    agent.tick(3, 0)
+    assert agent.sharing == "broadcast"
+    for k in range(LATE_WINDOWS - 1):
+        agent.ran_late(0.0)
+        agent.tick(4 + k, 0)
+        assert agent.sharing == "broadcast"
+    agent.ran_late(0.0)
+    agent.tick(4 + LATE_WINDOWS, 0)
+    assert agent.sharing == "tree"
