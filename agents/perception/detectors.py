@@ -2,11 +2,10 @@
 
 ``"learned"`` is :class:`~agents.perception.learned.LearnedCircleDetector`: two small networks
 shipped with the package (proposals, then a second stage per circle), run by onnxruntime (OpenCV's
-``dnn`` where it is missing); the better on every measured set (docs/perception.md): held-out
-varied floors (recall 0.97 against 0.55), mottled floors (0.93 against 0.62, fewer false circles),
-the rendered ``table1`` frames (0.975 against 0.95, radius error p90 1 % against 3 %, 40 against 34
-frames/s for the whole front end), the rendered ``multi`` frames (a low camera, spheres on the
-horizon: 0.92 against 0.47) and Table I end to end (0.011 against 0.034 m).
+``dnn`` where it is missing); better than hough on every measured set: held-out varied floors,
+mottled floors, the rendered ``table1`` and ``multi`` frames and Table I end to end, at about the same
+frames a second for the whole front end (the figures of the shipped networks: docs/perception.md,
+"Learned detector", and the model card ``agents/perception/models/circles.md``).
 ``"hough"`` is :class:`~agents.perception.hough.HoughCircleDetector` (the default before): no
 network, about 15-30 ms of CPU per 1024 x 768 frame, good on the rendered frames, poor on floors it
 was not tuned on. ``"rim"`` is
