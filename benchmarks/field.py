@@ -86,6 +86,10 @@ def _cell_metrics(central, est, records, reference):
     lat = [r["latency_ms"] for run in records.get(reference, []) for r in run if r.get("latency_ms")]
     q = lambda xs, p: float(np.quantile(xs, p)) if xs else None  # noqa: E731
     windows = max(1, sum(len(run) for runs in records.values() for run in runs))
+    # windows the agents shared by broadcast (the cold start, slow links, a process running late), of all shared
+    # (an agent's counters are cumulative: its last record that has them; a revised step's line has none)
+    ends = [next((r["counters"] for r in reversed(run) if "counters" in r), {}) for runs in records.values() for run in runs]
+    shared = sum(c.get("tree_windows", 0) + c.get("broadcast_windows", 0) for c in ends)
     return {
         "placed_share": placed / want if want else 1.0,
         "placed_share_one_step_late": placed_late / want if want else 1.0,
@@ -97,6 +101,7 @@ def _cell_metrics(central, est, records, reference):
         "gap_placed_mm": {"max": 1e3 * max(gaps_all, default=0.0), "median": 1e3 * q(gaps_all, 0.5) if gaps_all else None},
         "rounds_per_window": {"median": q(stats["rounds_per_step"], 0.5)},
         "bytes_per_window": stats["bytes"]["total"] / windows,
+        "broadcast_share": sum(c.get("broadcast_windows", 0) for c in ends) / shared if shared else None,
         "frame_latency_ms": {"median_of_medians": q([x[0] for x in lat], 0.5), "p90_of_p90s": q([x[1] for x in lat], 0.9),
                              "max": max((x[2] for x in lat), default=None)},
         # the processes' own clocks: how late they ran their half rounds (worst agent's median step p90) and
@@ -174,7 +179,8 @@ def main(argv=None) -> int:
               f"(+1 step {row['placed_share_one_step_late']:.0%}), converged {row['converged_steps']}/{row['steps']} "
               f"(sim {row['simulated']['converged_steps']}), max gap conv {row['gap_converged_mm']['max']:.2f} mm, "
               f"latency p90 {row['frame_latency_ms']['p90_of_p90s']} ms, rounds behind p90 {row['behind_ms_p90']} ms, "
-              f"CPU/step {row['cpu_ms_per_step']} ms, {row['status']}, load {load:.1f}",
+              f"CPU/step {row['cpu_ms_per_step']} ms, broadcast {row['broadcast_share'] or 0:.0%} of windows, "
+              f"{row['status']}, load {load:.1f}",
               file=sys.stderr, flush=True)
     payload["summary"] = summarize(payload["cells"])
     save("field", payload, args.out)
@@ -187,7 +193,7 @@ _CELL = ("n", "transport", "parity_group", "aggregation", "delay", "loss", "busy
 
 def summarize(cells: list[dict]) -> list[dict]:
     """Per cell (all but the seed): median, least and most over its repeats of the placement shares, steps
-    converged and bytes per agent and window, and the largest gap of a converged step to the centralized estimate."""
+    converged, bytes per agent and window and the share of windows shared by broadcast, and the largest gap of a converged step to the centralized estimate."""
     import numpy as np
 
     out = []
@@ -199,6 +205,8 @@ def summarize(cells: list[dict]) -> list[dict]:
                     "placed_share_one_step_late": stat([c["placed_share_one_step_late"] for c in rows]),
                     "converged_steps": stat([c["converged_steps"] for c in rows]),
                     "bytes_per_window": stat([c["bytes_per_window"] for c in rows]),
+                    "broadcast_share": stat(shares) if (shares := [c["broadcast_share"] for c in rows
+                                                                  if c.get("broadcast_share") is not None]) else None,
                     "gap_converged_mm_max": max(c["gap_converged_mm"]["max"] for c in rows),
                     "converged_without_steps": sum(c.get("converged_without_steps", 0) for c in rows)})
     return out

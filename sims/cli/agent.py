@@ -54,9 +54,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "packet stalls the frames behind it (default: %(default)s); the same for every agent")
     parser.add_argument("--aggregation", choices=("tree", "broadcast"), default="tree",
                         help="how a window's cost forms travel: up and down the aggregation tree (default: fewest "
-                             "bytes, every lie test) or broadcast to every agent (one trip instead of one per tree "
-                             "level, up to about eight times the bytes, member-wide lie tests only after the cold "
-                             "start: small swarms on busy computers); the same for every agent")
+                             "bytes, every lie test; an agent leaves it for broadcast while links are too slow for "
+                             "it or its process runs late on a busy computer) or always broadcast to every agent "
+                             "(one trip instead of one per tree level, up to about eight times the bytes, "
+                             "member-wide lie tests only after the cold start); the same for every agent")
     parser.add_argument("--parity-group", type=int, default=4, metavar="N",
                         help="udp: one parity datagram per N datagrams of a frame, so that a frame survives one lost "
                              "datagram in each group (0: none; default: 4); the same for every agent")

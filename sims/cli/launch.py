@@ -35,7 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the agents' transport (default: decentral agent's, see its --help)")
     parser.add_argument("--aggregation", choices=("tree", "broadcast"), default="tree",
                         help="how a window's forms travel between the agents: the aggregation tree (default: fewest "
-                             "bytes) or broadcast (one trip, more bytes, fewer lie tests; see decentral agent --help)")
+                             "bytes; broadcast while an agent runs late) or always broadcast (one trip, more bytes, "
+                             "fewer lie tests; see decentral agent --help)")
     feedback.add_strict(parser)
     parser.add_argument("--workdir", default=None,
                         help="keep keys, peers file, parts and per-agent streams here (default: a temporary folder)")
