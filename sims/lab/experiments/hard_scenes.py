@@ -7,6 +7,8 @@ those six (a rug on tiles, a coarse or fine version of a texture, a tinted one) 
 dim, harsh or uneven. :func:`hard_sequence` draws such scenes with the same renderer
 (:func:`~sims.lab.experiments.varied_scenes.render`) and the same exact truth, from one seed. Its
 draws are its own: the varied scenes, held-out ones included, are unchanged by it.
+:func:`pair_sequence` draws, on the same floors and light, small spheres in touching or overlapping
+groups of two or three (an assembly's nodes seen from afar).
 """
 
 from __future__ import annotations
