@@ -366,11 +366,11 @@ def train(network: str, data: Shards, val: Shards, out: str | os.PathLike, confi
     _WORKER_DATA["data"] = data
     pool = None  # forked before CUDA starts; the workers only run numpy and OpenCV
     ahead = 2 * config.workers + 2
-    if config.workers > 0 and "fork" in multiprocessing.get_all_start_methods():
-        if network == "detector":
-            _WORKER_DATA["slots"] = _shared_slots(ahead + 1, (config.batch, 3, *data.images.shape[1:3]))
-        pool = multiprocessing.get_context("fork").Pool(config.workers)
-    try:  # (the workers and shared slots are let go on every exit, also when CUDA or the optimizer fails)
+    try:  # (the workers and shared slots are let go on every exit: a failing fork, CUDA or optimizer too)
+        if config.workers > 0 and "fork" in multiprocessing.get_all_start_methods():
+            if network == "detector":
+                _WORKER_DATA["slots"] = _shared_slots(ahead + 1, (config.batch, 3, *data.images.shape[1:3]))
+            pool = multiprocessing.get_context("fork").Pool(config.workers)
         net.to(device)
         if device.type == "cuda":
             torch.backends.cudnn.benchmark = True
