@@ -287,9 +287,10 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
                   "suspects": list(getattr(local.agent, "suspects", ())), "clock": start_clock.report(),
                   "counters": {k: int(v) for k, v in local.agent.counters.items()}}  # (to trace a wrong window)
         latencies.clear()
-        if behind and step != first:  # a process starved of the CPU shares its next windows by broadcast
-            # (AssemblyAgent.ran_late); not judged on its first window (a cold start: every agent solves it all)
-            local.agent.ran_late(float(np.quantile(behind, 0.9)) / pace.round_period)
+        if record["behind_ms"] and step != first:  # a process starved of the CPU shares its next windows by
+            # broadcast (AssemblyAgent.ran_late: the record's p90); not judged on its first window (a cold start:
+            # every agent solves it all)
+            local.agent.ran_late(record["behind_ms"][1] / 1e3 / pace.round_period)
         behind_all.extend(behind)
         behind.clear()
         record["closed_at"] = clock()
