@@ -487,12 +487,18 @@ class AssemblyAgent(AssemblyResults):
             self._fresh_admm()
         self.seed(newest)
 
-    def settle_provisional(self) -> None:
+    def settle_provisional(self, again: bool = False) -> None:
         """The window ends (the next sensor step came) while its forms are still being shared: its answer is the
         joint solution of the forms this agent holds now, placed by the centralized placement test (the
-        centralized estimate of the data that arrived), instead of no answer at all. Nothing is sent."""
+        centralized estimate of the data that arrived), instead of no answer at all. Nothing is sent.
+
+        ``again``: the same once more, from the forms held now, even if the window already has such an answer
+        (a background window that ends unconverged, :class:`agents.runtime.LocalAgent`); an agent that adopted
+        the reference's joint solution keeps it, and nothing changes when no form arrived since the last solve."""
         share = self._sharing.share
-        if share is None or self._start.fallback or self._step is None:
+        if share is None or self._step is None or (self._start.fallback and not again):
+            return
+        if again and (share.solution is not None or share.solved):
             return
         joint = self._sharing.joint(share)
         if joint is not None:

@@ -28,7 +28,10 @@ held) and the unfinished window keeps going in the background (a fork of the age
 :meth:`agents.assembly.AssemblyAgent.fork`) beside the new one, until the step after: the messages of
 its window (forms, solutions, ADMM values) go to it, and only those of its window leave it. If it
 converges in that time, its answer replaces the provisional one (:class:`Revision`,
-:meth:`LocalAgent.take_revisions`), at most one sensor step late. The new window never sees ADMM values
+:meth:`LocalAgent.take_revisions`), at most one sensor step late. If it does not, but the forms it holds
+when it ends place an assembly the provisional answer left out (and every one it placed), the joint
+solution of those forms replaces the provisional answer, still provisional (``reason="more_forms"``):
+what the centralized estimator gives on the data that arrived within one more step. The new window never sees ADMM values
 of an older one (they would overwrite a neighbour's newer values in its inbox).
 
 A simulation therefore predicts what processes do: the simulated runner starts the next step when
@@ -76,15 +79,19 @@ class Revision:
     step : int
         The log step.
     poses : dict
-        Assembly -> :class:`PlanarPose` relative to the agent, the converged answer.
+        Assembly -> :class:`PlanarPose` relative to the agent, the new answer.
     unplaced : dict
         Assembly -> why it is not placed.
     rounds : int
         Rounds the window took in all, from its step's arrival (``"excluded"``: 0, no round of its own).
     reason : str
-        ``"background"`` or ``"excluded"``.
+        ``"background"`` (converged in the background), ``"more_forms"`` (the background window ended
+        unconverged, but the forms it then held place an assembly the first answer left out: the joint
+        solution of those, still provisional) or ``"excluded"``.
     without : tuple of str
         Agents whose forms the converged window lacked (given up on as down; :attr:`AssemblyAgent.without`).
+    converged : bool
+        Whether the new answer is a converged window's (``False`` only for ``"more_forms"``).
     """
 
     step: int
@@ -93,6 +100,7 @@ class Revision:
     rounds: int
     reason: str = "background"
     without: tuple = ()
+    converged: bool = True
 
 
 @dataclass(frozen=True)
@@ -157,6 +165,7 @@ class LocalAgent:
         self.background: LocalAgent | None = None
         self._next_background: LocalAgent | None = None  # the window end_window kept going, until the next step
         self._revised = False  # (of a background window) its revision was taken
+        self._answered: frozenset = frozenset()  # (of a background window) what its step's provisional answer placed
         self._revisions: list[Revision] = []
 
     @property
@@ -185,6 +194,8 @@ class LocalAgent:
     def on_step(self, own: OwnStep, round_index: int | None = None) -> None:
         """A new sensor step at round ``round_index``: the previous window ends here (:meth:`end_window`)."""
         self.end_window()
+        if self.background is not None and not self.background._revised:
+            self._answer_again(self.background)
         self.background, self._next_background = self._next_background, None
         self.agent.on_step(own, round_index)
         self.step = own.step
@@ -202,6 +213,17 @@ class LocalAgent:
         twin.step, twin.rounds, twin.streak = self.step, self.rounds, self.streak
         twin._heard = set(self._heard)
         return twin
+
+    def _answer_again(self, bg: "LocalAgent") -> None:
+        """The background window ``bg`` ends here unconverged: if the forms it holds now place an assembly its
+        step's provisional answer left out (and place every one it placed), answer the step again with their joint
+        solution (still provisional)."""
+        bg.agent.settle_provisional(again=True)
+        poses = bg.agent.estimates()
+        if set(poses) > bg._answered:
+            bg._revised = True
+            self._revisions.append(Revision(bg.step, dict(poses), bg.agent.unplaced(poses), bg.rounds,
+                                            reason="more_forms", converged=False))
 
     def take_revisions(self) -> list[Revision]:
         """Steps answered provisionally whose window has since converged in the background, and steps answered
@@ -287,6 +309,8 @@ class LocalAgent:
         self.agent.window_done = True
         self.window_estimate = self.agent.estimates()
         self.window_unplaced = self.agent.unplaced(self.window_estimate)
+        if self._next_background is not None:
+            self._next_background._answered = frozenset(self.window_estimate)
 
 
 class AgentHost:

@@ -262,10 +262,11 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
     without: dict[int, list] = {}  # the reference's converged steps whose forms lacked some agents' (given up on)
 
     def take_revisions() -> None:
-        """Windows that converged in the background replace their steps' provisional answers."""
+        """Windows that converged in the background (or ended with more forms) replace their steps' provisional
+        answers."""
         for n, h in hosts.items():
             for rev in h.agent.take_revisions():
-                agent_converged[rev.step][n] = True
+                agent_converged[rev.step][n] = rev.converged
                 per_agent[rev.step][n] = rev.poses
                 if n == reference:
                     est_steps[rev.step] = EstimateStep(log.steps[rev.step].t, rev.poses, rev.unplaced)
@@ -328,7 +329,9 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
     total_rounds = int(sum(rounds))
     unplaced = count_reasons(step.unplaced for step in est_steps)
     without = {k: v for k, v in without.items() if converged[k]}
-    status, status_counts = run_status(converged, placed_steps(est_steps), unplaced, revised=len(revised),
+    status, status_counts = run_status(converged, placed_steps(est_steps), unplaced,
+                                       revised=sum(1 for r in revised if r["reason"] != "more_forms"),
+                                       reanswered=sum(1 for r in revised if r["reason"] == "more_forms"),
                                        without=len(without))
     stats = {
         "estimator": "consensus-admm",

@@ -24,8 +24,9 @@ since the previous record (``cpu_ms``) and the agent's protocol counters, so tha
 still reported every step it finished. A step answered provisionally whose window then converged in
 the background, or answered again without a member a later window excluded (:mod:`agents.runtime`,
 :mod:`agents.exclusion_revisions`), is written again, converged, with ``revised_after_s`` (seconds
-after its first record) and ``revised_because`` (``"background"`` or ``"excluded"``): a later line of
-a step replaces the earlier one.
+after its first record) and ``revised_because`` (``"background"`` or ``"excluded"``); one whose
+background window ended unconverged but placed more from the forms it then held is written again
+unconverged, ``revised_because: "more_forms"``. A later line of a step replaces the earlier one.
 
 - **a late start**: a process that starts after its START first asks its peers for the run's clock
   (:class:`PeerClock`) and follows the START two of them agree on, from the step under way.
@@ -303,14 +304,14 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
             stream.flush()
 
     def revise() -> None:
-        """Windows that converged in the background replace their steps' provisional records (and are streamed
-        again: a later record of a step replaces the earlier one)."""
+        """Windows that converged in the background (or ended with more forms) replace their steps' provisional
+        records (and are streamed again: a later record of a step replaces the earlier one)."""
         for rev in local.take_revisions():
             at = next((i for i, r in enumerate(records) if r["step"] == rev.step), None)
             if at is None:
                 continue
             records[at] = dict(records[at], poses=poses_to_dict(dict(sorted(rev.poses.items()))),
-                               unplaced=dict(rev.unplaced), converged=True, rounds=rev.rounds, without=list(rev.without),
+                               unplaced=dict(rev.unplaced), converged=rev.converged, rounds=rev.rounds, without=list(rev.without),
                                revised_after_s=round(clock() - records[at]["closed_at"], 4), revised_because=rev.reason)
             write(records[at])
 
@@ -394,7 +395,8 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
     without = [{"step": r["step"], "without": r["without"]} for r in records if r["converged"] and r.get("without")]
     status, status_counts = run_status([r["converged"] for r in records], placed_steps(steps), unplaced,
                                        not_run=n - len(records),
-                                       revised=sum(1 for r in records if "revised_after_s" in r),
+                                       revised=sum(1 for r in records if "revised_after_s" in r and r["converged"]),
+                                       reanswered=sum(1 for r in records if "revised_after_s" in r and not r["converged"]),
                                        without=len(without))
     stats = {
         "unplaced": unplaced,

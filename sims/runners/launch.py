@@ -449,7 +449,9 @@ def _compose(log, reference, records, config, incarnations, timed_out, failures)
                if by_step[k]["converged"] and by_step[k].get("without")]
     status, status_counts = run_status([bool(by_step[k]["converged"]) for k in ran], [bool(steps[k].poses) for k in ran],
                                        unplaced, not_run=len(log.steps) - len(ran), timed_out=timed_out,
-                                       revised=sum(1 for k in ran if "revised_after_s" in by_step[k]),
+                                       revised=sum(1 for k in ran if "revised_after_s" in by_step[k] and by_step[k]["converged"]),
+                                       reanswered=sum(1 for k in ran if "revised_after_s" in by_step[k]
+                                                      and not by_step[k]["converged"]),
                                        without=len(without))
     heard = set()
     for run in records[reference]:

@@ -19,6 +19,9 @@ the same verdict, computed here from what each step's window did:
 - ``revised`` (where the runner reports it, ``run_status(..., revised=)``): steps answered provisionally when the next sensor step
   came whose window then converged in the background (:mod:`agents.runtime`): counted as converged,
   at most one sensor step late;
+- ``reanswered`` (where the runner reports it, ``run_status(..., reanswered=)``): of the unconverged steps,
+  those answered again one sensor step late, still provisional: the background window did not converge,
+  but the forms it held when it ended placed an assembly the first answer left out (and every one it placed);
 - ``without_members`` (where the runner reports it, ``run_status(..., without=)``): of the converged
   steps, those whose window's forms lacked some agent's (given up on as down after two silent windows):
   the joint estimate of the others' data, not of all of it; such a run is ``degraded``;
@@ -46,7 +49,7 @@ EXIT_DEGRADED = 4
 
 def run_status(converged: Sequence[bool], placed: Sequence[bool], unplaced: Mapping[str, int] | None = None, *,
                not_run: int = 0, timed_out: bool = False, revised: int | None = None,
-               without: int | None = None) -> tuple[str, dict[str, int]]:
+               without: int | None = None, reanswered: int | None = None) -> tuple[str, dict[str, int]]:
     """The verdict and the counts per reason of a run (see the module docstring).
 
     Parameters
@@ -66,6 +69,9 @@ def run_status(converged: Sequence[bool], placed: Sequence[bool], unplaced: Mapp
     without : int, optional
         Of the converged steps, those whose forms lacked some agent's (``without_members``; omitted: not
         reported).
+    reanswered : int, optional
+        Of the unconverged steps, those answered again one step late from more forms (``reanswered``; omitted:
+        not reported).
 
     Returns
     -------
@@ -93,6 +99,8 @@ def run_status(converged: Sequence[bool], placed: Sequence[bool], unplaced: Mapp
         counts["revised"] = int(revised)
     if without is not None:
         counts["without_members"] = int(without)
+    if reanswered is not None:
+        counts["reanswered"] = int(reanswered)
     if timed_out:
         return "timeout", counts
     return ("ok" if not off and not not_run and not without else "degraded"), counts
@@ -115,6 +123,8 @@ def status_warning(status: str, counts: Mapping[str, int], steps: int) -> str | 
                      f"provisional: the joint solution of the forms held; {counts.get('unanswered', 0)} placed no one)")
     if counts.get("revised"):
         parts.append(f"{counts['revised']} revised one step late (converged in the background)")
+    if counts.get("reanswered"):
+        parts.append(f"{counts['reanswered']} answered again one step late from more forms (still provisional)")
     if counts.get("without_members"):
         parts.append(f"{counts['without_members']} converged without some agents' forms (given up on as down: "
                      "the joint estimate of the others' data)")
@@ -160,7 +170,7 @@ def cpu_hint(behind_ms, round_period: float) -> str | None:
             "the process was short of CPU (give it a larger share, e.g. nice, or a slower pace: --rate, --round-period)")
 
 
-_OWN = ("unconverged", "provisional", "unanswered", "not_run", "revised", "without_members")
+_OWN = ("unconverged", "provisional", "unanswered", "not_run", "revised", "without_members", "reanswered")
 
 
 def placed_steps(steps: Iterable) -> list[bool]:

@@ -23,6 +23,8 @@ class _Stub:
         self.handled = []
         self.windows_independent = False  # (the background window has its own tests)
         self.revised = []  # (step, poses, unplaced) answered again without an excluded member
+        self.answer = {"A1": "pose"}  # what it places (the test sets it)
+        self.settled_again = False
 
     def on_step(self, own, round_index=None):
         pass
@@ -40,13 +42,13 @@ class _Stub:
         return []
 
     def estimates(self):
-        return {"A1": "pose"}
+        return dict(self.answer)
 
     def unplaced(self, placed):
         return {}
 
-    def settle_provisional(self):
-        pass
+    def settle_provisional(self, again=False):
+        self.settled_again = again
 
     def take_revisions(self):
         out, self.revised = self.revised, []
@@ -148,7 +150,7 @@ class _Forking(_Stub):
 
     def fork(self):
         twin = _Forking(self.name)
-        twin.converged = self.converged
+        twin.converged, twin.answer = self.converged, dict(self.answer)
         return twin
 
 
@@ -181,6 +183,37 @@ def test_an_unconverged_window_goes_on_in_the_background_and_revises_its_step():
     assert local.take_revisions() == []
     local.on_step(OwnStep(step=2, t=0.2, config={}), 8)
     assert local.background is None or local.background.step == 1  # the step-0 window ended for good
+
+
+def _background_of_step_0(answer_later):
+    """A step-0 window ended unconverged, its fork at work beside step 1 until it places ``answer_later``; then
+    step 2 comes (the fork ends unconverged). Returns the revisions taken."""
+    local = LocalAgent(_Forking(), WindowRule(budget=4))
+    local.on_step(OwnStep(step=0, t=0.0, config={}))
+    _run_rounds(local, 4)
+    local.on_step(OwnStep(step=1, t=0.1, config={}), 4)
+    local.background.agent.answer = answer_later  # forms that came after the step's first answer
+    _run_rounds(local, 4, start=4)
+    assert local.take_revisions() == []  # not converged: nothing yet
+    fork = local.background.agent
+    local.on_step(OwnStep(step=2, t=0.2, config={}), 8)
+    assert fork.settled_again  # the fork's answer was computed again from the forms it held at the end
+    return local.take_revisions()
+
+
+def test_a_background_window_that_ends_unconverged_answers_again_when_its_forms_place_more():
+    """A fork that never converges, but whose forms place an assembly the first answer left out (and every one it
+    placed), answers its step again at its end: reason "more_forms", unconverged, one step late."""
+    revisions = _background_of_step_0({"A1": "better", "A2": "pose"})
+    assert [(r.step, r.reason, r.converged, r.poses) for r in revisions] == [
+        (0, "more_forms", False, {"A1": "better", "A2": "pose"})]
+
+
+@pytest.mark.parametrize("later", [{"A1": "moved"}, {"A2": "pose"}, {}])
+def test_a_background_window_that_places_no_more_leaves_the_first_answer(later):
+    """Unconverged at its end, a fork that places the same assemblies, a different set or none does not answer its
+    step again (a provisional answer is replaced only by one that places strictly more)."""
+    assert _background_of_step_0(later) == []
 
 
 def test_a_window_that_converged_leaves_nothing_in_the_background():

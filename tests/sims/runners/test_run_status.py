@@ -98,4 +98,5 @@ def test_simulated_latency_beyond_the_round_budget_degrades_the_run(sim6, tmp_pa
     stats = json.loads(out.read_text())["stats"]
     counts = stats["status_counts"]
     assert counts["unconverged"] + counts["revised"] == 6 and counts["unconverged"] >= 1
-    assert stats["status"] == "degraded" and len(stats["revised"]) == counts["revised"]
+    assert stats["status"] == "degraded" and len(stats["revised"]) == counts["revised"] + counts["reanswered"]
+    assert counts["reanswered"] == sum(1 for r in stats["revised"] if r["reason"] == "more_forms")
