@@ -493,12 +493,13 @@ class AssemblyAgent(AssemblyResults):
         centralized estimate of the data that arrived), instead of no answer at all. Nothing is sent.
 
         ``again``: the same once more, from the forms held now, even if the window already has such an answer
-        (a background window that ends unconverged, :class:`agents.runtime.LocalAgent`); an agent that adopted
-        the reference's joint solution keeps it, and nothing changes when no form arrived since the last solve."""
+        (a background window that ends unconverged, :class:`agents.runtime.LocalAgent`: it was forked before
+        its first answer was computed, and may have received forms since); an agent that adopted the
+        reference's joint solution keeps it. (The joint solution is solved again only if forms arrived.)"""
         share = self._sharing.share
         if share is None or self._step is None or (self._start.fallback and not again):
             return
-        if again and (share.solution is not None or share.solved):
+        if again and share.solution is not None:
             return
         joint = self._sharing.joint(share)
         if joint is not None:
