@@ -493,9 +493,9 @@ class AssemblyAgent(AssemblyResults):
         centralized estimate of the data that arrived), instead of no answer at all. Nothing is sent.
 
         ``again``: the same once more, from the forms held now, even if the window already has such an answer
-        (a background window that ends unconverged, :class:`agents.runtime.LocalAgent`: it was forked before
-        its first answer was computed, and may have received forms since); an agent that adopted the
-        reference's joint solution keeps it. (The joint solution is solved again only if forms arrived.)"""
+        (a background window that ends unconverged, :class:`agents.runtime.LocalAgent`: it may have received
+        forms since); an agent that adopted the reference's joint solution keeps it. (The joint solution is
+        solved again only if forms arrived.)"""
         share = self._sharing.share
         if share is None or self._step is None or (self._start.fallback and not again):
             return

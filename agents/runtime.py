@@ -31,8 +31,8 @@ converges in that time, its answer replaces the provisional one (:class:`Revisio
 :meth:`LocalAgent.take_revisions`), at most one sensor step late. If it does not, but the forms it holds
 when it ends place an assembly the provisional answer left out (and every one it placed), the joint
 solution of those forms replaces the provisional answer, still provisional (``reason="more_forms"``):
-what the centralized estimator gives on the data that arrived within one more step. The new window never sees ADMM values
-of an older one (they would overwrite a neighbour's newer values in its inbox).
+what the centralized estimator gives on the data that arrived within one more step. The new window never
+sees ADMM values of an older one (they would overwrite a neighbour's newer values in its inbox).
 
 A simulation therefore predicts what processes do: the simulated runner starts the next step when
 every live agent is quiet and nothing is in flight, which is what processes do while they wait for
@@ -297,13 +297,14 @@ class LocalAgent:
             self._finish(converged=False)
 
     def _finish(self, converged: bool) -> None:
-        # an unconverged window goes on from here once the next step has come; one that converged after all
-        # (an answer had made it busy again) needs no fork
+        # an unconverged window answers from the forms that arrived (if the sharing has not ended) and goes on from
+        # here once the next step has come, forked with that answer's joint solution (solved once, not again by the
+        # fork unless more forms come); one that converged after all (an answer had made it busy again) needs no fork
         self._next_background = None
-        if not converged and self.rule.background and self.agent.windows_independent:
-            self._next_background = self._fork()
         if not converged:
-            self.agent.settle_provisional()  # an answer from the forms that arrived, if the sharing has not ended
+            self.agent.settle_provisional()
+            if self.rule.background and self.agent.windows_independent:
+                self._next_background = self._fork()
         self.done = True
         self.converged = converged
         self.agent.window_done = True
