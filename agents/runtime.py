@@ -218,7 +218,7 @@ class LocalAgent:
         """The background window ``bg`` ends here unconverged: if the forms it holds now place an assembly its
         step's provisional answer left out (and place every one it placed), answer the step again with their joint
         solution (still provisional)."""
-        bg.agent.settle_provisional(again=True)
+        bg.agent.settle_provisional()
         poses = bg.agent.estimates()
         if set(poses) > bg._answered:
             bg._revised = True
