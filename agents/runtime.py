@@ -221,7 +221,6 @@ class LocalAgent:
         bg.agent.settle_provisional()
         poses = bg.agent.estimates()
         if set(poses) > bg._answered:
-            bg._revised = True
             self._revisions.append(Revision(bg.step, dict(poses), bg.agent.unplaced(poses), bg.rounds,
                                             reason="more_forms", converged=False))
 

@@ -330,9 +330,7 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
     unplaced = count_reasons(step.unplaced for step in est_steps)
     without = {k: v for k, v in without.items() if converged[k]}
     status, status_counts = run_status(converged, placed_steps(est_steps), unplaced,
-                                       revised=sum(1 for r in revised if r["reason"] != "more_forms"),
-                                       reanswered=sum(1 for r in revised if r["reason"] == "more_forms"),
-                                       without=len(without))
+                                       revised_because=[r["reason"] for r in revised], without=len(without))
     stats = {
         "estimator": "consensus-admm",
         "mode": "admm",

@@ -393,10 +393,12 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
     unplaced = count_reasons(step.unplaced for step in steps)
     # converged steps whose window lacked some agents' forms (given up on as down): the others' data only
     without = [{"step": r["step"], "without": r["without"]} for r in records if r["converged"] and r.get("without")]
+    # steps answered provisionally whose window converged in the background (or ended with more forms), and how long
+    # after the answer
+    revised = [{"step": r["step"], "after_s": r["revised_after_s"], "reason": r.get("revised_because", "background")}
+               for r in records if "revised_after_s" in r]
     status, status_counts = run_status([r["converged"] for r in records], placed_steps(steps), unplaced,
-                                       not_run=n - len(records),
-                                       revised=sum(1 for r in records if "revised_after_s" in r and r["converged"]),
-                                       reanswered=sum(1 for r in records if "revised_after_s" in r and not r["converged"]),
+                                       not_run=n - len(records), revised_because=[r["reason"] for r in revised],
                                        without=len(without))
     stats = {
         "unplaced": unplaced,
@@ -417,9 +419,7 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
         "dropped": final["dropped"],
         "rounds_per_step": [r["rounds"] for r in records],
         "converged_per_step": [r["converged"] for r in records],
-        # steps answered provisionally whose window converged in the background, and how long after the answer
-        "revised": [{"step": r["step"], "after_s": r["revised_after_s"], "reason": r.get("revised_because", "background")}
-                    for r in records if "revised_after_s" in r],
+        "revised": revised,
         "converged_without": without,
         "missing": sorted(a for a in names if a != name and a not in heard),
         "round_period": pace.round_period,

@@ -447,12 +447,13 @@ def _compose(log, reference, records, config, incarnations, timed_out, failures)
     # converged steps whose window lacked some agents' forms (given up on as down): the others' data only
     without = [{"step": k, "without": by_step[k]["without"]} for k in ran
                if by_step[k]["converged"] and by_step[k].get("without")]
+    # the reference's steps answered provisionally whose window converged in the background, or ended with more
+    # forms (agents.runtime)
+    revised = [{"step": k, "after_s": by_step[k]["revised_after_s"],
+                "reason": by_step[k].get("revised_because", "background")} for k in ran if "revised_after_s" in by_step[k]]
     status, status_counts = run_status([bool(by_step[k]["converged"]) for k in ran], [bool(steps[k].poses) for k in ran],
                                        unplaced, not_run=len(log.steps) - len(ran), timed_out=timed_out,
-                                       revised=sum(1 for k in ran if "revised_after_s" in by_step[k] and by_step[k]["converged"]),
-                                       reanswered=sum(1 for k in ran if "revised_after_s" in by_step[k]
-                                                      and not by_step[k]["converged"]),
-                                       without=len(without))
+                                       revised_because=[r["reason"] for r in revised], without=len(without))
     heard = set()
     for run in records[reference]:
         if run:
@@ -475,10 +476,7 @@ def _compose(log, reference, records, config, incarnations, timed_out, failures)
         "steps_reported": len(set(rec["step"] for run in records[reference] for rec in run if "step" in rec)),
         "converged_per_step": [bool(by_step[k]["converged"]) if k in by_step else False for k in range(len(log.steps))],
         "rounds_per_step": [int(by_step[k]["rounds"]) if k in by_step else 0 for k in range(len(log.steps))],
-        # the reference's steps answered provisionally whose window converged in the background (agents.runtime)
-        "revised": [{"step": k, "after_s": by_step[k]["revised_after_s"],
-                     "reason": by_step[k].get("revised_because", "background")} for k in ran
-                    if "revised_after_s" in by_step[k]],
+        "revised": revised,
         "converged_without": without,
         "missing": sorted(n for n in log.assemblies if n != reference and n not in heard),
         # members whose data the others contradicted, left out of the reference's joint solution

@@ -16,12 +16,13 @@ the same verdict, computed here from what each step's window did:
   agent held, or its last iterate (placing at least one assembly);
 - ``unanswered``: of those, steps that placed no assembly at all;
 - ``not_run``: steps the agent never ran (it was down, started late, or the run was cut short);
-- ``revised`` (where the runner reports it, ``run_status(..., revised=)``): steps answered provisionally when the next sensor step
-  came whose window then converged in the background (:mod:`agents.runtime`): counted as converged,
-  at most one sensor step late;
-- ``reanswered`` (where the runner reports it, ``run_status(..., reanswered=)``): of the unconverged steps,
-  those answered again one sensor step late, still provisional: the background window did not converge,
-  but the forms it held when it ended placed an assembly the first answer left out (and every one it placed);
+- ``revised`` (where the runner reports it, ``run_status(..., revised_because=)``): steps answered
+  provisionally when the next sensor step came whose window then converged in the background
+  (:mod:`agents.runtime`): counted as converged, at most one sensor step late (and steps answered again
+  without an excluded member);
+- ``reanswered`` (reported with ``revised``): of the unconverged steps, those answered again one sensor
+  step late, still provisional (reason ``"more_forms"``): the background window did not converge, but the
+  forms it held when it ended placed an assembly the first answer left out (and every one it placed);
 - ``without_members`` (where the runner reports it, ``run_status(..., without=)``): of the converged
   steps, those whose window's forms lacked some agent's (given up on as down after two silent windows):
   the joint estimate of the others' data, not of all of it; such a run is ``degraded``;
@@ -48,8 +49,8 @@ EXIT_DEGRADED = 4
 
 
 def run_status(converged: Sequence[bool], placed: Sequence[bool], unplaced: Mapping[str, int] | None = None, *,
-               not_run: int = 0, timed_out: bool = False, revised: int | None = None,
-               without: int | None = None, reanswered: int | None = None) -> tuple[str, dict[str, int]]:
+               not_run: int = 0, timed_out: bool = False, revised_because: Sequence[str] | None = None,
+               without: int | None = None) -> tuple[str, dict[str, int]]:
     """The verdict and the counts per reason of a run (see the module docstring).
 
     Parameters
@@ -64,14 +65,12 @@ def run_status(converged: Sequence[bool], placed: Sequence[bool], unplaced: Mapp
         Steps of the log the agent never ran.
     timed_out : bool
         Whether the run was cut short.
-    revised : int, optional
-        Of the converged steps, those revised one step late (counted as ``revised``; omitted: not reported).
+    revised_because : sequence of str, optional
+        Per step answered again, its :attr:`agents.runtime.Revision.reason`: ``"more_forms"`` (still
+        unconverged) is counted as ``reanswered``, the others as ``revised`` (omitted: neither reported).
     without : int, optional
         Of the converged steps, those whose forms lacked some agent's (``without_members``; omitted: not
         reported).
-    reanswered : int, optional
-        Of the unconverged steps, those answered again one step late from more forms (``reanswered``; omitted:
-        not reported).
 
     Returns
     -------
@@ -95,12 +94,13 @@ def run_status(converged: Sequence[bool], placed: Sequence[bool], unplaced: Mapp
               "unanswered": sum(1 for p in off if not p), "not_run": int(not_run)}
     for reason, n in sorted((unplaced or {}).items()):
         counts[str(reason)] = int(n)
-    if revised is not None:
-        counts["revised"] = int(revised)
+    if revised_because is not None:
+        again = sum(1 for reason in revised_because if reason == "more_forms")
+        counts["revised"] = len(revised_because) - again
     if without is not None:
         counts["without_members"] = int(without)
-    if reanswered is not None:
-        counts["reanswered"] = int(reanswered)
+    if revised_because is not None:
+        counts["reanswered"] = again
     if timed_out:
         return "timeout", counts
     return ("ok" if not off and not not_run and not without else "degraded"), counts
