@@ -12,6 +12,9 @@ Two sources, both with exact truth and reproducible from their seeds:
 - ``pairs``: :func:`sims.lab.experiments.hard_scenes.pair_sequence` scenes (small spheres in touching or
   overlapping groups of two or three, on the harder scenes' floors and light), seeds from
   :data:`TRAIN_PAIR_SEEDS` upwards.
+- ``overlap``: :func:`sims.lab.experiments.hard_scenes.overlap_sequence` scenes (groups of spheres of
+  unequal sizes, 20-90 px: a large sphere partly hidden behind a smaller one), seeds from
+  :data:`TRAIN_OVERLAP_SEEDS` upwards.
 - ``mottled``: :func:`sims.lab.experiments.mottled_scenes.mottled_frames` (tagged discs on blotchy floors
   of many blotch sizes and tints, a quarter of the frames without any disc), seeds from
   :data:`TRAIN_MOTTLED_SEEDS` upwards; the held-out ones
@@ -50,8 +53,8 @@ from agents.perception.training.data import shard_from_frames, write_shard
 from decentral.errors import InputError
 from sims.lab.experiments.varied_scenes import HELD_OUT_SEEDS, sequence
 
-__all__ = ["TRAIN_HARD_SEEDS", "TRAIN_MOTTLED_SEEDS", "TRAIN_PAIR_SEEDS", "TRAIN_RING_SEEDS", "TRAIN_TABLE1_SEEDS",
-           "TRAIN_VARIED_SEEDS", "hard_shard", "mottled_shard", "pair_shard", "ring_shard", "table1_shard",
+__all__ = ["TRAIN_HARD_SEEDS", "TRAIN_MOTTLED_SEEDS", "TRAIN_OVERLAP_SEEDS", "TRAIN_PAIR_SEEDS", "TRAIN_RING_SEEDS", "TRAIN_TABLE1_SEEDS",
+           "TRAIN_VARIED_SEEDS", "hard_shard", "mottled_shard", "overlap_shard", "pair_shard", "ring_shard", "table1_shard",
            "varied_shard"]
 
 #: first scene seed of the varied training scenes (0-31 tuned the hand-made detectors, 1000-1007 held out)
@@ -60,6 +63,8 @@ TRAIN_VARIED_SEEDS = 2000
 TRAIN_HARD_SEEDS = 5000
 #: first seed of the small-sphere group scenes (:func:`sims.lab.experiments.hard_scenes.pair_sequence`)
 TRAIN_PAIR_SEEDS = 8000
+#: first seed of the unequal-size group scenes (:func:`sims.lab.experiments.hard_scenes.overlap_sequence`)
+TRAIN_OVERLAP_SEEDS = 8200
 #: first seed of the mottled-floor training scenes (:mod:`sims.lab.experiments.mottled_scenes`)
 TRAIN_MOTTLED_SEEDS = 6000
 #: first seed of the table1 training runs (the experiments and benchmarks use 0-9)
@@ -92,6 +97,15 @@ def pair_shard(seed: int, frames: int, **kw) -> dict[str, np.ndarray]:
 
     return shard_from_frames(((f.image, [(s.u, s.v, s.r, vis) for s, vis in zip(f.spheres, f.visible)])
                               for f in pair_sequence(seed, frames)), **kw)
+
+
+def overlap_shard(seed: int, frames: int, **kw) -> dict[str, np.ndarray]:
+    """A shard of ``frames`` frames of unequal-size group scene ``seed``
+    (:func:`~sims.lab.experiments.hard_scenes.overlap_sequence`)."""
+    from sims.lab.experiments.hard_scenes import overlap_sequence
+
+    return shard_from_frames(((f.image, [(s.u, s.v, s.r, vis) for s, vis in zip(f.spheres, f.visible)])
+                              for f in overlap_sequence(seed, frames)), **kw)
 
 
 def mottled_shard(seed: int, frames: int, **kw) -> dict[str, np.ndarray]:
@@ -171,6 +185,8 @@ def main(argv=None) -> int:
     ap.add_argument("--hard-frames", type=int, default=10, help="frames per harder scene (default 10)")
     ap.add_argument("--pairs", type=_range, default=range(0), help="small-sphere group scene seeds FIRST:STOP")
     ap.add_argument("--pairs-frames", type=int, default=10, help="frames per group scene (default 10)")
+    ap.add_argument("--overlap", type=_range, default=range(0), help="unequal-size group scene seeds FIRST:STOP")
+    ap.add_argument("--overlap-frames", type=int, default=10, help="frames per unequal-size group scene (default 10)")
     ap.add_argument("--mottled", type=_range, default=range(0), help="mottled-floor scene seeds FIRST:STOP")
     ap.add_argument("--mottled-frames", type=int, default=10, help="frames per mottled scene (default 10)")
     ap.add_argument("--table1", type=_range, default=range(0), help="table1 run seeds FIRST:STOP")
@@ -190,7 +206,7 @@ def main(argv=None) -> int:
     out = Path(args.outdir)
     out.mkdir(parents=True, exist_ok=True)
     jobs = [("varied", s) for s in args.varied] + [("hard", s) for s in args.hard] + \
-        [("pairs", s) for s in args.pairs] + \
+        [("pairs", s) for s in args.pairs] + [("overlap", s) for s in args.overlap] + \
         [("mottled", s) for s in args.mottled] + [("table1", s) for s in args.table1] + \
         [("ring", s) for s in args.ring]
     for i, (kind, seed) in enumerate(jobs):
@@ -206,6 +222,8 @@ def main(argv=None) -> int:
                 arrays = hard_shard(seed, args.hard_frames, **kw)
             elif kind == "pairs":
                 arrays = pair_shard(seed, args.pairs_frames, **kw)
+            elif kind == "overlap":
+                arrays = overlap_shard(seed, args.overlap_frames, **kw)
             elif kind == "mottled":
                 arrays = mottled_shard(seed, args.mottled_frames, **kw)
             elif kind == "ring":

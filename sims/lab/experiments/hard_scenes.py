@@ -21,7 +21,7 @@ from sims.lab.experiments.varied_scenes import (Frame, animate, random_look, ran
 from sims.simulation.render.surfaces import SURFACES, lighting_gradient, surface
 from sims.simulation.render.textures import TAG_IDS
 
-__all__ = ["hard_floor", "hard_sequence", "pair_sequence"]
+__all__ = ["hard_floor", "hard_sequence", "overlap_sequence", "pair_sequence"]
 
 
 def hard_floor(rng: np.random.Generator, height: int, width: int) -> np.ndarray:
@@ -137,14 +137,16 @@ def _animate(rng, movers, look, floor, gradient, noise_rng, motion_rng, frames: 
 
 
 def pair_sequence(seed: int, frames: int = 10, *, width: int = 1024, height: int = 768,
-                  radius: tuple[float, float] = (12.0, 45.0)) -> list[Frame]:
+                  radius: tuple[float, float] = (12.0, 45.0),
+                  ratio: tuple[float, float] = (0.75, 1.33)) -> list[Frame]:
     """Small spheres in touching or overlapping groups of two or three: ``frames`` frames from ``seed``.
 
     Floors, light and sensor as :func:`hard_sequence` (draws of their own). 2-5 groups; a group's first
-    sphere has a log-uniform radius in ``radius``, each next one 0.75-1.33 times its predecessor's, its
-    centre 0.6-1.1 times the two radii's sum away in any direction (one hides part of the other, or they
-    touch: two nodes of an assembly seen from afar, which a proposal network tends to take for one
-    larger circle); plus 0-3 lone spheres of 12-110 px. Groups move slowly, so they stay together.
+    sphere has a log-uniform radius in ``radius``, each next one ``ratio`` times its predecessor's
+    (log-uniform, clipped to ``radius``), its centre 0.6-1.1 times the two radii's sum away in any
+    direction (one hides part of the other, or they touch: two nodes of an assembly seen from afar, which a
+    proposal network tends to take for one larger circle); plus 0-3 lone spheres of 12-110 px. Groups move
+    slowly, so they stay together. (:func:`overlap_sequence`: larger spheres of unequal sizes.)
     """
     rng, noise_rng, motion_rng, floor, gradient, look, floor_mean = _setting(seed, 11, width, height)
     groups = int(rng.integers(2, 6))
@@ -164,7 +166,7 @@ def pair_sequence(seed: int, frames: int = 10, *, width: int = 1024, height: int
         at = rng.uniform([4 * r, 4 * r], [width - 4 * r, height - 4 * r])
         add(*at, r, 1.0)
         for _ in range(size - 1):
-            r2 = float(np.clip(r * np.exp(rng.uniform(np.log(0.75), np.log(1.33))), radius[0], radius[1]))
+            r2 = float(np.clip(r * np.exp(rng.uniform(np.log(ratio[0]), np.log(ratio[1]))), radius[0], radius[1]))
             ang = rng.uniform(0, 2 * np.pi)
             at = at + rng.uniform(0.6, 1.1) * (r + r2) * np.array([np.cos(ang), np.sin(ang)])
             add(*at, r2, 1.0)
@@ -173,3 +175,11 @@ def pair_sequence(seed: int, frames: int = 10, *, width: int = 1024, height: int
         r = float(np.exp(rng.uniform(np.log(12.0), np.log(110.0))))
         add(*rng.uniform([r, r], [width - r, height - r]), r, 3.0)
     return _animate(rng, movers, look, floor, gradient, noise_rng, motion_rng, frames, (12.0, 110.0), width, height)
+
+
+def overlap_sequence(seed: int, frames: int = 10, *, width: int = 1024, height: int = 768) -> list[Frame]:
+    """Groups of spheres of unequal sizes, 20-90 px, each next one 0.55-1.8 times its predecessor: a large
+    sphere partly hidden behind a smaller, nearer one (or the other way round), which a network taught to
+    split small touching spheres (:func:`pair_sequence`) tends to leave out. ``frames`` frames from ``seed``;
+    otherwise as :func:`pair_sequence`."""
+    return pair_sequence(seed, frames, width=width, height=height, radius=(20.0, 90.0), ratio=(0.55, 1.8))

@@ -205,6 +205,31 @@ def test_pair_scenes_are_reproducible_and_hold_small_spheres_that_touch_or_overl
         assert shard["images"].shape[:3] == (2, 144, 192) and len(shard["circles"]) >= 4
 
 
+def test_overlap_scenes_hold_large_spheres_partly_hidden_behind_smaller_ones(tmp_path):
+    """Unequal-size group scenes repeat from their seed and keep the earlier group scenes' draws (a default
+    ``ratio`` changes nothing); in their first frames some sphere of 45 px or more overlaps a smaller one at
+    most 0.8 times its size (the case a network taught on equal small pairs leaves out); the command writes
+    them as ``overlap-SEED.npz`` shards."""
+    from sims.lab.experiments.detector_data import main as render_shards
+    from sims.lab.experiments.hard_scenes import overlap_sequence, pair_sequence
+
+    a, b = overlap_sequence(8201, 2), overlap_sequence(8201, 2)
+    assert all(np.array_equal(x.image, y.image) for x, y in zip(a, b))
+    assert np.array_equal(pair_sequence(8001, 1)[0].image, pair_sequence(8001, 1, ratio=(0.75, 1.33))[0].image)
+    behind = 0
+    for seed in range(8200, 8208):
+        f = overlap_sequence(seed, 1)[0]
+        assert ((f.visible >= 0) & (f.visible <= 1)).all()
+        radii = [s.r for s in f.spheres]
+        assert min(radii) >= 11.5 and max(radii) <= 111
+        behind += sum(any(o.r <= 0.8 * s.r and np.hypot(s.u - o.u, s.v - o.v) < s.r + o.r for o in f.spheres)
+                      for s in f.spheres if s.r >= 45)
+    assert behind >= 4
+    assert render_shards([str(tmp_path), "--overlap", "8200:8201", "--overlap-frames", "2", "--input-size", "192x144"]) == 0
+    with np.load(tmp_path / "overlap-8200.npz") as shard:
+        assert shard["images"].shape[:3] == (2, 144, 192) and len(shard["circles"]) >= 4
+
+
 def test_mottled_scenes_are_reproducible_have_empty_floors_and_keep_their_held_out_seeds_out(tmp_path):
     """Mottled frames repeat from their seed; some frames hold no disc; every truth circle is a drawn disc
     (bright against its surroundings where fully visible); held-out seeds are refused as training data."""
