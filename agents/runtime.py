@@ -32,7 +32,10 @@ converges in that time, its answer replaces the provisional one (:class:`Revisio
 when it ends place an assembly the provisional answer left out (and every one it placed), the joint
 solution of those forms replaces the provisional answer, still provisional (``reason="more_forms"``):
 what the centralized estimator gives on the data that arrived within one more step. The new window never
-sees ADMM values of an older one (they would overwrite a neighbour's newer values in its inbox).
+sees ADMM values of an older one (they would overwrite a neighbour's newer values in its inbox). The log's
+last step is no exception: when its next step would be due, the runtime calls :meth:`LocalAgent.end_of_log`
+and an unfinished last window goes on in the background for that one more step period too, then
+:meth:`LocalAgent.end_background`.
 
 A simulation therefore predicts what processes do: the simulated runner starts the next step when
 every live agent is quiet and nothing is in flight, which is what processes do while they wait for
@@ -164,9 +167,10 @@ class LocalAgent:
         #: the previous window, still at work beside this one (see the module docstring), or None
         self.background: LocalAgent | None = None
         self._next_background: LocalAgent | None = None  # the window end_window kept going, until the next step
-        self._revised = False  # (of a background window) its revision was taken
+        self._revised = False  # (of a background window) its revision was taken, or it ended for good
         self._answered: frozenset = frozenset()  # (of a background window) what its step's provisional answer placed
         self._revisions: list[Revision] = []
+        self._over = False  # the log's last step is over (end_of_log): its window's messages go to the background
 
     @property
     def name(self) -> str:
@@ -193,10 +197,7 @@ class LocalAgent:
 
     def on_step(self, own: OwnStep, round_index: int | None = None) -> None:
         """A new sensor step at round ``round_index``: the previous window ends here (:meth:`end_window`)."""
-        self.end_window()
-        if self.background is not None and not self.background._revised:
-            self._answer_again(self.background)
-        self.background, self._next_background = self._next_background, None
+        self._hand_over()
         self.agent.on_step(own, round_index)
         self.step = own.step
         self.rounds = self.streak = 0
@@ -205,6 +206,34 @@ class LocalAgent:
         self.agent.window_done = False
         self.window_estimate = {}
         self.window_unplaced = {}
+
+    def _hand_over(self) -> None:
+        """The time of a next sensor step: the window ends (:meth:`end_window`), the background window of the step
+        before ends for good (answered again if its forms place more), and an unfinished window goes on in the
+        background."""
+        self.end_window()
+        self.end_background()
+        self.background, self._next_background = self._next_background, None
+
+    def end_of_log(self) -> None:
+        """The log's last step is over (its next step would be due now): the last window ends like every other and,
+        if it ended unconverged, goes on in the background for one more step period, as every other window does
+        (a runtime then calls :meth:`end_background`). Until then the agent still handles every other message;
+        the messages of that window go to the background window alone."""
+        self._hand_over()
+        self._over = True
+
+    def end_background(self) -> None:
+        """The background window ends for good (the step after its own has come, or the run is over): if it did not
+        converge but the forms it holds place more, its step is answered again (:meth:`_answer_again`)."""
+        if self.background is not None and not self.background._revised:
+            self._answer_again(self.background)
+            self.background._revised = True
+
+    @property
+    def waiting_in_background(self) -> bool:
+        """A background window is still at work on an unconverged step (whose answer may yet change)."""
+        return self.background is not None and not self.background._revised
 
     def _fork(self) -> "LocalAgent":
         """This window as it is now, to go on in the background until the step after the next."""
@@ -240,6 +269,8 @@ class LocalAgent:
         if bg is not None:
             bg.receive([m for m in messages if window_of(m) == bg.step or isinstance(m, ConfigAnnounce)],
                        round_index)
+            if self._over:  # the last window went on in the background: its messages are its alone
+                messages = [m for m in messages if window_of(m) != bg.step]
             messages = [m for m in messages if not (isinstance(m, (AdmmPrimal, AdmmDual)) and m.window < self.step)]
         self._receive(messages, round_index)
 

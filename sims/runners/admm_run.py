@@ -273,20 +273,11 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
                     revised.append({"step": rev.step, "rounds": rev.rounds, "at_step": len(est_steps),
                                     "reason": rev.reason})
                     _note_without(without, rev.step, rev.without)
-    for k in range(len(log.steps)):
-        t = now()
-        per_step.append({})
-        bytes_step.append({})
-        for n in names:
-            down = net.is_down(n, t)
-            if was_down[n] and not down:
-                hosts[n] = host(n)  # restarts empty
-                restarts[n] += 1
-            was_down[n] = down
-            if not down:
-                hosts[n].on_step(own_step(log, n, k), t, rounds_global)
-        # the next step comes when every live agent has ended its window by its own rule and nothing is in
-        # flight (what processes do while they wait for the next sensor step), or after the round budget
+    def run_step_period() -> int:
+        """Rounds until the next step: it comes when every live agent has ended its window by its own rule and
+        nothing is in flight (what processes do while they wait for the next sensor step), or after the round
+        budget. Returns the rounds run."""
+        nonlocal half, rounds_global, tick_seconds
         r = 0
         while r < config.max_rounds:
             for phase in (0, 1):
@@ -304,6 +295,21 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
             if (config.fast_forward and all(hosts[n].agent.quiet for n in live)
                     and not any(net.pending(n) for n in live)):
                 break
+        return r
+
+    for k in range(len(log.steps)):
+        t = now()
+        per_step.append({})
+        bytes_step.append({})
+        for n in names:
+            down = net.is_down(n, t)
+            if was_down[n] and not down:
+                hosts[n] = host(n)  # restarts empty
+                restarts[n] += 1
+            was_down[n] = down
+            if not down:
+                hosts[n].on_step(own_step(log, n, k), t, rounds_global)
+        r = run_step_period()
         live = [n for n in names if not net.is_down(n, now())]
         for n in live:
             hosts[n].agent.end_window()
@@ -322,6 +328,17 @@ def run_admm(log: ObservationLog, reference: str | None = None, config: AdmmRunC
         if progress is not None:
             progress(k + 1, len(log.steps), rounds=int(sum(rounds)), messages=sent_total,
                      unconverged=sum(1 for c in agent_converged if not (c and all(c.values()))))
+    # the last step's next step would come now: an unfinished last window goes on in the background for one
+    # more step period, as every other window does (its rounds and messages count to the last step)
+    live = [n for n in names if not net.is_down(n, now())]
+    for n in live:
+        hosts[n].agent.end_of_log()
+    if log.steps and any(hosts[n].agent.waiting_in_background for n in live):
+        rounds[-1] += run_step_period()
+    for n in names:
+        if not net.is_down(n, now()):
+            hosts[n].agent.end_background()
+    take_revisions()
     converged = [bool(c) and all(c.values()) for c in agent_converged]
     agents = {n: h.agent.agent for n, h in hosts.items()}
     transport = net.stats().as_dict()

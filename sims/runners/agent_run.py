@@ -13,7 +13,10 @@ the simulated runner drives, here for one agent, on wall-clock timers:
   earliest start (:mod:`sims.runners.start_clock`; reported in ``stats["clock"]``);
 - **the window** ends by the agent's own rule (:class:`agents.runtime.WindowRule`, budget = the
   rounds between two steps) or when the next step comes; its estimate is what the agent holds then;
-- **after the last step** the agent keeps answering for ``linger`` seconds, then stops.
+- **after the last step** the last window ends when its next step would be due, like every other (one
+  step period); if it ended unconverged it goes on in the background for one more step period, as every
+  other window does; the agent keeps answering for ``linger`` seconds after the last step in any case,
+  then stops.
 
 Each finished step is appended at once as one JSON line to ``stream`` (if given): ``{"step", "t",
 "poses", "unplaced", "converged", "rounds", "window_seconds", "counts", "heard", "latency_ms",
@@ -269,7 +272,15 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
     max_behind, lagged = 20, 0
     began, took = now, None
     cpu_at = time.process_time()
-    end = pace.due(part, n - 1) + max(pace.linger, per_step)
+    over = False  # the last step's window has ended (its next step would be due): LocalAgent.end_of_log
+    background_tail = False  # ... and went on in the background
+
+    def run_end() -> float:
+        """When the process stops: ``linger`` after the last step, and not before the last window had its step
+        period (and, if it went on in the background, one more)."""
+        return pace.due(part, n - 1) + max(pace.linger, per_step * (2 if background_tail else 1))
+
+    end = run_end()
 
     def close(step: int) -> None:
         nonlocal cpu_at
@@ -349,16 +360,22 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
             if current is None:
                 first = k
             done_half = max(pace.half(now), 0) - 1
-            end = pace.due(part, n - 1) + max(pace.linger, per_step)
+            end = run_end()
         if told - start_clock.follow() != pace.start:  # a peer started a little earlier: follow its start
             pace = dataclasses.replace(pace, start=told - start_clock.moved)
-            end = pace.due(part, n - 1) + max(pace.linger, per_step)
+            end = run_end()
         if k < n and now >= pace.due(part, k) and not listening:
             if current is not None:
                 close(current)
             host.on_step(own_step(part, name, k), now, max(0, pace.half(now)) // 2)
             current, k = k, k + 1
             began, took = now, None
+        if k >= n and current is not None and not over and now >= pace.due(part, n - 1) + per_step:
+            close(current)  # the last window ends when its next step would be due, like every other
+            local.end_of_log()
+            revise()
+            over, background_tail = True, local.waiting_in_background
+            end = run_end()
         h = pace.half(now)
         if h > done_half and h >= 0 and current is not None:
             # every half round in order, late ones back to back (skipping a phase would break the protocol's
@@ -385,8 +402,10 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
             wait(max(0.0, min(clock() + 0.02, pace.start) - clock()) if clock() < pace.start else 0.02)
             continue
         wait(max(0.0, min(next_half, next_step) - clock()))
-    if current is not None:
+    if current is not None and not over:
         close(current)
+    local.end_background()  # the last window's background window, if it is still at work, ends here
+    revise()
     names = part.assemblies
     steps = tuple(EstimateStep(r["t"], poses_of(r["poses"]), r["unplaced"]) for r in records)
     final = _counts(transport, name, kinds=True)

@@ -216,6 +216,51 @@ def test_a_background_window_that_places_no_more_leaves_the_first_answer(later):
     assert _background_of_step_0(later) == []
 
 
+def test_the_last_window_goes_on_in_the_background_after_the_log_ends():
+    """The log's last window, unconverged when its next step would be due, goes on in the background like every
+    other: its converged answer is a revision of the last step; the messages of that window reach the fork alone,
+    and the step before's background window ends there (answered again: its forms place more)."""
+    local = LocalAgent(_Forking(), WindowRule(budget=4))
+    local.on_step(OwnStep(step=0, t=0.0, config={}))
+    _run_rounds(local, 4)
+    local.on_step(OwnStep(step=1, t=0.1, config={}), 4)
+    local.background.agent.answer = {"A1": "pose", "A2": "late"}  # step 0's fork got more forms, never converged
+    _run_rounds(local, 4, start=4)
+    local.end_of_log()
+    assert [(r.step, r.reason) for r in local.take_revisions()] == [(0, "more_forms")]
+    tail = local.background
+    assert tail is not None and tail.step == 1 and local.waiting_in_background
+    own_before = len(local.agent.handled)
+    tail.agent.converged = True
+    _run_rounds(local, 4, start=8,
+                inbox=lambda r: [AdmmPrimal(sender="A1", receiver="A0", round=r, window=1, blocks={"x": np.zeros((1, 8))})])
+    assert len(local.agent.handled) == own_before and len(tail.agent.handled) == 4
+    revisions = local.take_revisions()
+    assert [(r.step, r.reason, r.converged) for r in revisions] == [(1, "background", True)]
+    assert not local.waiting_in_background
+    local.end_background()
+    assert local.take_revisions() == []
+
+
+def test_the_last_window_still_unconverged_at_the_end_answers_again_only_if_it_places_more():
+    """The last window's background window ends with the run: unconverged, it answers again (still provisional)
+    when its forms place more than the first answer, and not otherwise."""
+    for later, expect in (({"A1": "pose", "A2": "late"}, [(1, "more_forms", False)]), ({"A1": "moved"}, [])):
+        local = LocalAgent(_Forking(), WindowRule(budget=4))
+        local.on_step(OwnStep(step=0, t=0.0, config={}))
+        local.agent.converged = True
+        _run_rounds(local, 4)
+        local.agent.converged = False
+        local.on_step(OwnStep(step=1, t=0.1, config={}), 4)
+        _run_rounds(local, 4, start=4)
+        local.end_of_log()
+        local.background.agent.answer = later
+        _run_rounds(local, 4, start=8)
+        local.end_background()
+        assert [(r.step, r.reason, r.converged) for r in local.take_revisions()] == expect
+        assert not local.waiting_in_background
+
+
 def test_a_window_that_converged_leaves_nothing_in_the_background():
     """A window that converged before the next step is not forked."""
     stub = _Forking()

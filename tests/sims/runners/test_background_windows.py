@@ -82,3 +82,17 @@ def test_a_cold_start_still_unconverged_a_step_later_is_answered_again_from_the_
     placed = run.estimate.steps[0].poses
     assert set(placed) > set(first.poses)
     assert all(np.all(np.isfinite(pose.p)) and np.isfinite(pose.theta) for pose in placed.values())
+
+
+def test_the_last_step_has_its_background_step_period_too():
+    """A log of one step, at a pace at which the cold start cannot finish in its own step: the last window goes on
+    in the background after the log ends, like every other, and its converged answer replaces the provisional one
+    (the centralized estimate, 1 mm / 0.05 deg); without background windows it stays unconverged."""
+    log = simulate(get_scenario("multi", n_assemblies=5, steps=1), seed=3).log
+    central = estimate_log(log, EstimatorConfig(window=5))
+    run = run_admm(log, None, _slow(), seed=0)
+    assert [(r["step"], r["reason"]) for r in run.stats["revised"]] == [(0, "background")]
+    assert list(run.converged) == [True] and run.stats["status"] == "ok"
+    dp, dth = _step_gap(central, run.estimate.steps[0], 0)
+    assert set(run.estimate.steps[0].poses) == set(central.steps[0].poses) and dp < POS_TOL and dth < YAW_TOL
+    assert list(run_admm(log, None, _slow(background=False), seed=0).converged) == [False]

@@ -77,7 +77,7 @@ def test_study_row_records_a_degraded_run(tmp_path):
     from sims.lab.study.store import DB_NAME, open_store, read_runs
 
     row = execute("localize", {"scenario": "multi", "n_assemblies": 4, "steps": 3, "mode": "admm",
-                               "max_rounds": 3}, "k")
+                               "max_rounds": 1}, "k")
     assert row["status"] == "ok" and row["run_status"] == "degraded" and row["error"] is None
     assert row["metrics"]["converged"] == 0 and "_status" not in row["metrics"]
     store = open_store(tmp_path, "s", "localize", ["mode"], ["converged"])
