@@ -41,7 +41,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--round-period", type=float, default=0.01,
                         help="wall seconds per consensus round (default: 0.01); the same for every agent")
     parser.add_argument("--linger", type=float, default=1.0,
-                        help="seconds to keep answering peers after the last step (default: 1)")
+                        help="seconds to keep answering peers after the last step (default: 1; at least one step "
+                             "period, two if the last window went on in the background)")
     parser.add_argument("--loss", type=float, default=0.0,
                         help="drop each arriving frame with this probability (testing; default 0)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the receive-side losses (default: 0)")
