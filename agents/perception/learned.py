@@ -81,7 +81,7 @@ class LearnedConfig:
 
     model: str | os.PathLike = MODEL_DIR / "circles.onnx"
     refine_model: str | os.PathLike | None = MODEL_DIR / "circle_refine.onnx"
-    threshold: float = 0.3
+    threshold: float = 0.4
     refine_passes: int = 4
     min_radius: float = 8.0
     max_radius: float = 160.0
