@@ -361,9 +361,16 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
                 first = k
             done_half = max(pace.half(now), 0) - 1
             end = run_end()
-        if told - start_clock.follow() != pace.start:  # a peer started a little earlier: follow its start
+        if told - start_clock.follow() != pace.start:  # a peer started earlier: follow its start
+            earlier = pace.start - (told - start_clock.moved)
             pace = dataclasses.replace(pace, start=told - start_clock.moved)
             end = run_end()
+            if earlier > per_step / 2:  # steps went by on the peers' clock: go on from the step under way,
+                while k + 1 < n and pace.due(part, k + 1) <= now:  # never run them back to back (a replay)
+                    k += 1
+                if current is None:
+                    first = k
+                done_half = max(pace.half(now), 0) - 1
         if k < n and now >= pace.due(part, k) and not listening:
             if current is not None:
                 close(current)
