@@ -1,6 +1,6 @@
 """Training data for the learned circle detector: rendered frames and their circles, as npz shards.
 
-Two sources, both with exact truth and reproducible from their seeds:
+Sources, each with exact truth and reproducible from its seeds:
 
 - ``varied``: :func:`sims.lab.experiments.varied_scenes.sequence` scenes (floors of several kinds,
   spheres coloured close to the floor, highlights, occlusion, smear), scene seeds from
