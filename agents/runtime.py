@@ -226,7 +226,7 @@ class LocalAgent:
     def end_background(self) -> None:
         """The background window ends for good (the step after its own has come, or the run is over): if it did not
         converge but the forms it holds place more, its step is answered again (:meth:`_answer_again`)."""
-        if self.background is not None and not self.background._revised:
+        if self.waiting_in_background:
             self._answer_again(self.background)
             self.background._revised = True
 

@@ -262,12 +262,20 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
     host = AgentHost(local, _Listening())
     n = len(part.steps)
     now = clock()
-    k = 0
-    while k + 1 < n and pace.due(part, k + 1) <= now:
-        k += 1  # a late start (a restart) begins with the step under way
-    first = k
-    done_half = max(pace.half(now), 0) - 1  # half rounds count from the start (0), or from now when late
+    k = first = done_half = 0
     current: int | None = None
+
+    def resume_under_way(now: float) -> None:
+        """Go on from the step under way at ``now`` on the current clock (steps that went by are never run) and
+        from the half round due then; before the first step, that step is the first."""
+        nonlocal k, first, done_half
+        while k + 1 < n and pace.due(part, k + 1) <= now:
+            k += 1
+        if current is None:
+            first = k
+        done_half = max(pace.half(now), 0) - 1  # half rounds count from the start (0), or from now when late
+
+    resume_under_way(now)  # a late start (a restart) begins with the step under way
     records: list[dict] = []
     max_behind, lagged = 20, 0
     began, took = now, None
@@ -342,10 +350,7 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
                 asked = now
         elif current is None and not caught_up:
             caught_up = True
-            while k + 1 < n and pace.due(part, k + 1) <= now:
-                k += 1  # listened past some steps: begin with the step under way
-            first = k
-            done_half = max(pace.half(now), 0) - 1
+            resume_under_way(now)  # listened past some steps: begin with the step under way
         peers_start = clocks.start()
         if peers_start is not None and peers_start < pace.start - per_step / 2:
             # the peers started earlier (a restart given a fresh START): run on their clock from the step under way
@@ -355,22 +360,14 @@ def run_agent(part: ObservationLog, name: str, transport: Transport, config: Age
             start_clock.moved = max(start_clock.moved, told - peers_start)
             clocks.reset()
             listen_until = now
-            while k + 1 < n and pace.due(part, k + 1) <= now:
-                k += 1
-            if current is None:
-                first = k
-            done_half = max(pace.half(now), 0) - 1
+            resume_under_way(now)
             end = run_end()
         if told - start_clock.follow() != pace.start:  # a peer started earlier: follow its start
             earlier = pace.start - (told - start_clock.moved)
             pace = dataclasses.replace(pace, start=told - start_clock.moved)
             end = run_end()
-            if earlier > per_step / 2:  # steps went by on the peers' clock: go on from the step under way,
-                while k + 1 < n and pace.due(part, k + 1) <= now:  # never run them back to back (a replay)
-                    k += 1
-                if current is None:
-                    first = k
-                done_half = max(pace.half(now), 0) - 1
+            if earlier > per_step / 2:  # steps went by on the peers' clock: never run them back to back (a replay)
+                resume_under_way(now)
         if k < n and now >= pace.due(part, k) and not listening:
             if current is not None:
                 close(current)

@@ -96,11 +96,9 @@ def run_status(converged: Sequence[bool], placed: Sequence[bool], unplaced: Mapp
         counts[str(reason)] = int(n)
     if revised_because is not None:
         again = sum(1 for reason in revised_because if reason == "more_forms")
-        counts["revised"] = len(revised_because) - again
+        counts["revised"], counts["reanswered"] = len(revised_because) - again, again
     if without is not None:
         counts["without_members"] = int(without)
-    if revised_because is not None:
-        counts["reanswered"] = again
     if timed_out:
         return "timeout", counts
     return ("ok" if not off and not not_run and not without else "degraded"), counts
