@@ -369,7 +369,7 @@ class AssemblyAgent(AssemblyResults):
 
     # ------------------------------------------------------------------ cold start
     def _request_unknown(self) -> None:
-        self._outbox += self._configs.request(self._round, self._sharing.alive_members())
+        self._outbox += self._configs.request(self._round, self._sharing.alive_members(), every=self._sharing.resend_after)
 
     def _bootstrap_phase(self) -> None:
         """Share the window's cost forms (up and down the tree, or by broadcast); then solve and seed."""

@@ -215,9 +215,11 @@ class ConfigGossip:
             return set()
         return set(self.unknown)
 
-    def request(self, round_index: int, alive: set[int] | None) -> list[ConfigRequest]:
-        """A broadcast request for the unresolved nodes (at most every 3 rounds)."""
-        if not self.unresolved(alive) or round_index - self._requested < 3:
+    def request(self, round_index: int, alive: set[int] | None, every: int = 3) -> list[ConfigRequest]:
+        """A broadcast request for the unresolved nodes, at most once in ``every`` rounds (the agent passes a
+        round trip at the lag it measured, at least 3: asking again before the answers could have come
+        only multiplies the answers, one from every agent)."""
+        if not self.unresolved(alive) or round_index - self._requested < max(1, int(every)):
             return []
         self._requested = round_index
         return [ConfigRequest(sender=self.me, receiver=BROADCAST, round=round_index,

@@ -84,3 +84,13 @@ def test_unnamed_nodes_are_requested_until_every_live_configuration_is_in():
     assert gossip.unresolved({0, 1}) == set()  # A2 not heard from lately: 9 is its own or a stray tag
     gossip.learn(_ann("A2", 0, [6]))
     assert gossip.unresolved(None) == set() and gossip.request(20, None) == []
+
+
+def test_on_a_slow_link_a_request_is_repeated_only_after_the_round_trip_the_agent_passes():
+    """With ``every`` = a measured round trip (here 40 rounds), unknown nodes are asked for again only after it:
+    asking sooner only multiplies the answers (every agent answers each request)."""
+    gossip = ConfigGossip("A0", ["A0", "A1", "A2"], announce_every=5)
+    gossip.unknown = {9}
+    assert len(gossip.request(10, None, every=40)) == 1
+    assert all(gossip.request(r, None, every=40) == [] for r in range(11, 50))
+    assert len(gossip.request(50, None, every=40)) == 1
