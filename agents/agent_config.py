@@ -47,9 +47,10 @@ class AgentConfig:
         Rounds an ADMM step waits for a neighbour's value of the current iteration (while resending
         its own last value, which repairs lost copies) before going on with the newest value it has.
     share_forms : {"first", "every", "never"}
-        When agents share their cost forms (``admm.factors``) and start the ADMM at the joint solution
-        they all compute from them: at the run's first step only (step 0, the cold start), at every
-        step (default), or never (the gauge flood alone). See the module docstring.
+        When agents share their cost forms (by broadcast, ``admm.factors_delta``, or up the tree, ``admm.delta``)
+        and start the ADMM at the joint solution they all compute from them: at the run's first step only
+        (step 0, the cold start), at every step (default), or never (the gauge flood alone). See the module
+        docstring.
     share_timeout : int
         Rounds after which an agent goes on with the forms it has (agents that never answered start
         from the gauge flood instead); below the reference in the tree, twice this (the reference's

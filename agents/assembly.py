@@ -55,7 +55,7 @@ from protocols.admm_messages import ConfigAnnounce, ConfigRequest, FactorShare, 
 from protocols.messages import AdmmDual, AdmmPrimal, Message
 from protocols.config_gossip import ConfigGossip
 from protocols.lag import LagMeter
-from protocols.delta_messages import DeltaBundle, JointPoses
+from protocols.delta_messages import DeltaBundle, FactorDelta, JointPoses
 from protocols.pose_gossip import PoseGossip, pose_row
 from protocols.admm_values import AdmmInbox
 from protocols.window_aggregation import WindowAggregation
@@ -97,7 +97,7 @@ class AssemblyAgent(AssemblyResults):
         self._phase = 0
         self._round = 0
         self.counters = {"ignored": 0, "timeouts": 0, "retransmits": 0, "uncertified": 0, "unknown_nodes": 0,
-                         "tree_windows": 0, "broadcast_windows": 0, "late_seeds": 0, "joint_failures": 0}
+                         "tree_windows": 0, "broadcast_windows": 0, "late_seeds": 0, "joint_failures": 0, "unrebuilt": 0}
         # the ADMM rounds: iteration counters, the last values sent, waiting counts and the convergence flag
         self._rounds = AdmmRounds(config.name, self._index[config.name], config.admm, patience=config.patience,
                                   window=config.window, share_timeout=config.share_timeout, counters=self.counters)
@@ -249,6 +249,8 @@ class AssemblyAgent(AssemblyResults):
                 self._dirty = True
         elif isinstance(message, FactorShare):
             sharing.on_factors(message)
+        elif isinstance(message, FactorDelta):
+            sharing.on_factor_delta(message)
         elif isinstance(message, (FormBundle, JointPoses, DeltaBundle)):
             finished = (sharing.on_bundle(message) if isinstance(message, FormBundle)
                         else sharing.on_solution(message) if isinstance(message, JointPoses)

@@ -53,13 +53,13 @@ from agents.assembly import AssemblyAgent, OwnStep
 from decentral.errors import InputError
 from decentral.observations import PlanarPose
 from protocols.admm_messages import ConfigAnnounce, FactorShare, FormAck, FormBundle
-from protocols.delta_messages import DeltaBundle, JointPoses
+from protocols.delta_messages import DeltaBundle, FactorDelta, JointPoses
 from protocols.messages import AdmmDual, AdmmPrimal, Message
 from protocols.transport import Transport
 
 __all__ = ["WindowRule", "Revision", "LocalAgent", "AgentHost", "window_of"]
 
-_BY_STEP = (FactorShare, FormBundle, FormAck, DeltaBundle, JointPoses)
+_BY_STEP = (FactorShare, FactorDelta, FormBundle, FormAck, DeltaBundle, JointPoses)
 
 
 def window_of(message: Message) -> int | None:

@@ -47,7 +47,7 @@ from sims.io.atomic import write_json_atomic  # noqa: E402
 from sims.simulation.scenarios import get_scenario, simulate  # noqa: E402
 
 KINDS = {"admm": ("admm.primal", "admm.dual"),
-         "forms": ("admm.factors", "admm.bundle", "admm.bundle_ack", "admm.delta"),
+         "forms": ("admm.factors", "admm.factors_delta", "admm.bundle", "admm.bundle_ack", "admm.delta"),
          "solution": ("admm.solution",), "config": ("admm.config", "admm.config_request")}
 
 
@@ -65,7 +65,7 @@ def _windows(run, names: list[str], degree: np.ndarray, steps: list[int]) -> dic
     return {"steps": steps, "messages_per_agent_per_window": float(sent.mean()),
             "messages_per_agent_per_window_max": float(sent.max()), "by_kind": by_kind,
             "over_degree_median": float(np.median(over)), "over_degree_max": float(over.max()),
-            "broadcast_kinds_sent": bool(any(by_kind.get(k, 0) > 0 for k in ("admm.factors", "admm.config")))}
+            "broadcast_kinds_sent": bool(any(by_kind.get(k, 0) > 0 for k in ("admm.factors", "admm.factors_delta", "admm.config")))}
 
 
 def _gap(central, decentral):

@@ -1,10 +1,17 @@
-"""Delta kinds of the aggregation tree: forms up by what changed, the joint solution down, compactly.
+"""Delta kinds: forms up the aggregation tree and by broadcast by what changed, the joint solution down, compactly.
 
 ``admm.delta`` (up): a window's cost forms go up the tree as only what the parent does not have yet
 (each window adds one step of forms per pair; the older steps' forms are the same from window to
 window), with a *digest* per member (how many forms its record of the window holds and the XOR of
 their CRC32s), so the parent rebuilds each member's record from what it already holds and refuses
 (does not acknowledge) a member it cannot rebuild exactly, which the child then sends whole.
+
+``admm.factors_delta`` (by broadcast): the same for one agent's own forms when its window is shared by
+broadcast (the cold start, slow links, a busy computer; ``admm.factors`` carried every form of the window
+in float64, every window): the forms it has not broadcast before, those of the window's last two steps
+again (a receiver that lost one broadcast still rebuilds the next), and the digest of its record. A
+receiver that cannot rebuild the record leaves the sender out of the ``have`` list of its own broadcast,
+and the sender answers it with every form.
 
 ``admm.solution`` (down): the joint solution of a window coming down the aggregation tree, compactly.
 
@@ -32,7 +39,7 @@ from decentral.errors import ProtocolError
 from protocols.fields import as_array, finite_array, set_field
 from protocols.message_base import Message, register
 
-__all__ = ["JointPoses", "DeltaBundle", "form_crc", "record_digest"]
+__all__ = ["JointPoses", "DeltaBundle", "FactorDelta", "form_crc", "record_digest"]
 
 
 def form_crc(M: np.ndarray, b_z: np.ndarray, c_z: float) -> int:
@@ -117,23 +124,7 @@ class DeltaBundle(Message):
         if not np.isin(owners, members).all():
             raise ProtocolError("field 'owners': one member per form expected")
         set_field(self, "owners", owners)
-        n = len(owners)
-        pairs = as_array(np.asarray(self.pairs).reshape(-1, 2), "pairs", dtype=np.int16, shape=(n, 2))
-        if n and pairs.min() < 0:
-            raise ProtocolError("field 'pairs': assembly indices must be non-negative")
-        set_field(self, "pairs", pairs)
-        lags = as_array(np.asarray(self.lags).reshape(-1, 2), "lags", dtype=np.uint8, shape=(n, 2))
-        if n and int(lags.max()) > self.step:
-            raise ProtocolError("field 'lags': a pose before step 0")
-        set_field(self, "lags", lags)
-        forms = as_array(self.forms, "forms", dtype=np.float32, shape=(PAIR_FORM * n,))
-        if not np.all(np.isfinite(forms)):
-            raise ProtocolError("field 'forms': must be finite in float32")
-        set_field(self, "forms", forms)
-        pin = finite_array(self.pin, "pin", ndim=1)
-        if len(pin) not in (0, 5):
-            raise ProtocolError("field 'pin': expected 0 or 5 values")
-        set_field(self, "pin", pin)
+        _check_pair_forms(self, len(owners))
         digest = as_array(np.asarray(self.digest).reshape(-1, 2), "digest", dtype=np.int64, ndim=2)
         if len(digest) != len(members) or (len(digest) and digest.min() < 0):
             raise ProtocolError("field 'digest': one (count, crc) row per member expected")
@@ -143,31 +134,125 @@ class DeltaBundle(Message):
     def pack(step: int, carried: dict) -> dict:
         """``owners``, ``pairs``, ``lags`` and ``forms`` fields from member -> ``[(keys, M (6, 6), b_z (2,), c_z, count)]``
         (every ``keys`` two ``(assembly, step)``)."""
-        owners, pairs, lags, flat = [], [], [], []
-        for member in sorted(carried):
-            for keys, M, b_z, c_z, count in carried[member]:
-                (a1, s1), (a2, s2) = keys
-                owners.append(member), pairs.append((a1, a2)), lags.append((step - s1, step - s2))
-                flat += [np.asarray(M, float)[np.triu_indices(6)], np.asarray(b_z, float), [float(c_z), float(count)]]
-        return {"owners": np.array(owners, np.int16), "pairs": np.array(pairs, np.int16).reshape(-1, 2),
-                "lags": np.array(lags, np.uint8).reshape(-1, 2),
-                "forms": np.concatenate(flat) if flat else np.zeros(0)}
+        owners = [member for member in sorted(carried) for _ in carried[member]]
+        return {"owners": np.array(owners, np.int16),
+                **_pack_pair_forms(step, [f for member in sorted(carried) for f in carried[member]])}
 
-    def carried(self) -> list[tuple[int, tuple, np.ndarray, np.ndarray, float]]:
+    def carried(self) -> list[tuple[int, tuple, np.ndarray, np.ndarray, float, int]]:
         """The forms it carries: ``(owner, keys ((assembly, step), (assembly, step)), M (6, 6), b_z (2,), c_z,
         count)`` (a count that is not a non-negative integer reads as 0: unknown)."""
-        out = []
-        iu = np.triu_indices(6)
-        for f, owner in enumerate(self.owners.tolist()):
-            row = np.asarray(self.forms[PAIR_FORM * f:PAIR_FORM * (f + 1)], float)
-            M = np.zeros((6, 6))
-            M[iu] = row[:21]
-            M = M + np.triu(M, 1).T
-            keys = tuple((int(a), self.step - int(lag)) for a, lag in zip(self.pairs[f], self.lags[f]))
-            count = row[24]
-            out.append((int(owner), keys, M, row[21:23].copy(), float(row[23]),
-                        int(count) if 0 <= count < 2**31 and count == int(count) else 0))
-        return out
+        return [(int(owner), *form) for owner, form in zip(self.owners.tolist(), _unpack_pair_forms(self))]
+
+
+@register
+@dataclass(frozen=True, slots=True, eq=False, kw_only=True)
+class FactorDelta(Message):
+    """One agent's forms of a window shared by broadcast, compactly: only the forms it has not broadcast
+    before, and a digest of its whole record of the window.
+
+    What :class:`DeltaBundle` is to the tree's ``admm.bundle``, this is to ``admm.factors``: each window
+    adds one step of forms, the older steps' forms are the same from window to window, so a receiver that
+    holds the sender's earlier forms rebuilds the sender's record (:meth:`protocols.form_cache.FormCache.rebuild`)
+    from what it holds and what this carries, exactly or not at all; one that cannot (it lost an earlier
+    broadcast, or it only just started listening) leaves the sender out of ``have`` in its own broadcast,
+    and the sender answers it with every form. Forms travel as in :class:`DeltaBundle` (two poses each,
+    25 numbers in float32).
+
+    Attributes
+    ----------
+    step : int
+        The window's last log step.
+    have : ndarray, shape (h,), int16
+        As :class:`protocols.admm_messages.FactorShare`: agents whose forms of this window the sender holds,
+        its own included; receivers missing from it answer with their own forms.
+    pairs, lags, forms : ndarray
+        The forms carried, all the sender's own (as in :class:`DeltaBundle`).
+    pin : ndarray, shape (0,) or (5,), float64
+        From the gauge (reference) agent: ``(step, x, y, z, theta)`` of its pose held fixed.
+    digest : ndarray, shape (2,), int64
+        The number of forms of the sender's record of the window and the XOR of their :func:`form_crc`.
+    """
+
+    KIND: ClassVar[str] = "admm.factors_delta"
+
+    step: int
+    have: np.ndarray
+    pairs: np.ndarray
+    lags: np.ndarray
+    forms: np.ndarray
+    pin: np.ndarray
+    digest: np.ndarray
+
+    def __post_init__(self) -> None:
+        Message.__post_init__(self)
+        set_field(self, "step", _count(self.step, "step"))
+        have = as_array(self.have, "have", dtype=np.int16, ndim=1)
+        if len(have) and have.min() < 0:
+            raise ProtocolError("field 'have': indices must be non-negative")
+        set_field(self, "have", have)
+        _check_pair_forms(self, len(np.asarray(self.pairs).reshape(-1, 2)))
+        digest = as_array(self.digest, "digest", dtype=np.int64, shape=(2,))
+        if digest.min() < 0:
+            raise ProtocolError("field 'digest': (count, crc) must be non-negative")
+        set_field(self, "digest", digest)
+
+    @staticmethod
+    def pack(step: int, forms) -> dict:
+        """``pairs``, ``lags`` and ``forms`` fields from ``[(keys, M (6, 6), b_z (2,), c_z, count)]``."""
+        return _pack_pair_forms(step, forms)
+
+    def carried(self) -> list[tuple[tuple, np.ndarray, np.ndarray, float, int]]:
+        """The forms it carries as ``(keys ((assembly, step), (assembly, step)), M (6, 6), b_z (2,), c_z, count)``."""
+        return _unpack_pair_forms(self)
+
+
+def _check_pair_forms(msg, n: int) -> None:
+    """Validate and normalize the ``pairs``, ``lags``, ``forms`` (``n`` two-pose forms) and ``pin`` fields."""
+    pairs = as_array(np.asarray(msg.pairs).reshape(-1, 2), "pairs", dtype=np.int16, shape=(n, 2))
+    if n and pairs.min() < 0:
+        raise ProtocolError("field 'pairs': assembly indices must be non-negative")
+    set_field(msg, "pairs", pairs)
+    lags = as_array(np.asarray(msg.lags).reshape(-1, 2), "lags", dtype=np.uint8, shape=(n, 2))
+    if n and int(lags.max()) > msg.step:
+        raise ProtocolError("field 'lags': a pose before step 0")
+    set_field(msg, "lags", lags)
+    forms = as_array(msg.forms, "forms", dtype=np.float32, shape=(PAIR_FORM * n,))
+    if not np.all(np.isfinite(forms)):
+        raise ProtocolError("field 'forms': must be finite in float32")
+    set_field(msg, "forms", forms)
+    pin = finite_array(msg.pin, "pin", ndim=1)
+    if len(pin) not in (0, 5):
+        raise ProtocolError("field 'pin': expected 0 or 5 values")
+    set_field(msg, "pin", pin)
+
+
+def _pack_pair_forms(step: int, forms) -> dict:
+    """``pairs``, ``lags`` and ``forms`` fields from ``[(keys, M (6, 6), b_z (2,), c_z, count)]`` (every ``keys``
+    two ``(assembly, step)`` at most 255 steps before ``step``)."""
+    pairs, lags, flat = [], [], []
+    for keys, M, b_z, c_z, count in forms:
+        (a1, s1), (a2, s2) = keys
+        pairs.append((a1, a2)), lags.append((step - s1, step - s2))
+        flat += [np.asarray(M, float)[np.triu_indices(6)], np.asarray(b_z, float), [float(c_z), float(count)]]
+    return {"pairs": np.array(pairs, np.int16).reshape(-1, 2), "lags": np.array(lags, np.uint8).reshape(-1, 2),
+            "forms": np.concatenate(flat) if flat else np.zeros(0)}
+
+
+def _unpack_pair_forms(msg) -> list[tuple[tuple, np.ndarray, np.ndarray, float, int]]:
+    """The two-pose forms of ``msg`` as ``(keys, M (6, 6), b_z (2,), c_z, count)`` (a count that is not a
+    non-negative integer reads as 0: unknown)."""
+    out = []
+    iu = np.triu_indices(6)
+    for f in range(len(msg.pairs)):
+        row = np.asarray(msg.forms[PAIR_FORM * f:PAIR_FORM * (f + 1)], float)
+        M = np.zeros((6, 6))
+        M[iu] = row[:21]
+        M = M + np.triu(M, 1).T
+        keys = tuple((int(a), msg.step - int(lag)) for a, lag in zip(msg.pairs[f], msg.lags[f]))
+        count = row[24]
+        out.append((keys, M, row[21:23].copy(), float(row[23]),
+                    int(count) if 0 <= count < 2**31 and count == int(count) else 0))
+    return out
 
 
 def _count(value, name: str, low: int = 0) -> int:

@@ -4,7 +4,8 @@ Transport-free state machines (the agent in :mod:`agents.assembly` moves the mes
 
 - :class:`DeltaSender` remembers, per parent, which forms it has sent there, and packs a window's
   records as only the forms that parent lacks plus a digest per record
-  (:class:`protocols.delta_messages.DeltaBundle`);
+  (:class:`protocols.delta_messages.DeltaBundle`; the same for an agent's own record by broadcast,
+  :class:`protocols.delta_messages.FactorDelta`, with everyone as the "parent");
 - :class:`FormCache` keeps every form an agent has seen for the current window, keyed by owner and
   keys, and rebuilds a record from a digest: exactly, or not at all (the parent then leaves it
   unacknowledged and the child sends it whole).
@@ -79,10 +80,13 @@ class DeltaSender:
         """Forget forms with a pose before step ``first``."""
         self._sent = {p: {e for e in sent if _span(e[1])[1] >= first} for p, sent in self._sent.items()}
 
-    def delta(self, parent: int, records: dict, step: int, every: bool = False) -> tuple[dict, list] | None:
+    def delta(self, parent: int, records: dict, step: int, every: bool = False,
+              again_from: int | None = None) -> tuple[dict, list] | None:
         """``(carried, digests)`` for sending ``records`` (member -> ``[(keys, problem)]``) to ``parent``:
         ``carried`` member -> ``[(keys, M, b_z, c_z, count)]`` of the forms it has not had from here (``every``:
-        all of them, a resend), ``digests`` one ``(count, crc)`` per member in sorted order. ``None`` when a form
+        all of them, a resend; ``again_from``: the forms with a pose at or after this step too, sent or not: a
+        receiver that lost the last of them can still rebuild), ``digests`` one ``(count, crc)`` per member in
+        sorted order. ``None`` when a form
         is not over two poses within 255 steps of ``step`` (the records then go as a
         :class:`protocols.admm_messages.FormBundle`). The forms are marked as sent."""
         sent = set() if every else self._sent.setdefault(parent, set())
@@ -94,7 +98,7 @@ class DeltaSender:
                     return None
                 crc = _crc(problem)
                 crcs.append(crc)
-                if (member, tuple(keys), crc) not in sent:
+                if (member, tuple(keys), crc) not in sent or (again_from is not None and _span(keys)[1] >= again_from):
                     carried.setdefault(member, []).append((keys, problem.M, problem.b_z, problem.c_z, problem.count))
                     new.add((member, tuple(keys), crc))
             digests.append(record_digest(crcs))

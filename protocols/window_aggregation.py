@@ -46,7 +46,7 @@ import numpy as np
 
 from protocols.admm_messages import FactorShare, FormAck, FormBundle, pack_forms
 from protocols.aggregation import DownRepair, NeighbourTree, TreeAggregation
-from protocols.delta_messages import DeltaBundle, JointPoses
+from protocols.delta_messages import DeltaBundle, FactorDelta, JointPoses
 from protocols.form_cache import FormCache
 from protocols.liveness import Liveness
 from protocols.messages import BROADCAST, Message
@@ -88,7 +88,8 @@ class WindowAggregation:
         Largest Laplace yaw std of an assembly the joint placement test places (rad).
     counters : dict
         The agent's counters (``retransmits``, ``ignored``, ``late_seeds``, ``tree_windows``,
-        ``broadcast_windows``, ``joint_failures`` are counted here).
+        ``broadcast_windows``, ``joint_failures``, ``unrebuilt``: compact broadcasts whose record could not be
+        rebuilt here, are counted here).
     send : callable
         Queues an outgoing message.
 
@@ -174,13 +175,15 @@ class WindowAggregation:
         share = self.share
         agg = share.agg
         keys, flat = pack_forms(forms)
-        self.own = OwnForms(share.step, keys, flat, pin)
+        self.own = OwnForms(share.step, keys, flat, pin, record=tuple(self.messages.problems(forms)))
         tree = (self.aggregation == "tree" and not self.slow_tree
                 and (agg.parent is not None or agg.root and bool(agg.children)))
         share.mode = "tree" if tree else "broadcast"
         self.counters["tree_windows" if tree else "broadcast_windows"] += 1
-        # own forms go through the same packing as everyone else's, so all agents sum identical numbers
-        self.on_factors(self._factor_share(self.name))
+        # own forms go through the same packing as everyone else's, so all agents sum identical numbers (by
+        # broadcast, the float32 of the compact kind)
+        own = self._factor_share(self.name, compact=not tree, every=True)
+        self.on_factor_delta(own) if isinstance(own, FactorDelta) else self.on_factors(own)
 
     def progress(self, parent: int | None) -> bool:
         """One bootstrap phase: send what is owed; ``True`` when the window's sharing is finished (complete,
@@ -198,7 +201,8 @@ class WindowAggregation:
             limit = self.share_timeout * (1 if agg.root else 2) + (agg.hop or 0)
         else:
             if self.own is not None and self.round - share.sent >= self.resend_after:
-                self._send(self._factor_share(BROADCAST))
+                # the first time what is new since the last broadcast, again (a peer still lacks them) every form
+                self._send(self._factor_share(BROADCAST, compact=True, every=share.sent != NEVER))
                 share.sent = self.round
             limit = self.share_timeout
         if share.mode == "broadcast" and agg.complete or agg.final or elapsed >= limit:
@@ -310,7 +314,11 @@ class WindowAggregation:
         placeable = {self.index[a] for a, k in self.placeable(share, joint) if k == share.step}
         return self.messages.solution(share, joint, placeable, self.round)
 
-    def _factor_share(self, receiver: str) -> FactorShare:
+    def _factor_share(self, receiver: str, compact: bool = False, every: bool = False) -> FactorShare | FactorDelta:
+        """The own forms to ``receiver``: as ``admm.factors``, or ``compact`` as ``admm.factors_delta`` (to everyone
+        only what was not broadcast before unless ``every``; to one agent every form)."""
+        if compact:
+            return self.messages.factors_delta(self.own, self.share, receiver, self.round, every=every)
         return self.messages.factors(self.own, self.share, receiver, self.round)
 
     def ask(self, neighbour: str, step: int) -> None:
@@ -384,30 +392,68 @@ class WindowAggregation:
     def on_factors(self, message: FactorShare) -> None:
         """An agent's forms by broadcast (or its direct answer): kept, and answered when it lacks this agent's."""
         sender = self.index.get(message.sender)
-        n = len(self.names)
-        if sender is None or (len(message.keys) and message.keys[:, 1].max() >= n):
+        if sender is None or (len(message.keys) and message.keys[:, 1].max() >= len(self.names)):
             self.counters["ignored"] += 1
             return
         share = self.share
         if share is not None and message.step == share.step:
-            agg = share.agg
             if sender not in share.records:
-                forms = self.messages.problems(message.unpack())
-                self.forms.remember(sender, forms)
-                # a record that came by broadcast to an agent of the tree goes up with its own: the agents decide
-                # on the broadcast each from its own measured lag, and a tree's root waits for every record
-                # (records an agent that broadcasts sent its tree neighbours never reached the root otherwise)
-                forward = message.sender == self.name or (share.mode == "tree" and sender != agg.parent)
-                agg.add({sender: forms}, forward=forward)
-                if len(message.pin):
-                    share.pin = np.array(message.pin)
-            if share.mode == "tree" and message.receiver == BROADCAST and agg.parent == sender and not agg.final:
-                share.mode, share.sent = "broadcast", NEVER  # the parent has no route: nor has this agent
+                self._take_factors(message, sender, self.messages.problems(message.unpack()))
+            self._follow_parent(message, sender)
+        self._answer_factors(message)
+
+    def on_factor_delta(self, message: FactorDelta) -> None:
+        """An agent's forms by compact broadcast (or its direct answer): the forms carried are kept, its record of
+        the window rebuilt from them and those held here if its digest matches exactly (else it is left out of
+        this agent's ``have``, and its next broadcast gets every form as an answer), and it is answered when it
+        lacks this agent's forms."""
+        sender, n = self.index.get(message.sender), len(self.names)
+        if sender is None or (len(message.pairs) and message.pairs.max() >= n):
+            self.counters["ignored"] += 1
+            return
+        carried = self.messages.problems(message.carried())
+        digest = tuple(message.digest.tolist())
+        self.forms.remember(sender, carried)
+        share = self.share
+        if share is not None and message.step == share.step:
+            if sender not in share.records:
+                # every form carried (an answer, a resend, the first broadcast), else rebuilt with those held here
+                record = (FormCache.whole(carried, digest)
+                          or self.forms.rebuild(sender, digest, message.step - self.window + 1, message.step))
+                if record is None:
+                    self.counters["unrebuilt"] += 1
+                else:
+                    self._take_factors(message, sender, record)
+            self._follow_parent(message, sender)
+        self._answer_factors(message)
+
+    def _take_factors(self, message: FactorShare | FactorDelta, sender: int, forms: list) -> None:
+        """Keep ``sender``'s record ``forms`` ``[(keys, LocalProblem)]`` of the open window, from ``message``."""
+        share = self.share
+        agg = share.agg
+        self.forms.remember(sender, forms)
+        # a record that came by broadcast to an agent of the tree goes up with its own: the agents decide
+        # on the broadcast each from its own measured lag, and a tree's root waits for every record
+        # (records an agent that broadcasts sent its tree neighbours never reached the root otherwise)
+        forward = message.sender == self.name or (share.mode == "tree" and sender != agg.parent)
+        agg.add({sender: forms}, forward=forward)
+        if len(message.pin):
+            share.pin = np.array(message.pin)
+
+    def _follow_parent(self, message: FactorShare | FactorDelta, sender: int) -> None:
+        """The tree parent broadcasts its forms: it has no route to the reference, nor has this agent."""
+        share = self.share
+        agg = share.agg
+        if share.mode == "tree" and message.receiver == BROADCAST and agg.parent == sender and not agg.final:
+            share.mode, share.sent = "broadcast", NEVER
+
+    def _answer_factors(self, message: FactorShare | FactorDelta) -> None:
+        """A broadcast of the own window's forms that lacks this agent's: answered directly with every form (only
+        broadcasts are answered, so answers never ping-pong)."""
         own = self.own
-        # it lacks ours: answer directly (only broadcasts are answered, so answers never ping-pong)
         if (own is not None and own.step == message.step and message.receiver == BROADCAST
                 and message.sender != self.name and self.me not in set(message.have.tolist())):
-            self._send(self._factor_share(message.sender))
+            self._send(self._factor_share(message.sender, compact=isinstance(message, FactorDelta)))
 
     def on_delta(self, message: DeltaBundle) -> bool:
         """A delta bundle from a child: rebuild each member's record of the window from the forms carried and

@@ -15,8 +15,9 @@ import numpy as np
 
 from decentral.admm import LocalProblem
 from protocols.admm_messages import FactorShare, FormBundle
-from protocols.delta_messages import DeltaBundle, JointPoses
+from protocols.delta_messages import DeltaBundle, FactorDelta, JointPoses
 from protocols.form_cache import DeltaSender
+from protocols.messages import BROADCAST
 from protocols.window_share import OwnForms, WindowShare
 
 __all__ = ["WindowMessages"]
@@ -82,8 +83,29 @@ class WindowMessages:
 
     def factors(self, own: OwnForms, share: WindowShare | None, receiver: str, round_index: int) -> FactorShare:
         """This agent's own forms as ``admm.factors`` to ``receiver``, with the agents whose records it holds."""
-        have = [self.index[self.name]]
-        if share is not None and share.step == own.step:
-            have = sorted(share.records)
         return FactorShare(sender=self.name, receiver=receiver, round=round_index, step=own.step,
-                           have=np.array(have, dtype=np.int64), keys=own.keys, forms=own.forms, pin=own.pin)
+                           have=np.array(self._have(own, share), dtype=np.int64), keys=own.keys, forms=own.forms,
+                           pin=own.pin)
+
+    def factors_delta(self, own: OwnForms, share: WindowShare | None, receiver: str, round_index: int,
+                      every: bool = False) -> FactorDelta | FactorShare:
+        """This agent's own forms as ``admm.factors_delta`` to ``receiver``: to everyone (``BROADCAST``), the forms
+        not broadcast before (``every``: all of them); to one agent (an answer), all of them. ``admm.factors`` when
+        a form is not over two poses within 255 steps."""
+        everyone = receiver == BROADCAST
+        key = -1 if everyone else self.index[receiver]  # (what went to everyone is kept apart from the answers)
+        packed = self._delta_sender.delta(key, {self.index[self.name]: list(own.record)}, own.step,
+                                          every=every or not everyone, again_from=own.step - 1)
+        if packed is None:
+            return self.factors(own, share, receiver, round_index)
+        carried, digests = packed
+        forms = carried.get(self.index[self.name], [])
+        return FactorDelta(sender=self.name, receiver=receiver, round=round_index, step=own.step,
+                           have=np.array(self._have(own, share), dtype=np.int16), pin=own.pin,
+                           digest=np.array(digests[0], dtype=np.int64), **FactorDelta.pack(own.step, forms))
+
+    def _have(self, own: OwnForms, share: WindowShare | None) -> list[int]:
+        """Agents whose records of the own window this agent holds (itself at least)."""
+        if share is not None and share.step == own.step:
+            return sorted(share.records)
+        return [self.index[self.name]]

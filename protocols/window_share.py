@@ -50,13 +50,15 @@ _UNSOLVED = _Unsolved()
 
 @dataclass(frozen=True)
 class OwnForms:
-    """The forms an agent shared for window ``step``: packed ``keys`` (n, 4) int and ``forms``, and the
-    gauge ``pin`` (``(step, x, y, z, theta)`` at the reference, else empty)."""
+    """The forms an agent shared for window ``step``: packed ``keys`` (n, 4) int and ``forms``, the gauge
+    ``pin`` (``(step, x, y, z, theta)`` at the reference, else empty), and the same forms as a record
+    ``[(keys, LocalProblem)]`` (what a compact broadcast digests)."""
 
     step: int
     keys: np.ndarray
     forms: np.ndarray
     pin: np.ndarray
+    record: tuple = ()
 
 
 @dataclass

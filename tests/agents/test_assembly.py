@@ -10,9 +10,11 @@ from agents.assembly import AgentConfig, AssemblyAgent
 from decentral.errors import InputError, ProtocolError
 from protocols.admm_messages import ConfigAnnounce, ConfigRequest, FactorShare, pack_forms
 from protocols.messages import BROADCAST, AdmmDual, AdmmPrimal, decode
-from protocols.delta_messages import DeltaBundle, JointPoses
+from protocols.delta_messages import DeltaBundle, FactorDelta, JointPoses
 from sims.runners.admm_run import own_step
 from sims.simulation.scenarios import get_scenario, simulate
+
+OWN_FORMS = (FactorShare, FactorDelta)  # an agent's own forms: admm.factors, or compactly admm.factors_delta
 
 
 @pytest.fixture(scope="module")
@@ -101,13 +103,15 @@ def _announced(log, names):
 
 
 def test_cold_start_broadcasts_the_pair_forms_and_waits_for_everyone(log):
-    """At step 0 an agent broadcasts admm.factors (its pair forms) and sends no ADMM value until all forms are in."""
+    """At step 0 an agent broadcasts its pair forms (admm.factors_delta: every form, nothing was broadcast before) and
+    sends no ADMM value until all forms are in."""
     agent = _announced(log, log.assemblies)["A0"]
     agent.tick(0)
     out = agent.outbox()
-    shares = [m for m in out if isinstance(m, FactorShare)]
+    shares = [m for m in out if isinstance(m, OWN_FORMS)]
     assert len(shares) == 1 and shares[0].receiver == BROADCAST and shares[0].step == 0
-    assert shares[0].have.tolist() == [0] and len(shares[0].unpack()) >= 1
+    assert isinstance(shares[0], FactorDelta) and shares[0].have.tolist() == [0] and len(shares[0].carried()) >= 1
+    assert shares[0].digest[0] == len(shares[0].carried())  # the whole record
     assert not any(isinstance(m, (AdmmDual, AdmmPrimal)) for m in out)
 
 
@@ -116,7 +120,7 @@ def _first_shares(log):
     agents = _announced(log, log.assemblies)
     for a in agents.values():
         a.tick(0)
-    a0 = [m for m in agents["A0"].outbox() if isinstance(m, FactorShare)][0]
+    a0 = [m for m in agents["A0"].outbox() if isinstance(m, OWN_FORMS)][0]
     agents["A1"].outbox()
     return agents, a0
 
@@ -125,7 +129,7 @@ def test_an_agent_missing_from_a_share_answers_with_its_own_forms(log):
     """An agent whose index is absent from a received share's `have` answers that sender directly."""
     agents, a0 = _first_shares(log)
     agents["A1"].handle(a0)
-    reply = [m for m in agents["A1"].outbox() if isinstance(m, FactorShare)]
+    reply = [m for m in agents["A1"].outbox() if isinstance(m, OWN_FORMS)]
     assert len(reply) == 1 and reply[0].receiver == "A0"
 
 
@@ -134,11 +138,11 @@ def test_answers_to_a_share_are_not_answered_again(log):
     agents, a0 = _first_shares(log)
     agents["A1"]._sharing.share = None  # A1 is done: its answer lists only itself, so it lacks A0
     agents["A1"].handle(a0)
-    answer = [m for m in agents["A1"].outbox() if isinstance(m, FactorShare)][0]
+    answer = [m for m in agents["A1"].outbox() if isinstance(m, OWN_FORMS)][0]
     assert 0 not in answer.have.tolist()
     agents["A0"].outbox()
     agents["A0"].handle(answer)
-    assert not [m for m in agents["A0"].outbox() if isinstance(m, FactorShare)]
+    assert not [m for m in agents["A0"].outbox() if isinstance(m, OWN_FORMS)]
 
 
 def test_after_the_shared_cold_start_every_agent_holds_the_same_joint_solution(log):
@@ -146,7 +150,7 @@ def test_after_the_shared_cold_start_every_agent_holds_the_same_joint_solution(l
     agents = _announced(log, log.assemblies)
     for a in agents.values():
         a.tick(0)
-    shares = [m for a in agents.values() for m in a.outbox() if isinstance(m, FactorShare)]
+    shares = [m for a in agents.values() for m in a.outbox() if isinstance(m, OWN_FORMS)]
     for a in agents.values():
         for m in shares:
             if m.sender != a.name:
@@ -267,7 +271,7 @@ def test_after_a_complete_window_the_forms_go_up_the_tree_not_by_broadcast(log):
     """Step 0 broadcasts (no routes yet); at step 1 each non-reference agent sends one admm.bundle up, to its
     parent (the neighbour nearest the reference), nobody broadcasts, and all seed the same joint solution."""
     agents, cold = _tree_agents(log)
-    assert any(isinstance(m, FactorShare) and m.receiver == BROADCAST for m in cold)
+    assert any(isinstance(m, OWN_FORMS) and m.receiver == BROADCAST for m in cold)
     sent = _drive(agents, 1, log, 12)
     assert not any(m.receiver == BROADCAST for m in sent)
     ups = [m for m in sent if isinstance(m, DeltaBundle)]
@@ -311,12 +315,12 @@ def test_a_broadcast_from_its_parent_turns_a_tree_agent_to_broadcasting(log):
     other._sharing.tree.entries, other._parent, other._hop = {}, None, None  # as if restarted: no route
     other._sharing.share.agg.parent = other._sharing.share.agg.root = None
     other.tick(200)
-    share = next(m for m in other.outbox() if isinstance(m, FactorShare) and m.receiver == BROADCAST)
+    share = next(m for m in other.outbox() if isinstance(m, OWN_FORMS) and m.receiver == BROADCAST)
     child.handle(share)
     child.tick(201)
     child.tick(202)
     assert child._sharing.share.mode == "broadcast"
-    assert any(isinstance(m, FactorShare) and m.receiver == BROADCAST for m in child.outbox())
+    assert any(isinstance(m, OWN_FORMS) and m.receiver == BROADCAST for m in child.outbox())
 
 
 def test_configuration_is_re_announced_to_observers_only(log):

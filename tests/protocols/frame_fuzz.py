@@ -19,7 +19,7 @@ import numpy as np
 import protocols.admm_messages  # noqa: F401  (registers its kinds)
 import protocols.ensemble.messages  # noqa: F401
 from protocols.admm_messages import ConfigAnnounce, ConfigRequest, FactorShare, FormAck, FormBundle
-from protocols.delta_messages import DeltaBundle, JointPoses
+from protocols.delta_messages import DeltaBundle, FactorDelta, JointPoses
 from protocols.baselines.flood import RawStep
 from protocols.ensemble.messages import Ack, ClusterClaim, Command, Hello, Join, PoseShare, Report, TreeFlood
 from protocols.messages import (
@@ -73,6 +73,8 @@ def sample_messages() -> list:
         DeltaBundle(**common, step=3, hop=2, parent=1, depth=4, members=np.array([0, 2]), pin=np.zeros(0),
                     digest=np.array([[4, 12345], [0, 0]]),
                     **DeltaBundle.pack(3, {0: [(((0, 3), (2, 3)), np.eye(6), np.array([1.0, 2.0]), 0.5, 6)]})),
+        FactorDelta(**common, step=3, have=np.array([0, 2]), pin=np.zeros(0), digest=np.array([2, 4321]),
+                    **FactorDelta.pack(3, [(((0, 3), (2, 3)), np.eye(6), np.array([1.0, 2.0]), 0.5, 6)])),
         JointPoses(**common, step=2, hop=0, parent=-1, depth=2, start=5, n=5, members=JointPoses.mask(range(5), 5),
                    index=JointPoses.mask([0, 1, 3], 5),
                    poses=np.array([[0, 0, 0, 0], [1.5, -0.25, 0.01, 0.3], [2.0, 1.0, 0.0, -3.1]]),

@@ -1,10 +1,11 @@
-"""admm.delta (forms up by what changed) and admm.solution (the joint solution down): round trip, refusal."""
+"""admm.delta (forms up by what changed), admm.factors_delta (forms by broadcast, by what changed) and admm.solution
+(the joint solution down): round trip, refusal."""
 
 import numpy as np
 import pytest
 
 from decentral.errors import ProtocolError
-from protocols.delta_messages import DeltaBundle, JointPoses, form_crc, record_digest
+from protocols.delta_messages import DeltaBundle, FactorDelta, JointPoses, form_crc, record_digest
 from protocols.messages import decode
 
 
@@ -101,3 +102,39 @@ def test_every_corrupted_byte_of_a_solution_frame_is_refused():
         bad[i] ^= 0x41
         with pytest.raises(ProtocolError):
             decode(bytes(bad))
+
+
+def _factor_delta(**kw) -> FactorDelta:
+    fields = dict(sender="A2", receiver="*", round=7, step=3, have=np.array([0, 2]), pin=np.zeros(0),
+                  digest=np.array([3, 999]),
+                  **FactorDelta.pack(3, [(((2, 2), (1, 2)), np.eye(6), np.array([1.0, 2.0]), 0.5, 6),
+                                         (((2, 3), (1, 3)), 2 * np.eye(6), np.array([0.0, -1.0]), 0.25, 4)]))
+    fields.update(kw)
+    return FactorDelta(**fields)
+
+
+def test_a_compact_broadcast_round_trips_with_its_forms_have_list_and_digest():
+    """admm.factors_delta decodes to an equal message; its forms come back with their keys (the steps from lags)."""
+    msg = _factor_delta()
+    back = decode(msg.to_bytes())
+    assert back == msg and back.have.tolist() == [0, 2] and back.digest.tolist() == [3, 999]
+    (k1, M1, b1, c1, n1), (k2, M2, b2, c2, n2) = back.carried()
+    assert k1 == ((2, 2), (1, 2)) and k2 == ((2, 3), (1, 3)) and np.array_equal(M2, 2 * np.eye(6))
+    assert b1.tolist() == [1.0, 2.0] and (c1, n1, c2, n2) == (0.5, 6, 0.25, 4)
+    assert len(msg.to_bytes()) < len(_factor_share_of(msg).to_bytes())  # float32 and lags: smaller than admm.factors
+
+
+def _factor_share_of(msg: FactorDelta):
+    from protocols.admm_messages import FactorShare, pack_forms
+
+    keys, flat = pack_forms(msg.carried())
+    return FactorShare(sender=msg.sender, receiver=msg.receiver, round=msg.round, step=msg.step, have=msg.have,
+                       keys=keys, forms=flat, pin=msg.pin)
+
+
+@pytest.mark.parametrize("bad", [dict(digest=np.array([[1, 2]])), dict(digest=np.array([-1, 2])),
+                                 dict(have=np.array([-1])), dict(lags=np.array([[4, 0], [0, 0]]))])
+def test_malformed_compact_broadcasts_are_refused(bad):
+    """A digest of two non-negative numbers, non-negative `have`, no pose before step 0: else ProtocolError."""
+    with pytest.raises(ProtocolError):
+        _factor_delta(**bad)

@@ -9,7 +9,7 @@ import pytest
 
 from decentral.admm import quadratic_form
 from protocols.admm_messages import FactorShare, FormAck, FormBundle, pack_bundle, pack_forms
-from protocols.delta_messages import DeltaBundle, JointPoses
+from protocols.delta_messages import DeltaBundle, FactorDelta, JointPoses
 from protocols.messages import BROADCAST
 from protocols.window_aggregation import WindowAggregation
 
@@ -39,7 +39,7 @@ def _bundle(sender, receiver, members, *, down, hop, parent, depth, start=0, ste
 def _role(name: str, round_index: int = 10, share_timeout: int = 24, aggregation: str = "tree"):
     out = []
     counters = {k: 0 for k in ("ignored", "retransmits", "late_seeds", "tree_windows", "broadcast_windows",
-                               "joint_failures")}
+                               "joint_failures", "unrebuilt")}
     role = WindowAggregation(name, NAMES, "A0", aggregation=aggregation, window=5, share_timeout=share_timeout,
                              placement_limit=np.inf, counters=counters, send=out.append)
     role.round = round_index
@@ -235,7 +235,7 @@ def test_a_broadcast_from_the_parent_turns_the_window_to_broadcasting():
                                 forms=forms, pin=np.zeros(0)))
     assert role.share.mode == "broadcast"
     role.progress(parent=0)
-    assert any(isinstance(m, FactorShare) and m.receiver == BROADCAST for m in out)
+    assert any(isinstance(m, (FactorShare, FactorDelta)) and m.receiver == BROADCAST for m in out)
 
 
 @pytest.mark.parametrize("bad", ["keys", "members"])
@@ -294,3 +294,64 @@ def test_records_a_partial_down_bundle_lacked_are_resent_until_acknowledged():
     role.round += 10 * role.resend_after
     role.resend_owed()
     assert out == [] and role.owed is None
+
+
+def _broadcast_window(role, step: int, own: int) -> None:
+    """Open window ``step`` of a broadcasting ``role``, share its own forms of steps 0..step (agent ``own``
+    observes ``own - 1`` at every step) and run its first bootstrap phase (it broadcasts them)."""
+    role.open(step, None, None, wait=6)
+    role.step = step
+    role.share_own([_form(own, own - 1, k) for k in range(step + 1)], np.zeros(0))
+    role.progress(parent=None)
+
+
+def _steps_carried(message: FactorDelta) -> list[int]:
+    return sorted({k[0][1] for k, *_ in message.carried()})
+
+
+def test_a_broadcast_window_carries_only_the_forms_of_its_last_two_steps_and_a_digest_of_the_rest():
+    """Windows 0, 1, 2 by broadcast: the first carries every form, later ones only those of their last two steps
+    (each step's forms are the same from window to window), and the digest always counts the whole record."""
+    role, out = _role("A2", aggregation="broadcast")
+    sent = []
+    for step in range(3):
+        out.clear()
+        _broadcast_window(role, step, own=2)
+        sent.append(next(m for m in out if m.receiver == BROADCAST))
+    assert all(isinstance(m, FactorDelta) for m in sent)
+    assert [_steps_carried(m) for m in sent] == [[0], [0, 1], [1, 2]]
+    assert [int(m.digest[0]) for m in sent] == [1, 2, 3]
+
+
+def test_a_receiver_rebuilds_a_compact_broadcast_from_the_forms_it_holds_or_asks_for_every_form():
+    """A1 that heard A2's earlier broadcasts takes A2's window-2 record from a broadcast carrying steps 1-2 only
+    (equal to A2's whole record); a fresh A1 cannot, leaves A2 out of its `have`, and A2 answers it with every
+    form, which it takes."""
+    sender, sent = _role("A2", aggregation="broadcast")
+    broadcasts = []
+    for step in range(3):
+        sent.clear()
+        _broadcast_window(sender, step, own=2)
+        broadcasts.append(next(m for m in sent if m.receiver == BROADCAST))
+
+    heard, _ = _role("A1", aggregation="broadcast")
+    for step, message in enumerate(broadcasts):
+        heard.open(step, None, None, wait=6)
+        heard.step = step
+        heard.on_factor_delta(message)
+        assert 2 in heard.share.records
+    whole = sorted(k for k, _ in heard.share.records[2])
+    assert whole == [((2, k), (1, k)) for k in range(3)]
+
+    fresh, out = _role("A1", aggregation="broadcast")
+    _broadcast_window(fresh, 2, own=1)
+    fresh.on_factor_delta(broadcasts[2])
+    assert 2 not in fresh.share.records and fresh.counters["unrebuilt"] == 1
+    mine = next(m for m in out if m.receiver == BROADCAST)
+    assert 2 not in mine.have.tolist()
+    sent.clear()
+    sender.on_factor_delta(mine)  # A1's broadcast lacks A2's forms: answered with all of them
+    answer, = [m for m in sent if m.receiver == "A1"]
+    assert isinstance(answer, FactorDelta) and _steps_carried(answer) == [0, 1, 2]
+    fresh.on_factor_delta(answer)
+    assert sorted(k for k, _ in fresh.share.records[2]) == whole

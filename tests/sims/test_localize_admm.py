@@ -66,7 +66,7 @@ def test_shared_forms_cold_start_converges_at_once():
     """The first step starts at the joint solution of the shared pair forms: converged within 12 rounds, exact."""
     run = _check_matches(4, 1, share_forms="first")
     assert run.rounds[0] <= 12
-    assert run.stats["messages"]["per_kind"]["admm.factors"]["sent"] > 0
+    assert run.stats["messages"]["per_kind"]["admm.factors_delta"]["sent"] > 0
 
 
 @pytest.mark.slow
@@ -103,7 +103,7 @@ def _check_neighbour_local(n, steps=3):
     degree = np.array([len(run.stats["agents"][a]["neighbours"]) for a in names])
     assert degree.min() >= 1
     for counts in run.messages_per_step[1:]:
-        assert "admm.factors" not in counts and "admm.config" not in counts  # nothing broadcast
+        assert not {"admm.factors", "admm.factors_delta", "admm.config"} & set(counts)  # nothing broadcast
         sent = np.sum([row for row in counts.values()], axis=0)
         assert np.all(sent <= C_PER_NEIGHBOUR * degree + D_CONSTANT), (sent, degree)
     assert all(a["tree_windows"] == steps - 1 for a in run.stats["agents"].values())
@@ -123,9 +123,9 @@ def test_sixteen_ring_steady_state_messages_per_agent_stay_within_the_degree_bou
 
 
 def test_broadcast_aggregation_shares_the_forms_by_broadcast_every_window():
-    """aggregation='broadcast' (the previous default): admm.factors every window, no bundle, still exact."""
+    """aggregation='broadcast' (the previous default): own forms by broadcast every window, no bundle, still exact."""
     run = _check_matches(3, 3, aggregation="broadcast")
-    assert all("admm.factors" in c and "admm.bundle" not in c for c in run.messages_per_step)
+    assert all("admm.factors_delta" in c and "admm.bundle" not in c for c in run.messages_per_step)
 
 
 def test_runs_are_reproducible_from_the_seed():
@@ -221,7 +221,7 @@ def test_cli_admm_mode_writes_the_contract_estimate_with_counts(tmp_path):
     assert doc["format"] == "decentral.estimate/1" and doc["reference"] == "A0"
     stats = doc["stats"]
     assert stats["mode"] == "admm" and stats["rounds_total"] == sum(stats["rounds_per_step"])
-    assert stats["messages"]["per_kind"]["admm.factors"]["sent"] > 0  # exact windows need no ADMM values
+    assert stats["messages"]["per_kind"]["admm.factors_delta"]["sent"] > 0  # exact windows need no ADMM values
     assert stats["messages"]["per_sender"]["A1"]["bytes_sent"] > 0
     assert set(stats["agents"]) == {"A0", "A1"} and "converged" in stats["agents"]["A0"]
     assert len(doc["steps"]) == 2 and "A1" in doc["steps"][-1]["poses"]
