@@ -305,6 +305,16 @@ def _broadcast_window(role, step: int, own: int) -> None:
     role.progress(parent=None)
 
 
+def _broadcasts(role, out: list, steps: int) -> list:
+    """What A2 (``role``, sending into ``out``) broadcasts in its windows 0 .. ``steps - 1``."""
+    sent = []
+    for step in range(steps):
+        out.clear()
+        _broadcast_window(role, step, own=2)
+        sent.append(next(m for m in out if m.receiver == BROADCAST))
+    return sent
+
+
 def _steps_carried(message: FactorDelta) -> list[int]:
     return sorted({k[0][1] for k, *_ in message.carried()})
 
@@ -312,12 +322,7 @@ def _steps_carried(message: FactorDelta) -> list[int]:
 def test_a_broadcast_window_carries_only_the_forms_of_its_last_two_steps_and_a_digest_of_the_rest():
     """Windows 0, 1, 2 by broadcast: the first carries every form, later ones only those of their last two steps
     (each step's forms are the same from window to window), and the digest always counts the whole record."""
-    role, out = _role("A2", aggregation="broadcast")
-    sent = []
-    for step in range(3):
-        out.clear()
-        _broadcast_window(role, step, own=2)
-        sent.append(next(m for m in out if m.receiver == BROADCAST))
+    sent = _broadcasts(*_role("A2", aggregation="broadcast"), steps=3)
     assert all(isinstance(m, FactorDelta) for m in sent)
     assert [_steps_carried(m) for m in sent] == [[0], [0, 1], [1, 2]]
     assert [int(m.digest[0]) for m in sent] == [1, 2, 3]
@@ -328,11 +333,7 @@ def test_a_receiver_rebuilds_a_compact_broadcast_from_the_forms_it_holds_or_asks
     (equal to A2's whole record); a fresh A1 cannot, leaves A2 out of its `have`, and A2 answers it with every
     form, which it takes."""
     sender, sent = _role("A2", aggregation="broadcast")
-    broadcasts = []
-    for step in range(3):
-        sent.clear()
-        _broadcast_window(sender, step, own=2)
-        broadcasts.append(next(m for m in sent if m.receiver == BROADCAST))
+    broadcasts = _broadcasts(sender, sent, steps=3)
 
     heard, _ = _role("A1", aggregation="broadcast")
     for step, message in enumerate(broadcasts):
