@@ -16,7 +16,8 @@ round budget). Needs Linux and root (``ip netns``; ``iptables`` for loss).
 Usage: ``python benchmarks/field.py [--out DIR] [--sizes 5 8] [--transports udp zmq] [--delays 0 0.01
 0.05 0.2] [--losses 0 0.1] [--busy 0 2] [--parity-groups 4 0] [--repeats R] [--steps 12] [--rate 0.4]
 [--round-period 0.025] [--aggregations tree broadcast] [--keep-failed DIR]`` (``--quick``: one small cell per
-transport; ``--keep-failed``: the folders of the runs that did not place everything, to read their streams);
+transport; ``--keep-failed``: the folders of the runs that did not place everything or timed out, to read their
+streams);
 ``--aggregations``: how a window's forms travel (``decentral agent --aggregation``), each a cell of its own.
 ``--parity-groups``: the UDP
 transport's data datagrams per parity datagram (``decentral agent --parity-group``; 0: none), each a
@@ -58,8 +59,9 @@ def build_parser():
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--quick", action="store_true", help="one 4-ring cell per transport (30 ms, 20 %% loss)")
     ap.add_argument("--keep-failed", type=Path, metavar="DIR",
-                    help="keep the folder of every run that placed less than the centralized estimator on time (the "
-                         "agents' streams, stderr, parts and throw-away keys) under DIR, one subfolder per run")
+                    help="keep the folder of every run that placed less than the centralized estimator on time or "
+                         "timed out (the agents' streams, stderr, parts and throw-away keys) under DIR, one subfolder "
+                         "per run")
     ap.add_argument("--force", action="store_true", help="overwrite an existing field.json in --out")
     return ap
 
@@ -180,7 +182,7 @@ def main(argv=None) -> int:
                    "busy_per_core": busy, "seed": seed, "loadavg_before": load,
                    "wall_seconds": wall, "centralized_seconds": central_s, "timed_out": result.timed_out,
                    **_cell_metrics(central, result.estimate, result.records, log.assemblies[0])}
-            if args.keep_failed is not None and row["placed_share"] < 1.0:
+            if args.keep_failed is not None and (row["placed_share"] < 1.0 or result.timed_out):
                 kept = args.keep_failed / f"n{n}_{tr}_{agg}_delay{delay:g}_loss{loss:g}_busy{busy}_seed{seed}"
                 shutil.copytree(work, kept, dirs_exist_ok=True)
                 row["kept"] = str(kept)

@@ -147,8 +147,8 @@ class DeltaBundle(Message):
 @register
 @dataclass(frozen=True, slots=True, eq=False, kw_only=True)
 class FactorDelta(Message):
-    """One agent's forms of a window shared by broadcast, compactly: only the forms it has not broadcast
-    before, and a digest of its whole record of the window.
+    """One agent's forms of a window shared by broadcast, compactly: the forms it has not broadcast before
+    and those of the window's last two steps (again), and a digest of its whole record of the window.
 
     What :class:`DeltaBundle` is to the tree's ``admm.bundle``, this is to ``admm.factors``: each window
     adds one step of forms, the older steps' forms are the same from window to window, so a receiver that
