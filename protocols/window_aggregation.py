@@ -315,8 +315,9 @@ class WindowAggregation:
         return self.messages.solution(share, joint, placeable, self.round)
 
     def _factor_share(self, receiver: str, compact: bool = False, every: bool = False) -> FactorShare | FactorDelta:
-        """The own forms to ``receiver``: as ``admm.factors``, or ``compact`` as ``admm.factors_delta`` (to everyone
-        only what was not broadcast before unless ``every``; to one agent every form)."""
+        """The own forms to ``receiver``: as ``admm.factors``, or ``compact`` as ``admm.factors_delta`` (to everyone,
+        unless ``every``, the forms not broadcast before and those of the window's last two steps; to one agent
+        every form)."""
         if compact:
             return self.messages.factors_delta(self.own, self.share, receiver, self.round, every=every)
         return self.messages.factors(self.own, self.share, receiver, self.round)
@@ -413,7 +414,10 @@ class WindowAggregation:
             return
         carried = self.messages.problems(message.carried())
         digest = tuple(message.digest.tolist())
-        self.forms.remember(sender, carried)
+        if self.step is not None and self.step - self.window < message.step <= self.step + 1:
+            # forms of windows that overlap this one (a peer's next window included: it may be a little ahead); older
+            # or later ones are not kept, so the memory a peer's frames take here stays bounded
+            self.forms.remember(sender, carried)
         share = self.share
         if share is not None and message.step == share.step:
             if sender not in share.records:

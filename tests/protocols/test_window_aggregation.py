@@ -356,3 +356,19 @@ def test_a_receiver_rebuilds_a_compact_broadcast_from_the_forms_it_holds_or_asks
     assert isinstance(answer, FactorDelta) and _steps_carried(answer) == [0, 1, 2]
     fresh.on_factor_delta(answer)
     assert sorted(k for k, _ in fresh.share.records[2]) == whole
+
+
+def test_forms_of_a_compact_broadcast_far_from_the_window_are_not_kept():
+    """A peer's compact broadcast of a window that does not overlap this agent's (far ahead or long gone) leaves
+    no forms in its cache, so frames a peer sends cannot grow it without bound; one of the window is kept."""
+    sender, sent = _role("A2", aggregation="broadcast")
+    (first,) = _broadcasts(sender, sent, steps=1)
+    receiver, _ = _role("A1", aggregation="broadcast")
+    _broadcast_window(receiver, 0, own=1)
+    size = len(receiver.forms)
+    far = FactorDelta(sender="A2", receiver=BROADCAST, round=0, step=40, have=np.array([2]), pin=np.zeros(0),
+                      digest=np.array([1, 0]), **FactorDelta.pack(40, [_form(2, 1, 40)]))
+    receiver.on_factor_delta(far)
+    assert len(receiver.forms) == size
+    receiver.on_factor_delta(first)
+    assert len(receiver.forms) == size + 1 and 2 in receiver.share.records
