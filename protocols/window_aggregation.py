@@ -22,9 +22,10 @@ How the forms travel:
   bundle up, and per child one acknowledgement and one bundle down.
 * **broadcast** (the cold start, a restarted agent, a side of a partition without the reference, links
   so slow that a trip up and down the tree would outlast the share timeout (:attr:`WindowAggregation.slow_tree`),
-  or ``aggregation="broadcast"``): ``admm.factors`` to everyone, with the list of agents whose forms it
-  has; agents missing from that list answer directly. Messages per agent grow with the number of
-  agents.
+  or ``aggregation="broadcast"``): ``admm.factors_delta`` to everyone (the forms of the window's last two
+  steps and a digest of the rest, which receivers rebuild from the forms they hold), with the list of
+  agents whose forms it has; agents missing from that list answer directly with every form. Messages
+  per agent grow with the number of agents.
 
 Byte budget (``docs/processes.md``): forms are shared one per pair and step (and per odometry link),
 each built from its step's data alone, so a window adds one new step of forms; in the tree they go up

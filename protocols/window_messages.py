@@ -2,9 +2,10 @@
 
 :class:`protocols.window_aggregation.WindowAggregation` decides *when* to send what; this module holds
 *what* goes out: a window's records as an ``admm.bundle`` or as an ``admm.delta`` (only the forms the
-parent lacks, :mod:`protocols.form_cache`), this agent's own forms as ``admm.factors``, and the
-reference's joint solution as ``admm.solution``; and it unpacks the forms of what arrives into
-:class:`decentral.admm.LocalProblem` values keyed by ``(assembly, step)``.
+parent lacks, :mod:`protocols.form_cache`), this agent's own forms by broadcast as ``admm.factors_delta``
+(what changed, and a digest) or ``admm.factors`` (every form), and the reference's joint solution as
+``admm.solution``; and it unpacks the forms of what arrives into :class:`decentral.admm.LocalProblem`
+values keyed by ``(assembly, step)``.
 """
 
 from __future__ import annotations
@@ -90,8 +91,8 @@ class WindowMessages:
     def factors_delta(self, own: OwnForms, share: WindowShare | None, receiver: str, round_index: int,
                       every: bool = False) -> FactorDelta | FactorShare:
         """This agent's own forms as ``admm.factors_delta`` to ``receiver``: to everyone (``BROADCAST``), the forms
-        not broadcast before (``every``: all of them); to one agent (an answer), all of them. ``admm.factors`` when
-        a form is not over two poses within 255 steps."""
+        not broadcast before and those of the window's last two steps (``every``: all of them); to one agent (an
+        answer), all of them. ``admm.factors`` when a form is not over two poses within 255 steps."""
         everyone = receiver == BROADCAST
         key = -1 if everyone else self.index[receiver]  # (what went to everyone is kept apart from the answers)
         packed = self._delta_sender.delta(key, {self.index[self.name]: list(own.record)}, own.step,
