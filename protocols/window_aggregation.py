@@ -400,7 +400,9 @@ class WindowAggregation:
         share = self.share
         if share is not None and message.step == share.step:
             if sender not in share.records:
-                self._take_factors(message, sender, self.messages.problems(message.unpack()))
+                forms = self.messages.problems(message.unpack())
+                self.forms.remember(sender, forms)
+                self._take_factors(message, sender, forms)
             self._follow_parent(message, sender)
         self._answer_factors(message)
 
@@ -433,10 +435,10 @@ class WindowAggregation:
         self._answer_factors(message)
 
     def _take_factors(self, message: FactorShare | FactorDelta, sender: int, forms: list) -> None:
-        """Keep ``sender``'s record ``forms`` ``[(keys, LocalProblem)]`` of the open window, from ``message``."""
+        """Keep ``sender``'s record ``forms`` ``[(keys, LocalProblem)]`` of the open window, from ``message`` (the
+        caller has put them in :attr:`forms`)."""
         share = self.share
         agg = share.agg
-        self.forms.remember(sender, forms)
         # a record that came by broadcast to an agent of the tree goes up with its own: the agents decide
         # on the broadcast each from its own measured lag, and a tree's root waits for every record
         # (records an agent that broadcasts sent its tree neighbours never reached the root otherwise)
